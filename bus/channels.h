@@ -1,0 +1,14 @@
+#pragma once
+
+namespace stackgen {
+
+/// Whole scenes: labels plus colour, depth and instance images (stackgen::scene).
+inline constexpr const char* kSceneChannel = "STACKGEN_SCENE";
+/// Labels only, small (stackgen::labels).
+inline constexpr const char* kLabelsChannel = "STACKGEN_LABELS";
+/// Counters and rates of every process, about 1 Hz (stackgen::status).
+inline constexpr const char* kStatusChannel = "STACKGEN_STATUS";
+/// The generator config in force, latched, about 1 Hz (stackgen::config_text).
+inline constexpr const char* kConfigChannel = "STACKGEN_CONFIG";
+
+}  // namespace stackgen

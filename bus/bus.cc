@@ -1,0 +1,145 @@
+#include "bus/bus.h"
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cstdlib>
+#include <cstring>
+#include <exception>
+#include <list>
+
+#include <lcm/lcm-cpp.hpp>
+
+namespace stackgen {
+namespace {
+
+// throws a one-line error when a udpm:// URL's multicast group cannot be reached from here.
+void CheckMulticastRoute(const std::string& url) {
+  const std::string scheme = "udpm://";
+  if (url.rfind(scheme, 0) != 0) return;
+  std::string rest = url.substr(scheme.size());
+  rest = rest.substr(0, rest.find('?'));
+  const size_t colon = rest.find(':');
+  const std::string address = rest.substr(0, colon);
+  int port = 7667;
+  if (colon != std::string::npos) {
+    char* end = nullptr;
+    const long value = std::strtol(rest.c_str() + colon + 1, &end, 10);
+    if (end == rest.c_str() + colon + 1 || *end != '\0' || value <= 0 || value > 65535) {
+      throw std::runtime_error("bad port in LCM URL " + url);
+    }
+    port = static_cast<int>(value);
+  }
+  sockaddr_in group{};
+  group.sin_family = AF_INET;
+  group.sin_port = htons(static_cast<uint16_t>(port));
+  if (inet_pton(AF_INET, address.c_str(), &group.sin_addr) != 1 ||
+      !IN_MULTICAST(ntohl(group.sin_addr.s_addr))) {
+    throw std::runtime_error("LCM URL " + url + " does not name an IPv4 multicast group");
+  }
+
+  // connecting a UDP socket only looks up the route: it fails when multicast has none.
+  const int fd = socket(AF_INET, SOCK_DGRAM, 0);
+  if (fd < 0) throw std::runtime_error(std::string("cannot open a UDP socket: ") + strerror(errno));
+  const int result = connect(fd, reinterpret_cast<const sockaddr*>(&group), sizeof(group));
+  const int error = errno;
+  close(fd);
+  if (result != 0) {
+    throw std::runtime_error("multicast to " + address + " is not possible here (" +
+                             strerror(error) +
+                             "); enable it with `sudo ip route add 224.0.0.0/4 dev lo` "
+                             "(this host only) or pass another --lcm-url");
+  }
+}
+
+}  // namespace
+
+std::string ResolveLcmUrl(const std::string& flag_value) {
+  if (!flag_value.empty()) return flag_value;
+  const char* from_env = std::getenv("STACKGEN_LCM_URL");
+  if (from_env != nullptr && from_env[0] != '\0') return from_env;
+  return kDefaultLcmUrl;
+}
+
+struct Bus::Impl {
+  // what LCM's callback gets as its context.
+  struct Subscriber {
+    Impl* impl;
+    BytesHandler handler;
+  };
+
+  std::string url;
+  // an exception a handler threw, kept until HandleFor can rethrow it outside LCM's C code.
+  std::exception_ptr pending_error;
+  // subscribers live here (a list: addresses stay valid) and outlive the LCM instance below.
+  std::list<Subscriber> subscribers;
+  std::unique_ptr<lcm::LCM> lcm;
+
+  static void Dispatch(const lcm::ReceiveBuffer* buffer, const std::string& /*channel*/,
+                       Subscriber* subscriber) {
+    Impl* impl = subscriber->impl;
+    if (impl->pending_error) return;
+    try {
+      subscriber->handler(static_cast<const uint8_t*>(buffer->data), buffer->data_size);
+    } catch (...) {
+      impl->pending_error = std::current_exception();
+    }
+  }
+};
+
+Bus::Bus(const std::string& url) : impl_(std::make_unique<Impl>()) {
+  impl_->url = url;
+  CheckMulticastRoute(url);
+  impl_->lcm = std::make_unique<lcm::LCM>(url);
+  if (!impl_->lcm->good()) {
+    throw std::runtime_error("cannot open the LCM bus at " + url);
+  }
+}
+
+Bus::~Bus() = default;
+
+const std::string& Bus::url() const { return impl_->url; }
+
+void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t size) {
+  if (impl_->lcm->publish(channel, data, static_cast<unsigned int>(size)) != 0) {
+    throw std::runtime_error("cannot publish " + std::to_string(size) + " bytes on channel " +
+                             channel + " (" + impl_->url + ")");
+  }
+}
+
+void Bus::SubscribeBytes(const std::string& channel, BytesHandler handler, int queue_capacity) {
+  impl_->subscribers.push_back(Impl::Subscriber{impl_.get(), std::move(handler)});
+  // lcm treats the channel as a regular expression; ours are plain names.
+  lcm::Subscription* subscription = impl_->lcm->subscribeFunction(
+      channel, &Impl::Dispatch, &impl_->subscribers.back());
+  if (subscription == nullptr) {
+    throw std::runtime_error("cannot subscribe to channel " + channel);
+  }
+  subscription->setQueueCapacity(queue_capacity);
+}
+
+int Bus::HandleFor(int timeout_ms) {
+  using Clock = std::chrono::steady_clock;
+  const Clock::time_point deadline = Clock::now() + std::chrono::milliseconds(timeout_ms);
+  int handled = 0;
+  while (true) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+    const int wait_ms = static_cast<int>(std::max<int64_t>(0, left.count()));
+    const int result = impl_->lcm->handleTimeout(wait_ms);
+    if (result < 0) throw std::runtime_error("LCM failed while handling messages on " + impl_->url);
+    if (result == 0) break;
+    ++handled;
+    if (impl_->pending_error) {
+      std::exception_ptr error = impl_->pending_error;
+      impl_->pending_error = nullptr;
+      std::rethrow_exception(error);
+    }
+  }
+  return handled;
+}
+
+}  // namespace stackgen

@@ -1,0 +1,292 @@
+#include "gen/config/config.h"
+
+#include <cmath>
+#include <fstream>
+#include <sstream>
+#include <vector>
+
+#include <google/protobuf/io/tokenizer.h>
+#include <google/protobuf/text_format.h>
+
+namespace stackgen {
+namespace {
+
+namespace pb = google::protobuf;
+
+// collects the parser's errors as "file:line:column: message".
+class ErrorCollector : public pb::io::ErrorCollector {
+ public:
+  explicit ErrorCollector(std::string name) : name_(std::move(name)) {}
+  void AddError(int line, pb::io::ColumnNumber column, const std::string& message) override {
+    if (first_.empty()) {
+      first_ = name_ + ":" + std::to_string(line + 1) + ":" + std::to_string(column + 1) + ": " +
+               message;
+    }
+  }
+  const std::string& first() const { return first_; }
+
+ private:
+  std::string name_;
+  std::string first_;
+};
+
+// names a field in an error: "file:line: part.count" when the file sets it, else the default.
+class FieldNamer {
+ public:
+  FieldNamer(std::string name, const pb::TextFormat::ParseInfoTree* tree)
+      : name_(std::move(name)), tree_(tree) {}
+
+  std::string Where(const std::string& message_field, const std::string& field) const {
+    const pb::Descriptor* root = config::GeneratorConfig::descriptor();
+    const pb::FieldDescriptor* outer = root->FindFieldByName(message_field);
+    const pb::TextFormat::ParseInfoTree* nested =
+        tree_ != nullptr && outer != nullptr ? tree_->GetTreeForNested(outer, -1) : nullptr;
+    const pb::FieldDescriptor* inner =
+        outer != nullptr && !field.empty() ? outer->message_type()->FindFieldByName(field)
+                                           : nullptr;
+    int line = -1;
+    if (nested != nullptr && inner != nullptr) {
+      line = nested->GetLocation(inner, -1).line;
+    } else if (tree_ != nullptr && outer != nullptr && field.empty()) {
+      line = tree_->GetLocation(outer, -1).line;
+    }
+    const std::string dotted = field.empty() ? message_field : message_field + "." + field;
+    if (line >= 0) return name_ + ":" + std::to_string(line + 1) + ": " + dotted;
+    return name_ + ": " + dotted + " (default)";
+  }
+
+ private:
+  std::string name_;
+  const pb::TextFormat::ParseInfoTree* tree_;
+};
+
+std::string Number(double value) {
+  std::ostringstream text;
+  text << value;
+  return text.str();
+}
+
+// checks min <= value <= max (open bounds where asked) or throws naming the field.
+void CheckRange(const FieldNamer& namer, const std::string& message_field,
+                const std::string& field, double value, double min, double max,
+                bool min_open = false) {
+  const bool low = min_open ? !(value > min) : !(value >= min);
+  if (low || !(value <= max) || !std::isfinite(value)) {
+    throw ConfigError(namer.Where(message_field, field) + ": " + Number(value) +
+                      " is out of range, must be in " + (min_open ? "(" : "[") + Number(min) +
+                      ", " + Number(max) + "]");
+  }
+}
+
+void CheckOrdered(const FieldNamer& namer, const std::string& message_field,
+                  const std::string& min_field, double min, const std::string& max_field,
+                  double max) {
+  if (min > max) {
+    throw ConfigError(namer.Where(message_field, max_field) + ": " + Number(max) +
+                      " is below " + message_field + "." + min_field + " = " + Number(min));
+  }
+}
+
+void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
+  const double kHuge = 1e6;
+  // part
+  const config::PartConfig& part = c.part();
+  if (part.mesh().empty()) throw ConfigError(n.Where("part", "mesh") + ": must name a mesh file");
+  CheckRange(n, "part", "scale_to_mm", part.scale_to_mm(), 0, kHuge, true);
+  if (part.class_name().empty()) {
+    throw ConfigError(n.Where("part", "class_name") + ": must not be empty");
+  }
+  CheckRange(n, "part", "count", part.count(), 1, 1000);
+  CheckRange(n, "part", "density_kg_m3", part.density_kg_m3(), 0, 30000, true);
+  CheckRange(n, "part", "friction", part.friction(), 0, 2);
+  CheckRange(n, "part", "restitution", part.restitution(), 0, 1);
+  CheckRange(n, "part", "color_r", part.color_r(), 0, 1);
+  CheckRange(n, "part", "color_g", part.color_g(), 0, 1);
+  CheckRange(n, "part", "color_b", part.color_b(), 0, 1);
+
+  // bin
+  const config::BinConfig& bin = c.bin();
+  CheckRange(n, "bin", "inner_length_mm", bin.inner_length_mm(), 0, 10000, true);
+  CheckRange(n, "bin", "inner_width_mm", bin.inner_width_mm(), 0, 10000, true);
+  CheckRange(n, "bin", "inner_height_mm", bin.inner_height_mm(), 0, 10000, true);
+  CheckRange(n, "bin", "wall_thickness_mm", bin.wall_thickness_mm(), 0, 1000, true);
+  CheckRange(n, "bin", "color_r", bin.color_r(), 0, 1);
+  CheckRange(n, "bin", "color_g", bin.color_g(), 0, 1);
+  CheckRange(n, "bin", "color_b", bin.color_b(), 0, 1);
+
+  // camera
+  const config::CameraConfig& camera = c.camera();
+  CheckRange(n, "camera", "width", camera.width(), 16, 8192);
+  CheckRange(n, "camera", "height", camera.height(), 16, 8192);
+  CheckRange(n, "camera", "fx", camera.fx(), 0, kHuge, true);
+  CheckRange(n, "camera", "fy", camera.fy(), 0, kHuge, true);
+  if (camera.cx() >= 0) CheckRange(n, "camera", "cx", camera.cx(), 0, camera.width() - 1);
+  if (camera.cy() >= 0) CheckRange(n, "camera", "cy", camera.cy(), 0, camera.height() - 1);
+  CheckRange(n, "camera", "height_mm", camera.height_mm(), 0, 100000, true);
+  CheckRange(n, "camera", "depth_scale_mm", camera.depth_scale_mm(), 0, 100, true);
+
+  // lighting and background
+  const config::LightingConfig& light = c.lighting();
+  CheckRange(n, "lighting", "ambient_min", light.ambient_min(), 0, 1);
+  CheckRange(n, "lighting", "ambient_max", light.ambient_max(), 0, 1);
+  CheckOrdered(n, "lighting", "ambient_min", light.ambient_min(), "ambient_max",
+               light.ambient_max());
+  CheckRange(n, "lighting", "diffuse_min", light.diffuse_min(), 0, 2);
+  CheckRange(n, "lighting", "diffuse_max", light.diffuse_max(), 0, 2);
+  CheckOrdered(n, "lighting", "diffuse_min", light.diffuse_min(), "diffuse_max",
+               light.diffuse_max());
+  CheckRange(n, "lighting", "specular_min", light.specular_min(), 0, 2);
+  CheckRange(n, "lighting", "specular_max", light.specular_max(), 0, 2);
+  CheckOrdered(n, "lighting", "specular_min", light.specular_min(), "specular_max",
+               light.specular_max());
+  CheckRange(n, "lighting", "max_tilt_deg", light.max_tilt_deg(), 0, 80);
+  CheckRange(n, "background", "min", c.background().min(), 0, 1);
+  CheckRange(n, "background", "max", c.background().max(), 0, 1);
+  CheckOrdered(n, "background", "min", c.background().min(), "max", c.background().max());
+
+  // physics
+  const config::PhysicsConfig& physics = c.physics();
+  CheckRange(n, "physics", "time_step_s", physics.time_step_s(), 1e-4, 0.01);
+  CheckRange(n, "physics", "max_sim_time_s", physics.max_sim_time_s(), 0, 600, true);
+  CheckRange(n, "physics", "settle_translation_mm", physics.settle_translation_mm(), 0, 100,
+             true);
+  CheckRange(n, "physics", "settle_rotation_deg", physics.settle_rotation_deg(), 0, 90, true);
+  CheckRange(n, "physics", "settle_window_s", physics.settle_window_s(), physics.time_step_s(),
+             physics.max_sim_time_s());
+  CheckRange(n, "physics", "drop_height_mm", physics.drop_height_mm(), 0, 10000);
+  CheckRange(n, "physics", "max_redraws", physics.max_redraws(), 0, 1000);
+
+  // annotation and output
+  CheckRange(n, "annotation", "min_visib_fract", c.annotation().min_visib_fract(), 0, 1);
+  if (c.output().image_encoding() == config::OutputConfig::ENCODING_UNSPECIFIED) {
+    throw ConfigError(n.Where("output", "image_encoding") + ": must be RAW or PNG");
+  }
+
+  // the camera must be above the rim and see the whole bin interior.
+  if (camera.height_mm() <= bin.inner_height_mm()) {
+    throw ConfigError(n.Where("camera", "height_mm") + ": " + Number(camera.height_mm()) +
+                      " mm puts the camera below the bin rim at " +
+                      Number(bin.inner_height_mm()) + " mm");
+  }
+  const Eigen::Isometry3d camera_from_world = WorldFromCamera(camera).inverse();
+  const Eigen::Vector2d principal = PrincipalPoint(camera);
+  const double half_l = bin.inner_length_mm() / 2;
+  const double half_w = bin.inner_width_mm() / 2;
+  for (const double z : {0.0, bin.inner_height_mm()}) {
+    for (const double sx : {-1.0, 1.0}) {
+      for (const double sy : {-1.0, 1.0}) {
+        const Eigen::Vector3d p = camera_from_world * Eigen::Vector3d(sx * half_l, sy * half_w, z);
+        const double u = camera.fx() * p.x() / p.z() + principal.x();
+        const double v = camera.fy() * p.y() / p.z() + principal.y();
+        if (u < 0 || v < 0 || u > camera.width() - 1 || v > camera.height() - 1) {
+          throw ConfigError(n.Where("camera", "height_mm") + ": the camera (" +
+                            std::to_string(camera.width()) + "x" +
+                            std::to_string(camera.height()) + ", fx " + Number(camera.fx()) +
+                            ", " + Number(camera.height_mm()) +
+                            " mm above the floor) cannot see the whole bin: corner (" +
+                            Number(sx * half_l) + ", " + Number(sy * half_w) + ", " + Number(z) +
+                            ") mm falls outside the image; raise height_mm or lower fx/fy");
+        }
+      }
+    }
+  }
+}
+
+}  // namespace
+
+std::string LoadedConfig::Resolve(const std::string& relative) const {
+  if (relative.empty() || relative[0] == '/' || base_dir.empty()) return relative;
+  return base_dir + "/" + relative;
+}
+
+LoadedConfig ParseConfig(const std::string& text, const std::string& name,
+                         const std::string& base_dir) {
+  LoadedConfig loaded;
+  loaded.path = name;
+  loaded.base_dir = base_dir;
+
+  // parse, refusing unknown fields, and keep where each field was set.
+  pb::TextFormat::Parser parser;
+  ErrorCollector errors(name);
+  pb::TextFormat::ParseInfoTree tree;
+  parser.RecordErrorsTo(&errors);
+  parser.WriteLocationsTo(&tree);
+  if (!parser.ParseFromString(text, &loaded.config)) {
+    throw ConfigError(errors.first().empty() ? name + ": cannot parse the config"
+                                             : errors.first());
+  }
+  Validate(loaded.config, FieldNamer(name, &tree));
+  return loaded;
+}
+
+LoadedConfig LoadConfig(const std::string& path) {
+  std::ifstream file(path);
+  if (!file) throw ConfigError(path + ": cannot read the config file");
+  std::ostringstream text;
+  text << file.rdbuf();
+  if (file.bad()) throw ConfigError(path + ": cannot read the config file");
+  const size_t slash = path.find_last_of('/');
+  return ParseConfig(text.str(), path, slash == std::string::npos ? "." : path.substr(0, slash));
+}
+
+std::string EffectiveConfigText(const config::GeneratorConfig& config) {
+  // fill every default in, recursively, so the published text says everything.
+  config::GeneratorConfig full = config;
+  std::vector<pb::Message*> pending = {&full};
+  while (!pending.empty()) {
+    pb::Message* message = pending.back();
+    pending.pop_back();
+    const pb::Reflection* reflection = message->GetReflection();
+    const pb::Descriptor* descriptor = message->GetDescriptor();
+    for (int i = 0; i < descriptor->field_count(); ++i) {
+      const pb::FieldDescriptor* field = descriptor->field(i);
+      if (field->is_repeated()) continue;
+      if (field->cpp_type() == pb::FieldDescriptor::CPPTYPE_MESSAGE) {
+        pending.push_back(reflection->MutableMessage(message, field));
+        continue;
+      }
+      if (reflection->HasField(*message, field)) continue;
+      switch (field->cpp_type()) {
+        case pb::FieldDescriptor::CPPTYPE_INT32:
+          reflection->SetInt32(message, field, field->default_value_int32());
+          break;
+        case pb::FieldDescriptor::CPPTYPE_DOUBLE:
+          reflection->SetDouble(message, field, field->default_value_double());
+          break;
+        case pb::FieldDescriptor::CPPTYPE_BOOL:
+          reflection->SetBool(message, field, field->default_value_bool());
+          break;
+        case pb::FieldDescriptor::CPPTYPE_STRING:
+          reflection->SetString(message, field, field->default_value_string());
+          break;
+        case pb::FieldDescriptor::CPPTYPE_ENUM:
+          reflection->SetEnum(message, field, field->default_value_enum());
+          break;
+        default:
+          break;
+      }
+    }
+  }
+  std::string text;
+  pb::TextFormat::PrintToString(full, &text);
+  return text;
+}
+
+Eigen::Isometry3d WorldFromCamera(const config::CameraConfig& camera) {
+  Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
+  Eigen::Matrix3d rotation;
+  // columns: the camera's x, y, z axes in the world frame (looking down, image up = world +y).
+  rotation << 1, 0, 0,  //
+      0, -1, 0,         //
+      0, 0, -1;
+  world_from_camera.linear() = rotation;
+  world_from_camera.translation() = Eigen::Vector3d(0, 0, camera.height_mm());
+  return world_from_camera;
+}
+
+Eigen::Vector2d PrincipalPoint(const config::CameraConfig& camera) {
+  return {camera.cx() >= 0 ? camera.cx() : (camera.width() - 1) / 2.0,
+          camera.cy() >= 0 ? camera.cy() : (camera.height() - 1) / 2.0};
+}
+
+}  // namespace stackgen

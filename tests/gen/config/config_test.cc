@@ -1,0 +1,96 @@
+#include "gen/config/config.h"
+
+#include <string>
+
+#include <gtest/gtest.h>
+
+namespace stackgen {
+namespace {
+
+// the message of the ConfigError that parsing `text` throws, or "" when it parses.
+std::string ErrorOf(const std::string& text) {
+  try {
+    ParseConfig(text, "test.pbtxt", "/configs");
+  } catch (const ConfigError& error) {
+    return error.what();
+  }
+  return "";
+}
+
+// the shipped configs parse and validate.
+TEST(ConfigTest, ShippedConfigsAreValid) {
+  for (const char* name : {"default.pbtxt", "tote.pbtxt"}) {
+    const LoadedConfig loaded = LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/" + name);
+    EXPECT_GT(loaded.config.part().count(), 0) << name;
+  }
+}
+
+// an empty config takes the documented defaults, and relative paths resolve to its folder.
+TEST(ConfigTest, DefaultsAndPaths) {
+  const LoadedConfig loaded = ParseConfig("", "test.pbtxt", "/configs");
+  EXPECT_EQ(loaded.config.part().count(), 12);
+  EXPECT_DOUBLE_EQ(loaded.config.part().density_kg_m3(), 2700);
+  EXPECT_DOUBLE_EQ(loaded.config.annotation().min_visib_fract(), 0.3);
+  EXPECT_EQ(loaded.Resolve("models/a.obj"), "/configs/models/a.obj");
+  EXPECT_EQ(loaded.Resolve("/abs/a.obj"), "/abs/a.obj");
+}
+
+// an unknown field is refused with the file, line and field name.
+TEST(ConfigTest, UnknownFieldNamesFileAndLine) {
+  const std::string error = ErrorOf("part {\n  count: 3\n  colour: 1\n}\n");
+  EXPECT_NE(error.find("test.pbtxt:3:"), std::string::npos) << error;
+  EXPECT_NE(error.find("colour"), std::string::npos) << error;
+}
+
+// an out-of-range value names the file, its line and the dotted field.
+TEST(ConfigTest, OutOfRangeNamesLineAndField) {
+  const std::string error = ErrorOf("bin {\n  inner_length_mm: 200\n  inner_width_mm: -5\n}\n");
+  EXPECT_NE(error.find("test.pbtxt:3: bin.inner_width_mm"), std::string::npos) << error;
+  EXPECT_NE(ErrorOf("part { count: -1 }").find("part.count"), std::string::npos);
+  EXPECT_NE(ErrorOf("part { count: 0 }").find("part.count"), std::string::npos);
+}
+
+// min above max is refused.
+TEST(ConfigTest, MinAboveMax) {
+  const std::string error = ErrorOf("lighting { ambient_min: 0.5 ambient_max: 0.2 }");
+  EXPECT_NE(error.find("lighting.ambient_max"), std::string::npos) << error;
+}
+
+// a camera that cannot see the whole bin, or sits below its rim, is refused.
+TEST(ConfigTest, CameraMustSeeTheBin) {
+  EXPECT_NE(ErrorOf("camera { height_mm: 200 fx: 2000 fy: 2000 }").find("cannot see"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("camera { height_mm: 50 }").find("below the bin rim"), std::string::npos);
+}
+
+// a syntax error names the file and line.
+TEST(ConfigTest, SyntaxError) {
+  const std::string error = ErrorOf("part {\n count: 3\n");
+  EXPECT_NE(error.find("test.pbtxt:"), std::string::npos) << error;
+}
+
+// the effective text writes every default out and parses back to the same config.
+TEST(ConfigTest, EffectiveTextRoundTrips) {
+  const LoadedConfig loaded = ParseConfig("part { count: 5 }", "test.pbtxt", ".");
+  const std::string text = EffectiveConfigText(loaded.config);
+  EXPECT_NE(text.find("density_kg_m3: 2700"), std::string::npos) << text;
+  EXPECT_NE(text.find("count: 5"), std::string::npos) << text;
+  const LoadedConfig again = ParseConfig(text, "again.pbtxt", ".");
+  EXPECT_EQ(again.config.part().count(), 5);
+}
+
+// the camera looks straight down: the bin centre projects to the principal point.
+TEST(ConfigTest, CameraLooksDown) {
+  const LoadedConfig loaded = ParseConfig("", "test.pbtxt", ".");
+  const Eigen::Isometry3d camera_from_world = WorldFromCamera(loaded.config.camera()).inverse();
+  const Eigen::Vector3d floor_centre = camera_from_world * Eigen::Vector3d::Zero();
+  EXPECT_NEAR(floor_centre.x(), 0, 1e-9);
+  EXPECT_NEAR(floor_centre.y(), 0, 1e-9);
+  EXPECT_NEAR(floor_centre.z(), 450, 1e-9);
+  // world +y is up in the image (camera -y).
+  const Eigen::Vector3d plus_y = camera_from_world * Eigen::Vector3d(0, 10, 0);
+  EXPECT_LT(plus_y.y(), 0);
+}
+
+}  // namespace
+}  // namespace stackgen

@@ -130,6 +130,8 @@ int Bus::HandleFor(int timeout_ms) {
     const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
     const int wait_ms = static_cast<int>(std::max<int64_t>(0, left.count()));
     const int result = impl_->lcm->handleTimeout(wait_ms);
+    // a signal (e.g. SIGINT for a clean stop) ends the wait like a timeout.
+    if (result < 0 && errno == EINTR) break;
     if (result < 0) throw std::runtime_error("LCM failed while handling messages on " + impl_->url);
     if (result == 0) break;
     ++handled;

@@ -24,7 +24,7 @@ double WrapDeg(double rad) {
 }  // namespace
 
 stackgen::pose ToPoseMessage(const Eigen::Isometry3d& target_from_source) {
-  stackgen::pose message;
+  stackgen::pose message{};
   const Eigen::Matrix3d rotation = target_from_source.linear();
   const Eigen::Vector3d translation = target_from_source.translation();
   // translation and the row-major rotation
@@ -59,8 +59,7 @@ Eigen::Isometry3d FromPoseMessage(const stackgen::pose& pose) {
     for (int c = 0; c < 3; ++c) {
       const double v = pose.rotation[3 * r + c];
       if (!std::isfinite(v)) {
-        throw std::runtime_error("pose.rotation[" + std::to_string(3 * r + c) +
-                                 "] is not finite");
+        throw std::runtime_error("pose.rotation[" + std::to_string(3 * r + c) + "] is not finite");
       }
       rotation(r, c) = v;
     }
@@ -91,7 +90,7 @@ Eigen::Vector3d PostureAnglesDeg(const Eigen::Matrix3d& world_R_object) {
     // gimbal lock: Rx(g) and Rz(a) turn about the same axis; put it all in alpha, gamma = 0.
     // for both signs of beta the second column is (-sin a, cos a, 0)
     const double alpha = std::atan2(-r(0, 1), r(1, 1));
-    return {WrapDeg(alpha), RadToDeg(beta), 0.0};
+    return {WrapDeg(alpha), r(2, 0) < 0.0 ? 90.0 : -90.0, 0.0};
   }
   const double alpha = std::atan2(r(1, 0), r(0, 0));
   // gamma from Rz(-a) R = Ry(b) Rx(g), whose second row is (0, cos g, -sin g): stays accurate

@@ -117,8 +117,8 @@ std::vector<uint32_t> StringToRuns(const std::string& counts) {
       }
       const int ch = static_cast<unsigned char>(counts[p]);
       if (ch < 48 || ch > 111) {
-        throw std::runtime_error("RLE string has char code " + std::to_string(ch) +
-                                 " at offset " + std::to_string(p) + ", expected '0'..'o'");
+        throw std::runtime_error("RLE string has char code " + std::to_string(ch) + " at offset " +
+                                 std::to_string(p) + ", expected '0'..'o'");
       }
       const int c = ch - 48;
       x |= static_cast<int64_t>(c & 0x1f) << (5 * k);

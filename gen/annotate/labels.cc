@@ -1,0 +1,106 @@
+#include "gen/annotate/labels.h"
+
+#include <algorithm>
+#include <set>
+#include <stdexcept>
+
+#include <opencv2/imgproc.hpp>
+
+#include "gen/annotate/pose.h"
+#include "gen/annotate/rle.h"
+
+namespace stackgen {
+namespace {
+
+std::string SizeText(const cv::Mat& image) {
+  return std::to_string(image.cols) + " x " + std::to_string(image.rows);
+}
+
+// [x, y, width, height] of the nonzero pixels of a CV_8UC1 mask, all zero when there are none
+void BoxOfMask(const cv::Mat& mask, int32_t box[4]) {
+  const cv::Rect rect = cv::boundingRect(mask);
+  box[0] = rect.x;
+  box[1] = rect.y;
+  box[2] = rect.width;
+  box[3] = rect.height;
+  if (rect.area() == 0) std::fill(box, box + 4, 0);
+}
+
+}  // namespace
+
+std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
+                                               const std::vector<cv::Mat>& silhouettes,
+                                               const std::vector<ObjectTruth>& objects,
+                                               const Eigen::Isometry3d& world_from_camera,
+                                               double min_visib_fract) {
+  // check the inputs agree
+  if (instance_map.type() != CV_16UC1) {
+    throw std::runtime_error("LabelInstances: instance_map must be CV_16UC1, got type " +
+                             std::to_string(instance_map.type()));
+  }
+  if (silhouettes.size() != objects.size()) {
+    throw std::runtime_error("LabelInstances: " + std::to_string(silhouettes.size()) +
+                             " silhouettes for " + std::to_string(objects.size()) + " objects");
+  }
+  if (!(min_visib_fract >= 0.0 && min_visib_fract <= 1.0)) {
+    throw std::runtime_error("LabelInstances: min_visib_fract " + std::to_string(min_visib_fract) +
+                             " outside [0, 1]");
+  }
+  std::set<int> seen_ids;
+  for (size_t i = 0; i < objects.size(); ++i) {
+    const std::string name = "LabelInstances: objects[" + std::to_string(i) + "]";
+    const int id = objects[i].instance_id;
+    if (id < 1 || id > 65535) {
+      throw std::runtime_error(name + ".instance_id " + std::to_string(id) + " outside 1..65535");
+    }
+    if (!seen_ids.insert(id).second) {
+      throw std::runtime_error(name + ".instance_id " + std::to_string(id) + " repeated");
+    }
+    const cv::Mat& silhouette = silhouettes[i];
+    if (silhouette.type() != CV_8UC1 || silhouette.size() != instance_map.size()) {
+      throw std::runtime_error("LabelInstances: silhouettes[" + std::to_string(i) +
+                               "] must be CV_8UC1 of " + SizeText(instance_map) +
+                               " like instance_map, got type " + std::to_string(silhouette.type()) +
+                               " of " + SizeText(silhouette));
+    }
+  }
+
+  const Eigen::Isometry3d camera_from_world = world_from_camera.inverse();
+  std::vector<stackgen::instance> instances;
+  instances.reserve(objects.size());
+  cv::Mat visible;
+  for (size_t i = 0; i < objects.size(); ++i) {
+    const ObjectTruth& object = objects[i];
+    stackgen::instance label{};
+    label.instance_id = object.instance_id;
+    label.class_id = object.class_id;
+    label.class_name = object.class_name;
+
+    // poses and posture
+    label.world_from_object = ToPoseMessage(object.world_from_object);
+    label.camera_from_object = ToPoseMessage(camera_from_world * object.world_from_object);
+    const Eigen::Vector3d posture = PostureAnglesDeg(object.world_from_object.linear());
+    for (int k = 0; k < 3; ++k) label.posture_deg[k] = posture[k];
+
+    // the whole object from its silhouette
+    label.px_count_all = cv::countNonZero(silhouettes[i]);
+    BoxOfMask(silhouettes[i], label.bbox_obj);
+
+    // the visible part from the instance map
+    cv::compare(instance_map, cv::Scalar(object.instance_id), visible, cv::CMP_EQ);
+    label.px_count_visib = cv::countNonZero(visible);
+    BoxOfMask(visible, label.bbox_visib);
+    label.mask_visib_rle = EncodeRle(visible);
+
+    // how much is visible, and whether that is enough
+    label.visib_fract =
+        label.px_count_all > 0
+            ? std::min(1.0, static_cast<double>(label.px_count_visib) / label.px_count_all)
+            : 0.0;
+    label.annotated = label.visib_fract >= min_visib_fract && label.px_count_visib > 0;
+    instances.push_back(std::move(label));
+  }
+  return instances;
+}
+
+}  // namespace stackgen

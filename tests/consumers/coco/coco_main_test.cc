@@ -1,0 +1,147 @@
+// Runs the stackgen-coco program as a process: its command line, and scenes sent to it over real
+// UDP multicast on this host.
+
+#include <algorithm>
+#include <csignal>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <stackgen/header.hpp>
+
+#include "bus/bus.h"
+#include "bus/channels.h"
+#include "tests/consumers/coco/coco_test_scenes.h"
+#include "tests/support/process.h"
+
+namespace stackgen {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using testing::Process;
+
+const std::string kProgram = std::string(STACKGEN_BIN_DIR) + "/stackgen-coco";
+
+// runs stackgen-coco with `args` to the end; returns its exit code
+int RunToEnd(const std::vector<std::string>& args, const std::string& log_prefix, std::string* out,
+             std::string* err) {
+  std::vector<std::string> argv = {kProgram};
+  argv.insert(argv.end(), args.begin(), args.end());
+  Process process(argv, log_prefix);
+  const int code = process.Wait(30);
+  *out = process.Stdout();
+  *err = process.Stderr();
+  return code;
+}
+
+// --help documents every flag and its default, and exits 0.
+TEST(CocoMainTest, HelpListsEveryFlag) {
+  const testing::ScopedTempDir scratch("coco-main");
+  const std::string dir = scratch.path();
+  std::string out, err;
+  EXPECT_EQ(RunToEnd({"--help"}, dir + "/help", &out, &err), 0);
+  for (const char* text : {"--out", "--count", "--lcm-url", "--min-visib-fract", "--help",
+                           "default 0", "default 0.3", "STACKGEN_LCM_URL"}) {
+    EXPECT_NE(out.find(text), std::string::npos) << text << " missing from\n" << out;
+  }
+}
+
+// Bad numbers and unknown flags give one line on stderr and exit 2.
+TEST(CocoMainTest, BadCommandLineExits2) {
+  const testing::ScopedTempDir scratch("coco-main");
+  const std::string dir = scratch.path();
+  for (const std::vector<std::string>& args :
+       {std::vector<std::string>{"--out", dir + "/a", "--count", "-3"},
+        {"--out", dir + "/a", "--count", "12x"},
+        {"--out", dir + "/a", "--count", "many"},
+        {"--out", dir + "/a", "--min-visib-fract", "1.5"},
+        {"--out", dir + "/a", "--bogus"},
+        {"--count", "3"}}) {
+    std::string out, err;
+    EXPECT_EQ(RunToEnd(args, dir + "/bad", &out, &err), 2) << args.back();
+    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+    EXPECT_EQ(err.rfind("stackgen-coco: error: ", 0), 0u) << err;
+  }
+  EXPECT_FALSE(fs::exists(dir + "/a"));
+}
+
+// A folder that holds a dataset is refused with one error line and exit 1.
+TEST(CocoMainTest, RefusesExistingDataset) {
+  const testing::ScopedTempDir scratch("coco-main");
+  const std::string dir = scratch.path();
+  { std::ofstream(dir + "/annotations.json") << "{}"; }
+  std::string out, err;
+  EXPECT_EQ(
+      RunToEnd({"--out", dir, "--lcm-url", testing::FreeMulticastUrl()}, dir + "/run", &out, &err),
+      1);
+  EXPECT_EQ(err.rfind("stackgen-coco: error: ", 0), 0u) << err;
+  EXPECT_NE(err.find("annotations.json"), std::string::npos) << err;
+  EXPECT_EQ(testing::ReadFile(dir + "/annotations.json"), "{}");
+}
+
+// Scenes over multicast: a repeat is stored once, an undecodable message is skipped, a seq gap is
+// counted as lost, and the program stops after --count scenes with a summary line.
+TEST(CocoMainTest, StoresScenesFromTheBus) {
+  const testing::ScopedTempDir scratch("coco-main");
+  const std::string dir = scratch.path();
+  const std::string url = testing::FreeMulticastUrl();
+  Process coco({kProgram, "--out", dir + "/coco", "--count", "3", "--lcm-url", url}, dir + "/run");
+  ASSERT_TRUE(coco.WaitForOutput("listening on " + url + " channel STACKGEN_SCENE", 30))
+      << coco.Stderr();
+
+  Bus bus(url);
+  const auto send = [&bus](const auto& message) {
+    bus.Publish(kSceneChannel, message);
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  };
+  stackgen::header not_a_scene{};
+  send(testing::SceneA());
+  send(testing::SceneA());
+  send(not_a_scene);
+  send(testing::SceneB());
+  send(testing::MakeScene(0, 3, {}));  // seq 2 never comes
+
+  ASSERT_EQ(coco.Wait(30), 0) << coco.Stderr();
+  EXPECT_NE(coco.Stdout().find("stackgen-coco: wrote " + dir +
+                               "/coco/annotations.json: 3 images, 3 annotations, 1 ignored "
+                               "(visib_fract < 0.3), 1 lost"),
+            std::string::npos)
+      << coco.Stdout();
+  EXPECT_NE(coco.Stderr().find("lost seq 2..2"), std::string::npos) << coco.Stderr();
+  EXPECT_NE(coco.Stderr().find("1 undecodable"), std::string::npos) << coco.Stderr();
+  const json dataset = json::parse(testing::ReadFile(dir + "/coco/annotations.json"));
+  EXPECT_EQ(dataset["images"].size(), 3u);
+  EXPECT_EQ(dataset["annotations"].size(), 3u);
+  EXPECT_FALSE(fs::exists(dir + "/coco/annotations.journal"));
+}
+
+// SIGINT and SIGTERM finish a valid dataset of what arrived.
+TEST(CocoMainTest, SignalFinishesDataset) {
+  for (const int signal_number : {SIGINT, SIGTERM}) {
+    const testing::ScopedTempDir scratch("coco-main");
+    const std::string dir = scratch.path();
+    const std::string url = testing::FreeMulticastUrl();
+    Process coco({kProgram, "--out", dir + "/coco", "--lcm-url", url, "--min-visib-fract", "0"},
+                 dir + "/run");
+    ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+    Bus bus(url);
+    bus.Publish(kSceneChannel, testing::SceneA());
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    EXPECT_FALSE(fs::exists(dir + "/coco/annotations.json"));
+    coco.Signal(signal_number);
+    ASSERT_EQ(coco.Wait(30), 0) << coco.Stderr();
+    EXPECT_NE(coco.Stdout().find("1 images, 3 annotations, 0 ignored (visib_fract < 0), 0 lost"),
+              std::string::npos)
+        << coco.Stdout();
+    const json dataset = json::parse(testing::ReadFile(dir + "/coco/annotations.json"));
+    EXPECT_EQ(dataset["images"].size(), 1u);
+  }
+}
+
+}  // namespace
+}  // namespace stackgen

@@ -1,0 +1,256 @@
+#include "gen/mesh/mesh.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <assimp/config.h>
+#include <assimp/postprocess.h>
+#include <assimp/scene.h>
+#include <Eigen/Geometry>
+#include <assimp/Importer.hpp>
+
+namespace stackgen {
+namespace {
+
+// vertices whose faces meet at more than this angle get one normal per face (a hard edge)
+constexpr float kMaxSmoothingAngleDeg = 30.0f;
+
+// a mesh encloses ~zero volume if |volume| is below this fraction of its bounding-box diagonal^3
+constexpr double kMinRelativeVolume = 1e-6;
+
+std::string Quoted(const std::string& path) { return "'" + path + "'"; }
+
+// Reads `path` with assimp: triangulated, normals regenerated with hard edges kept flat.
+const aiScene* ReadScene(Assimp::Importer& importer, const std::string& path, double scale_to_mm) {
+  if (!std::isfinite(scale_to_mm) || scale_to_mm <= 0) {
+    std::ostringstream message;
+    message << "mesh file " << Quoted(path) << ": scale_to_mm must be > 0, got " << scale_to_mm;
+    throw std::runtime_error(message.str());
+  }
+  std::error_code error;
+  if (!std::filesystem::is_regular_file(path, error)) {
+    throw std::runtime_error("mesh file " + Quoted(path) + " does not exist or is not a file");
+  }
+
+  // drop everything but positions and faces; normals are regenerated below
+  importer.SetPropertyInteger(AI_CONFIG_PP_RVC_FLAGS,
+                              aiComponent_NORMALS | aiComponent_TANGENTS_AND_BITANGENTS |
+                                  aiComponent_COLORS | aiComponent_TEXCOORDS |
+                                  aiComponent_BONEWEIGHTS | aiComponent_ANIMATIONS |
+                                  aiComponent_TEXTURES | aiComponent_LIGHTS | aiComponent_CAMERAS);
+  importer.SetPropertyFloat(AI_CONFIG_PP_GSN_MAX_SMOOTHING_ANGLE, kMaxSmoothingAngleDeg);
+  importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE,
+                              aiPrimitiveType_POINT | aiPrimitiveType_LINE);
+  importer.SetPropertyBool(AI_CONFIG_PP_FD_REMOVE, true);
+
+  const unsigned int flags = aiProcess_RemoveComponent | aiProcess_Triangulate |
+                             aiProcess_FindDegenerates | aiProcess_SortByPType |
+                             aiProcess_GenSmoothNormals | aiProcess_JoinIdenticalVertices;
+  const aiScene* scene = importer.ReadFile(path, flags);
+  if (scene == nullptr || scene->mRootNode == nullptr) {
+    throw std::runtime_error("cannot read mesh file " + Quoted(path) + ": " +
+                             importer.GetErrorString());
+  }
+  return scene;
+}
+
+// Appends one assimp mesh, transformed by `world_from_mesh` and scaled, to `out`.
+void AppendMesh(const aiMesh& mesh, const aiMatrix4x4& world_from_mesh, double scale_to_mm,
+                TriangleMesh* out) {
+  Eigen::Matrix4d transform;
+  for (int r = 0; r < 4; ++r) {
+    for (int c = 0; c < 4; ++c) transform(r, c) = world_from_mesh[r][c];
+  }
+  const Eigen::Matrix3d linear = transform.topLeftCorner<3, 3>();
+  const Eigen::Matrix3d normal_from_normal = linear.inverse().transpose();
+  // a mirroring transform turns counter-clockwise faces clockwise
+  const bool mirrored = linear.determinant() < 0;
+
+  // vertices and normals
+  const uint32_t first = static_cast<uint32_t>(out->positions_mm.size());
+  for (unsigned int i = 0; i < mesh.mNumVertices; ++i) {
+    const aiVector3D& p = mesh.mVertices[i];
+    const Eigen::Vector3d position =
+        scale_to_mm * (linear * Eigen::Vector3d(p.x, p.y, p.z) + transform.topRightCorner<3, 1>());
+    out->positions_mm.push_back(position.cast<float>());
+    Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();
+    if (mesh.mNormals != nullptr) {
+      const aiVector3D& n = mesh.mNormals[i];
+      const Eigen::Vector3d transformed = normal_from_normal * Eigen::Vector3d(n.x, n.y, n.z);
+      if (transformed.norm() > 0 && std::isfinite(transformed.norm())) {
+        normal = transformed.normalized();
+      }
+    }
+    out->normals.push_back(normal.cast<float>());
+  }
+
+  // triangles (points and lines were removed by SortByPType)
+  for (unsigned int f = 0; f < mesh.mNumFaces; ++f) {
+    const aiFace& face = mesh.mFaces[f];
+    if (face.mNumIndices != 3) continue;
+    std::array<uint32_t, 3> triangle = {first + face.mIndices[0], first + face.mIndices[1],
+                                        first + face.mIndices[2]};
+    if (mirrored) std::swap(triangle[1], triangle[2]);
+    out->triangles.push_back(triangle);
+  }
+}
+
+// Calls `visit(mesh, world_from_mesh)` for every mesh reference in the node tree.
+template <typename Visit>
+void VisitNodes(const aiScene& scene, const aiNode& node, const aiMatrix4x4& world_from_parent,
+                Visit&& visit) {
+  const aiMatrix4x4 world_from_node = world_from_parent * node.mTransformation;
+  for (unsigned int i = 0; i < node.mNumMeshes; ++i) {
+    visit(*scene.mMeshes[node.mMeshes[i]], world_from_node);
+  }
+  for (unsigned int i = 0; i < node.mNumChildren; ++i) {
+    VisitNodes(scene, *node.mChildren[i], world_from_node, visit);
+  }
+}
+
+// Signed volume enclosed by the triangles, mm^3 (positive when wound outward).
+double SignedVolume(const TriangleMesh& mesh) {
+  double volume = 0;
+  for (const auto& t : mesh.triangles) {
+    const Eigen::Vector3d a = mesh.positions_mm[t[0]].cast<double>();
+    const Eigen::Vector3d b = mesh.positions_mm[t[1]].cast<double>();
+    const Eigen::Vector3d c = mesh.positions_mm[t[2]].cast<double>();
+    volume += a.dot(b.cross(c)) / 6.0;
+  }
+  return volume;
+}
+
+// Throws unless `mesh` has triangles, extent in every axis and volume; turns an inside-out mesh
+// (negative volume) the right way round. `what` names the file (and piece) in messages.
+void CheckAndOrient(const std::string& what, TriangleMesh* mesh) {
+  if (mesh->triangles.empty()) {
+    throw std::runtime_error("mesh file " + what + " holds no triangles");
+  }
+
+  // extent: every axis must be spanned
+  Eigen::Vector3f lo = mesh->positions_mm[0];
+  Eigen::Vector3f hi = lo;
+  for (const auto& p : mesh->positions_mm) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  const Eigen::Vector3d extent = (hi - lo).cast<double>();
+  const double diagonal = extent.norm();
+  if (!(extent.minCoeff() > 1e-6 * std::max(diagonal, 1e-30))) {
+    std::ostringstream message;
+    message << "mesh file " << what << " is degenerate: extent " << extent.x() << " x "
+            << extent.y() << " x " << extent.z() << " mm";
+    throw std::runtime_error(message.str());
+  }
+
+  // enclosed volume
+  const double volume = SignedVolume(*mesh);
+  if (!(std::abs(volume) > kMinRelativeVolume * diagonal * diagonal * diagonal)) {
+    std::ostringstream message;
+    message << "mesh file " << what << " is degenerate: it encloses ~zero volume (" << volume
+            << " mm^3 in a " << extent.x() << " x " << extent.y() << " x " << extent.z()
+            << " mm box)";
+    throw std::runtime_error(message.str());
+  }
+  if (volume < 0) {
+    for (auto& t : mesh->triangles) std::swap(t[1], t[2]);
+    for (auto& n : mesh->normals) n = -n;
+  }
+}
+
+// One closed axis-aligned box, outward-wound, with flat normals (4 vertices per face).
+void AppendBox(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, TriangleMesh* mesh) {
+  for (int axis = 0; axis < 3; ++axis) {
+    for (int side = 0; side < 2; ++side) {
+      const int a = (axis + 1) % 3;
+      const int b = (axis + 2) % 3;
+      Eigen::Vector3f normal = Eigen::Vector3f::Zero();
+      normal[axis] = side ? 1.0f : -1.0f;
+      // corners in (a, b) order; (a, b, axis) is right-handed, so this is ccw seen from +axis
+      const uint32_t first = static_cast<uint32_t>(mesh->positions_mm.size());
+      const int corners[4][2] = {{0, 0}, {1, 0}, {1, 1}, {0, 1}};
+      for (const auto& corner : corners) {
+        Eigen::Vector3f p;
+        p[axis] = side ? hi[axis] : lo[axis];
+        p[a] = corner[0] ? hi[a] : lo[a];
+        p[b] = corner[1] ? hi[b] : lo[b];
+        mesh->positions_mm.push_back(p);
+        mesh->normals.push_back(normal);
+      }
+      if (side) {
+        mesh->triangles.push_back({first, first + 1, first + 2});
+        mesh->triangles.push_back({first, first + 2, first + 3});
+      } else {
+        mesh->triangles.push_back({first, first + 2, first + 1});
+        mesh->triangles.push_back({first, first + 3, first + 2});
+      }
+    }
+  }
+}
+
+}  // namespace
+
+TriangleMesh LoadMesh(const std::string& path, double scale_to_mm) {
+  Assimp::Importer importer;
+  const aiScene* scene = ReadScene(importer, path, scale_to_mm);
+
+  // every mesh of the node tree, in the file's frame
+  TriangleMesh mesh;
+  VisitNodes(*scene, *scene->mRootNode, aiMatrix4x4(),
+             [&](const aiMesh& part, const aiMatrix4x4& world_from_mesh) {
+               AppendMesh(part, world_from_mesh, scale_to_mm, &mesh);
+             });
+  CheckAndOrient(Quoted(path), &mesh);
+  return mesh;
+}
+
+std::vector<TriangleMesh> LoadMeshPieces(const std::string& path, double scale_to_mm) {
+  Assimp::Importer importer;
+  const aiScene* scene = ReadScene(importer, path, scale_to_mm);
+
+  // one piece per mesh reference of the node tree
+  std::vector<TriangleMesh> pieces;
+  VisitNodes(*scene, *scene->mRootNode, aiMatrix4x4(),
+             [&](const aiMesh& part, const aiMatrix4x4& world_from_mesh) {
+               TriangleMesh piece;
+               AppendMesh(part, world_from_mesh, scale_to_mm, &piece);
+               if (!piece.triangles.empty()) pieces.push_back(std::move(piece));
+             });
+  if (pieces.empty()) {
+    throw std::runtime_error("mesh file " + Quoted(path) + " holds no triangles");
+  }
+  for (size_t i = 0; i < pieces.size(); ++i) {
+    CheckAndOrient(Quoted(path) + " (piece " + std::to_string(i) + ")", &pieces[i]);
+  }
+  return pieces;
+}
+
+TriangleMesh MakeOpenBinMesh(double inner_length_mm, double inner_width_mm, double inner_height_mm,
+                             double wall_mm) {
+  if (!(inner_length_mm > 0 && inner_width_mm > 0 && inner_height_mm > 0 && wall_mm > 0)) {
+    std::ostringstream message;
+    message << "MakeOpenBinMesh: every size must be > 0, got inner " << inner_length_mm << " x "
+            << inner_width_mm << " x " << inner_height_mm << " mm, wall " << wall_mm << " mm";
+    throw std::runtime_error(message.str());
+  }
+  const float l = static_cast<float>(inner_length_mm / 2);
+  const float w = static_cast<float>(inner_width_mm / 2);
+  const float h = static_cast<float>(inner_height_mm);
+  const float t = static_cast<float>(wall_mm);
+
+  // floor below the inner floor (z = 0), then walls: the x walls span the full outer width
+  TriangleMesh bin;
+  AppendBox({-l - t, -w - t, -t}, {l + t, w + t, 0}, &bin);
+  AppendBox({-l - t, -w - t, 0}, {-l, w + t, h}, &bin);
+  AppendBox({l, -w - t, 0}, {l + t, w + t, h}, &bin);
+  AppendBox({-l, -w - t, 0}, {l, -w, h}, &bin);
+  AppendBox({-l, w, 0}, {l, w + t, h}, &bin);
+  return bin;
+}
+
+}  // namespace stackgen

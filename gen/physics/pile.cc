@@ -1,0 +1,576 @@
+#include "gen/physics/pile.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <utility>
+
+#include <LinearMath/btConvexHullComputer.h>
+#include <btBulletDynamicsCommon.h>
+
+#include "gen/physics/convex_pieces.h"
+#include "gen/physics/mass_properties.h"
+#include "gen/physics/settle_detector.h"
+
+namespace stackgen {
+namespace {
+
+// Bullet runs in centimetres (and kg, s): millimetre parts would sit below Bullet's built-in
+// tolerances (contact breaking 0.02 units, default margin 0.04 units), metres above them
+constexpr double kSimPerMm = 0.1;
+constexpr double kGravityMmS2 = 9810.0;
+
+// collision margin of the part pieces and the bin, mm; hull pieces are shrunk by it first, so
+// the rounded shape Bullet collides has the mesh's size
+constexpr double kMarginMm = 0.2;
+
+// contact solver: iterations per step, and impacts slower than this (mm/s) do not bounce
+constexpr int kSolverIterations = 20;
+constexpr double kRestitutionThresholdMmS = 50;
+
+// angular damping, fraction of angular velocity lost per second: kills the slow rocking that
+// Bullet's contact solver otherwise sustains for an L resting on an edge (hardly slows a tumble)
+constexpr double kAngularDamping = 0.3;
+
+// the floor's collision box reaches at least this far down (into the table), mm
+constexpr double kMinFloorThicknessMm = 20;
+
+// released parts: gap between their bounding boxes, and to the walls, mm
+constexpr double kReleaseGapMm = 2;
+constexpr double kReleaseWallMarginMm = 2;
+
+// a body slower than this, mm/s, released at least kFallS ago, rests in the pile
+constexpr double kPileSpeedMmS = 100;
+constexpr double kFallS = 0.1;
+
+// after this long without a release, the first waiting part goes above whatever blocks it, s
+constexpr double kStallS = 0.5;
+
+// releases and the settle rule are checked this many times per settle window
+constexpr int kChecksPerWindow = 25;
+
+// Throws unless lo <= value <= hi.
+void CheckRange(const char* object, const char* field, double value, double lo, double hi) {
+  if (!(std::isfinite(value) && value >= lo && value <= hi)) {
+    std::ostringstream message;
+    message << "PileSimulator: " << object << "." << field << " must be in [" << lo << ", " << hi
+            << "], got " << value;
+    throw std::runtime_error(message.str());
+  }
+}
+
+// A uniform double in [0, 1) from 53 random bits: the same on every platform, unlike
+// std::uniform_real_distribution, whose algorithm is up to the standard library.
+double Uniform01(std::mt19937_64& engine) {
+  return static_cast<double>(engine() >> 11) * (1.0 / 9007199254740992.0);
+}
+
+// A rotation uniform over SO(3) (Shoemake's method).
+Eigen::Quaterniond UniformRotation(std::mt19937_64& engine) {
+  const double u1 = Uniform01(engine);
+  const double u2 = 2 * M_PI * Uniform01(engine);
+  const double u3 = 2 * M_PI * Uniform01(engine);
+  const double a = std::sqrt(1 - u1);
+  const double b = std::sqrt(u1);
+  return Eigen::Quaterniond(a * std::sin(u2), a * std::cos(u2), b * std::sin(u3), b * std::cos(u3))
+      .normalized();
+}
+
+btScalar ToSim(double mm) { return static_cast<btScalar>(mm * kSimPerMm); }
+
+btVector3 ToSim(const Eigen::Vector3d& mm) {
+  return btVector3(ToSim(mm.x()), ToSim(mm.y()), ToSim(mm.z()));
+}
+
+btTransform ToSim(const Eigen::Isometry3d& pose_mm) {
+  const Eigen::Quaterniond q(pose_mm.linear());
+  return btTransform(btQuaternion(static_cast<btScalar>(q.x()), static_cast<btScalar>(q.y()),
+                                  static_cast<btScalar>(q.z()), static_cast<btScalar>(q.w())),
+                     ToSim(pose_mm.translation()));
+}
+
+Eigen::Isometry3d FromSim(const btTransform& pose) {
+  const btQuaternion q = pose.getRotation();
+  Eigen::Isometry3d result = Eigen::Isometry3d::Identity();
+  result.linear() = Eigen::Quaterniond(q.w(), q.x(), q.y(), q.z()).normalized().toRotationMatrix();
+  const btVector3& t = pose.getOrigin();
+  result.translation() = Eigen::Vector3d(t.x(), t.y(), t.z()) / kSimPerMm;
+  return result;
+}
+
+// An axis-aligned box, mm.
+struct Box {
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(HUGE_VAL);
+  Eigen::Vector3d hi = Eigen::Vector3d::Constant(-HUGE_VAL);
+
+  void Add(const Eigen::Vector3d& p) {
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  // true if the boxes come closer than `gap`
+  bool Overlaps(const Box& other, double gap) const {
+    for (int axis = 0; axis < 3; ++axis) {
+      if (hi[axis] + gap <= other.lo[axis] || other.hi[axis] + gap <= lo[axis]) return false;
+    }
+    return true;
+  }
+};
+
+// One convex piece of the part, ready to become a Bullet shape.
+struct Piece {
+  bool is_box = false;
+  Eigen::Vector3d half_extents_mm = Eigen::Vector3d::Zero();          // boxes (margin inside)
+  Eigen::Isometry3d body_from_piece = Eigen::Isometry3d::Identity();  // mm
+  std::vector<Eigen::Vector3d> points_mm;  // hulls: body frame, shrunk by margin_mm
+  double margin_mm = kMarginMm;
+};
+
+// Turns convex pieces (object frame) into box or hull pieces in the body frame.
+std::vector<Piece> MakePieces(const std::vector<std::vector<Eigen::Vector3d>>& pieces_mm,
+                              const Eigen::Isometry3d& body_from_object) {
+  std::vector<Piece> result;
+  for (const auto& points : pieces_mm) {
+    Box bounds;
+    for (const auto& p : points) bounds.Add(p);
+    const Eigen::Vector3d size = bounds.hi - bounds.lo;
+    Piece piece;
+    piece.margin_mm = std::min(kMarginMm, size.minCoeff() / 4);
+
+    // an axis-aligned box collides best as a btBoxShape (box-box gives full contact manifolds)
+    if (ConvexHullVolume(points) >= (1 - 1e-6) * size.prod()) {
+      piece.is_box = true;
+      piece.half_extents_mm = size / 2;
+      piece.body_from_piece = body_from_object * Eigen::Translation3d((bounds.lo + bounds.hi) / 2);
+      result.push_back(std::move(piece));
+      continue;
+    }
+
+    // any other hull is shrunk by the margin Bullet adds around it
+    std::vector<Eigen::Vector3d> body_points;
+    for (const auto& p : points) body_points.push_back(body_from_object * p);
+    btConvexHullComputer computer;
+    const btScalar shrunk = computer.compute(
+        body_points[0].data(), sizeof(Eigen::Vector3d), static_cast<int>(body_points.size()),
+        static_cast<btScalar>(piece.margin_mm), static_cast<btScalar>(0.25));
+    if (shrunk > 0 && computer.vertices.size() >= 4) {
+      piece.margin_mm = shrunk;
+      for (int i = 0; i < computer.vertices.size(); ++i) {
+        const btVector3& v = computer.vertices[i];
+        piece.points_mm.emplace_back(v.x(), v.y(), v.z());
+      }
+    } else {
+      piece.margin_mm = 0;
+      piece.points_mm = body_points;
+    }
+    result.push_back(std::move(piece));
+  }
+  return result;
+}
+
+// Everything one Simulate() call owns. Members are destroyed in reverse order: the world first,
+// then the bodies and shapes it referred to.
+struct World {
+  btDefaultCollisionConfiguration configuration;
+  btCollisionDispatcher dispatcher{&configuration};
+  btDbvtBroadphase broadphase;
+  btSequentialImpulseConstraintSolver solver;
+  std::vector<std::unique_ptr<btCollisionShape>> shapes;
+  std::vector<std::unique_ptr<btRigidBody>> bodies;
+  std::unique_ptr<btDiscreteDynamicsWorld> world;
+
+  World()
+      : world(std::make_unique<btDiscreteDynamicsWorld>(&dispatcher, &broadphase, &solver,
+                                                        &configuration)) {}
+  ~World() {
+    for (auto& body : bodies) world->removeRigidBody(body.get());
+    world.reset();
+  }
+
+  template <typename Shape, typename... Args>
+  Shape* AddShape(Args&&... args) {
+    auto shape = std::make_unique<Shape>(std::forward<Args>(args)...);
+    Shape* raw = shape.get();
+    shapes.push_back(std::move(shape));
+    return raw;
+  }
+
+  btRigidBody* AddBody(const btRigidBody::btRigidBodyConstructionInfo& info) {
+    bodies.push_back(std::make_unique<btRigidBody>(info));
+    world->addRigidBody(bodies.back().get());
+    return bodies.back().get();
+  }
+};
+
+// How one part is dropped, drawn up front from the seed's engine.
+struct Release {
+  Eigen::Quaterniond world_from_object_rotation = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d object_origin_in_box_mm = Eigen::Vector3d::Zero();  // from the box's low corner
+  Eigen::Vector3d size_mm = Eigen::Vector3d::Zero();                  // rotated bounding box
+  Eigen::Vector2d box_lo_xy_mm = Eigen::Vector2d::Zero();             // its low corner, x and y
+
+  Box BoxAt(double z_mm) const {
+    Box box;
+    box.lo = Eigen::Vector3d(box_lo_xy_mm.x(), box_lo_xy_mm.y(), z_mm);
+    box.hi = box.lo + size_mm;
+    return box;
+  }
+  Eigen::Isometry3d WorldFromObjectAt(double z_mm) const {
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    pose.linear() = world_from_object_rotation.toRotationMatrix();
+    pose.translation() = BoxAt(z_mm).lo + object_origin_in_box_mm;
+    return pose;
+  }
+};
+
+// Parts waiting above the bin, released in quick waves so none falls far: a part goes when its
+// box at the release height is free; one blocked only by parts resting in the pile (a pile
+// higher than the release height) goes just above them; after kStallS without any release the
+// first waiting part goes above whatever blocks it.
+class ReleaseQueue {
+ public:
+  ReleaseQueue(std::vector<Release> releases, double release_z_mm)
+      : releases_(std::move(releases)), release_z_mm_(release_z_mm) {
+    for (size_t i = 0; i < releases_.size(); ++i) waiting_.push_back(static_cast<int>(i));
+  }
+
+  bool empty() const { return waiting_.empty(); }
+  const Release& release(int part) const { return releases_[part]; }
+  double release_z_mm() const { return release_z_mm_; }
+
+  // Given the boxes of the bodies in the bin and whether each rests in the pile, returns the
+  // parts to release now with the height of their boxes' bottoms.
+  std::vector<std::pair<int, double>> Next(double time_s, std::vector<Box> boxes,
+                                           const std::vector<bool>& in_pile) {
+    auto free_at = [&](const Release& r, double z) {
+      const Box box = r.BoxAt(z);
+      return std::none_of(boxes.begin(), boxes.end(),
+                          [&](const Box& other) { return box.Overlaps(other, kReleaseGapMm); });
+    };
+    auto blocked_by_pile_only = [&](const Release& r) {
+      Box column = r.BoxAt(release_z_mm_);
+      column.hi.z() = HUGE_VAL;
+      for (size_t b = 0; b < boxes.size(); ++b) {
+        const bool resting = b < in_pile.size() && in_pile[b];
+        if (!resting && column.Overlaps(boxes[b], kReleaseGapMm)) return false;
+      }
+      return true;
+    };
+    auto lowest_free = [&](const Release& r) {
+      std::vector<double> heights = {release_z_mm_};
+      for (const Box& box : boxes) heights.push_back(box.hi.z() + kReleaseGapMm);
+      std::sort(heights.begin(), heights.end());
+      for (double z : heights) {
+        if (z >= release_z_mm_ && free_at(r, z)) return z;
+      }
+      return heights.back();  // unreachable: the highest candidate is always free
+    };
+
+    // every waiting part in order; each released box blocks the ones after it
+    const bool stalled = time_s - last_release_s_ >= kStallS;
+    std::vector<std::pair<int, double>> released;
+    std::vector<int> still_waiting;
+    for (int part : waiting_) {
+      const Release& r = releases_[part];
+      double z = release_z_mm_;
+      if (!free_at(r, z)) {
+        if (!(stalled && released.empty()) && !blocked_by_pile_only(r)) {
+          still_waiting.push_back(part);
+          continue;
+        }
+        z = lowest_free(r);
+      }
+      released.emplace_back(part, z);
+      boxes.push_back(r.BoxAt(z));
+    }
+    if (!released.empty()) last_release_s_ = time_s;
+    waiting_ = std::move(still_waiting);
+    return released;
+  }
+
+ private:
+  std::vector<Release> releases_;
+  double release_z_mm_;
+  std::vector<int> waiting_;
+  double last_release_s_ = 0;
+};
+
+}  // namespace
+
+struct PileSimulator::Model {
+  PartPhysics physics;
+  BinSpec bin;
+  SimulationParams params;
+  MassProperties mass;
+  // the body frame: at the centre of mass, along the principal axes of inertia; mm
+  Eigen::Isometry3d body_from_object = Eigen::Isometry3d::Identity();
+  Eigen::Isometry3d object_from_body = Eigen::Isometry3d::Identity();
+  std::vector<Piece> pieces;
+  std::vector<Eigen::Vector3d> hull_vertices_mm;  // object frame, for release boxes
+  double max_extent_mm = 0;
+  std::string description;
+};
+
+PileSimulator::PileSimulator(const TriangleMesh& part,
+                             const std::vector<TriangleMesh>& collision_pieces,
+                             const PartPhysics& physics, const BinSpec& bin,
+                             const SimulationParams& params, const std::string& cache_dir) {
+  // inputs
+  CheckRange("PartPhysics", "density_kg_m3", physics.density_kg_m3, 1e-3, 1e6);
+  CheckRange("PartPhysics", "friction", physics.friction, 0, 10);
+  CheckRange("PartPhysics", "restitution", physics.restitution, 0, 1);
+  CheckRange("BinSpec", "inner_length_mm", bin.inner_length_mm, 1e-3, 1e6);
+  CheckRange("BinSpec", "inner_width_mm", bin.inner_width_mm, 1e-3, 1e6);
+  CheckRange("BinSpec", "inner_height_mm", bin.inner_height_mm, 1e-3, 1e6);
+  CheckRange("BinSpec", "wall_mm", bin.wall_mm, 1e-3, 1e6);
+  CheckRange("SimulationParams", "time_step_s", params.time_step_s, 1e-4, 0.01);
+  CheckRange("SimulationParams", "max_sim_time_s", params.max_sim_time_s, params.time_step_s, 1e5);
+  CheckRange("SimulationParams", "settle_translation_mm", params.settle_translation_mm, 1e-6, 1e6);
+  CheckRange("SimulationParams", "settle_rotation_deg", params.settle_rotation_deg, 1e-6, 360);
+  CheckRange("SimulationParams", "settle_window_s", params.settle_window_s, params.time_step_s,
+             params.max_sim_time_s);
+  CheckRange("SimulationParams", "drop_height_mm", params.drop_height_mm, 0, 1e6);
+  if (part.triangles.empty()) throw std::runtime_error("PileSimulator: the part mesh is empty");
+
+  auto model = std::make_unique<Model>();
+  model->physics = physics;
+  model->bin = bin;
+  model->params = params;
+
+  // mass properties from the closed mesh; the body frame is the principal frame at the centre
+  // of mass
+  model->mass = ComputeMassProperties(part, physics.density_kg_m3, "PileSimulator: part mesh");
+  model->body_from_object = model->mass.principal_from_object;
+  model->object_from_body = model->body_from_object.inverse();
+
+  // collision pieces, in the body frame
+  ConvexPieces convex;
+  try {
+    convex = MakeConvexPieces(part, collision_pieces, cache_dir);
+  } catch (const std::runtime_error& e) {
+    throw std::runtime_error(std::string("PileSimulator: ") + e.what());
+  }
+  model->pieces = MakePieces(convex.points_mm, model->body_from_object);
+  model->description = convex.description;
+
+  // the part's hull vertices give each released part's bounding box
+  std::vector<Eigen::Vector3d> points;
+  for (const auto& p : part.positions_mm) points.push_back(p.cast<double>());
+  btConvexHullComputer computer;
+  computer.compute(points[0].data(), sizeof(Eigen::Vector3d), static_cast<int>(points.size()), 0,
+                   0);
+  Box bounds;
+  for (int i = 0; i < computer.vertices.size(); ++i) {
+    model->hull_vertices_mm.push_back(points[computer.original_vertex_index[i]]);
+    bounds.Add(model->hull_vertices_mm.back());
+  }
+  model->max_extent_mm = (bounds.hi - bounds.lo).maxCoeff();
+  model_ = std::move(model);
+}
+
+PileSimulator::~PileSimulator() = default;
+PileSimulator::PileSimulator(PileSimulator&&) noexcept = default;
+PileSimulator& PileSimulator::operator=(PileSimulator&&) noexcept = default;
+
+std::string PileSimulator::CollisionDescription() const { return model_->description; }
+
+double PileSimulator::mass_kg() const { return model_->mass.mass_kg; }
+
+PileResult PileSimulator::Simulate(int count, uint64_t seed) const {
+  if (count < 0) {
+    throw std::runtime_error("PileSimulator::Simulate: count must be >= 0, got " +
+                             std::to_string(count));
+  }
+  const Model& m = *model_;
+  const BinSpec& bin = m.bin;
+  const SimulationParams& params = m.params;
+  const double dt = params.time_step_s;
+  World w;
+
+  // gravity and the contact solver: split impulse always (position fixes add no energy), two
+  // cached friction directions (less creep in piles)
+  w.world->setGravity(btVector3(0, 0, ToSim(-kGravityMmS2)));
+  btContactSolverInfo& solver = w.world->getSolverInfo();
+  solver.m_numIterations = kSolverIterations;
+  solver.m_splitImpulse = true;
+  solver.m_splitImpulsePenetrationThreshold = 0;
+  solver.m_restitutionVelocityThreshold = ToSim(kRestitutionThresholdMmS);
+  solver.m_solverMode = SOLVER_USE_WARMSTARTING | SOLVER_SIMD | SOLVER_USE_2_FRICTION_DIRECTIONS |
+                        SOLVER_ENABLE_FRICTION_DIRECTION_CACHING |
+                        SOLVER_DISABLE_VELOCITY_DEPENDENT_FRICTION_DIRECTION;
+
+  // Bullet multiplies the two bodies' coefficients: each gets the square root, so part-part and
+  // part-bin contacts both get the configured value
+  const btScalar friction = static_cast<btScalar>(std::sqrt(m.physics.friction));
+  const btScalar restitution = static_cast<btScalar>(std::sqrt(m.physics.restitution));
+
+  // the bin: floor and four walls, a static compound of boxes, on a table at z = -wall
+  {
+    const double l = bin.inner_length_mm / 2;
+    const double wd = bin.inner_width_mm / 2;
+    const double h = bin.inner_height_mm;
+    const double t = bin.wall_mm;
+    auto* compound = w.AddShape<btCompoundShape>(false, 5);
+    auto add_box = [&](const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
+      auto* box = w.AddShape<btBoxShape>(ToSim(Eigen::Vector3d((hi - lo) / 2)));
+      box->setMargin(ToSim(kMarginMm));
+      compound->addChildShape(btTransform(btQuaternion::getIdentity(), ToSim((lo + hi) / 2)), box);
+    };
+    // the floor's box reaches down into the table, so nothing tunnels through a thin floor
+    add_box({-l - t, -wd - t, -std::max(t, kMinFloorThicknessMm)}, {l + t, wd + t, 0});
+    add_box({-l - t, -wd - t, 0}, {-l, wd + t, h});
+    add_box({l, -wd - t, 0}, {l + t, wd + t, h});
+    add_box({-l, -wd - t, 0}, {l, -wd, h});
+    add_box({-l, wd, 0}, {l, wd + t, h});
+    auto* table = w.AddShape<btStaticPlaneShape>(btVector3(0, 0, 1), ToSim(-t));
+    for (btCollisionShape* shape : std::vector<btCollisionShape*>{compound, table}) {
+      btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, shape);
+      info.m_friction = friction;
+      info.m_restitution = restitution;
+      w.AddBody(info);
+    }
+  }
+  if (count == 0) {
+    PileResult empty;
+    empty.settled = true;
+    return empty;
+  }
+
+  // the part: a compound of its pieces around the centre of mass, principal axes
+  auto* part_shape = w.AddShape<btCompoundShape>(true, static_cast<int>(m.pieces.size()));
+  for (const Piece& piece : m.pieces) {
+    btCollisionShape* child = nullptr;
+    if (piece.is_box) {
+      child = w.AddShape<btBoxShape>(ToSim(piece.half_extents_mm));
+    } else {
+      auto* hull = w.AddShape<btConvexHullShape>();
+      for (const auto& p : piece.points_mm) hull->addPoint(ToSim(p), false);
+      hull->recalcLocalAabb();
+      child = hull;
+    }
+    child->setMargin(ToSim(piece.margin_mm));
+    part_shape->addChildShape(ToSim(piece.body_from_piece), child);
+  }
+  const Eigen::Vector3d& moments = m.mass.principal_moments_kg_mm2;
+  const double inertia_scale = kSimPerMm * kSimPerMm;
+  const btVector3 inertia(static_cast<btScalar>(moments.x() * inertia_scale),
+                          static_cast<btScalar>(moments.y() * inertia_scale),
+                          static_cast<btScalar>(moments.z() * inertia_scale));
+
+  // how each part drops, all drawn now: orientation, bounding box, and x, y inside the opening
+  // (centred where the box is wider than the bin)
+  std::mt19937_64 engine(seed);
+  std::vector<Release> releases;
+  const double half_inner[2] = {bin.inner_length_mm / 2, bin.inner_width_mm / 2};
+  for (int i = 0; i < count; ++i) {
+    Release release;
+    release.world_from_object_rotation = UniformRotation(engine);
+    Box box;
+    for (const auto& v : m.hull_vertices_mm) box.Add(release.world_from_object_rotation * v);
+    release.object_origin_in_box_mm = -box.lo;
+    release.size_mm = box.hi - box.lo;
+    for (int axis = 0; axis < 2; ++axis) {
+      const double room = 2 * (half_inner[axis] - kReleaseWallMarginMm) - release.size_mm[axis];
+      const double u = Uniform01(engine);
+      release.box_lo_xy_mm[axis] = room > 0 ? -half_inner[axis] + kReleaseWallMarginMm + u * room
+                                            : -release.size_mm[axis] / 2;
+    }
+    releases.push_back(release);
+  }
+  ReleaseQueue queue(std::move(releases), bin.inner_height_mm + params.drop_height_mm);
+
+  // releases what the queue lets go; returns whether any part was released
+  std::vector<btRigidBody*> body_of_part(count, nullptr);
+  std::vector<btRigidBody*> released_bodies;
+  std::vector<double> released_at_s;
+  auto release = [&](double time_s) {
+    // the released bodies' boxes, and which of them rest in the pile
+    std::vector<Box> boxes;
+    std::vector<bool> in_pile;
+    for (size_t b = 0; b < released_bodies.size(); ++b) {
+      const Eigen::Isometry3d world_from_object =
+          FromSim(released_bodies[b]->getWorldTransform()) * m.body_from_object;
+      Box box;
+      for (const auto& v : m.hull_vertices_mm) box.Add(world_from_object * v);
+      boxes.push_back(box);
+      const double speed_mm_s = released_bodies[b]->getLinearVelocity().length() / kSimPerMm;
+      in_pile.push_back(speed_mm_s < kPileSpeedMmS && time_s - released_at_s[b] >= kFallS);
+    }
+    // the new bodies, at rest
+    const auto parts = queue.Next(time_s, std::move(boxes), in_pile);
+    for (const auto& [part, z] : parts) {
+      btRigidBody::btRigidBodyConstructionInfo info(static_cast<btScalar>(m.mass.mass_kg), nullptr,
+                                                    part_shape, inertia);
+      info.m_startWorldTransform =
+          ToSim(queue.release(part).WorldFromObjectAt(z) * m.object_from_body);
+      info.m_friction = friction;
+      info.m_restitution = restitution;
+      btRigidBody* body = w.AddBody(info);
+      // the settle rule decides when to stop; sleeping bodies would freeze mid-motion
+      body->setActivationState(DISABLE_DEACTIVATION);
+      body->setDamping(0, static_cast<btScalar>(kAngularDamping));
+      body_of_part[part] = body;
+      released_bodies.push_back(body);
+      released_at_s.push_back(time_s);
+    }
+    return !parts.empty();
+  };
+  release(0);
+
+  // step at the fixed step until every part is released and the pile has settled, or the cap;
+  // releases and the settle rule are checked every check_every steps
+  const int max_steps = static_cast<int>(std::ceil(params.max_sim_time_s / dt - 1e-9));
+  const int check_every =
+      std::max(1, static_cast<int>(std::lround(params.settle_window_s / kChecksPerWindow / dt)));
+  SettleDetector settle(params.settle_translation_mm, params.settle_rotation_deg,
+                        params.settle_window_s);
+  PileResult result;
+  int step = 0;
+  while (step < max_steps && !result.settled) {
+    w.world->stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
+    ++step;
+    if (step % check_every != 0) continue;
+    const double time_s = step * dt;
+    if (!queue.empty()) {
+      release(time_s);
+      continue;
+    }
+    // the settle window starts with the last release
+    std::vector<Eigen::Isometry3d> poses;
+    for (const btRigidBody* body : body_of_part)
+      poses.push_back(FromSim(body->getWorldTransform()));
+    result.settled = settle.AddSample(time_s, poses);
+  }
+  result.simulated_s = step * dt;
+
+  // the mesh frame of each part, and whether its centre of mass is in the bin (up to one part
+  // size above the rim: an overfull pile is still in the bin)
+  for (int i = 0; i < count; ++i) {
+    if (body_of_part[i] == nullptr) {
+      // still waiting when time ran out: it never entered the bin
+      result.world_from_object.push_back(queue.release(i).WorldFromObjectAt(queue.release_z_mm()));
+      ++result.num_outside;
+      continue;
+    }
+    const Eigen::Isometry3d world_from_body = FromSim(body_of_part[i]->getWorldTransform());
+    result.world_from_object.push_back(world_from_body * m.body_from_object);
+    const Eigen::Vector3d com = world_from_body.translation();
+    const bool inside = std::abs(com.x()) <= bin.inner_length_mm / 2 &&
+                        std::abs(com.y()) <= bin.inner_width_mm / 2 && com.z() >= 0 &&
+                        com.z() <= bin.inner_height_mm + m.max_extent_mm;
+    if (!inside) ++result.num_outside;
+  }
+
+  // the deepest penetration over the current contacts
+  for (int i = 0; i < w.dispatcher.getNumManifolds(); ++i) {
+    const btPersistentManifold* manifold = w.dispatcher.getManifoldByIndexInternal(i);
+    for (int c = 0; c < manifold->getNumContacts(); ++c) {
+      const double distance_mm = manifold->getContactPoint(c).getDistance() / kSimPerMm;
+      result.max_penetration_mm = std::max(result.max_penetration_mm, -distance_mm);
+    }
+  }
+  return result;
+}
+
+}  // namespace stackgen

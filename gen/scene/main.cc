@@ -1,0 +1,223 @@
+// stackgen: drops copies of a part into a bin, renders the settled pile, labels every object and
+// publishes each scene on LCM. Run with --help for the flags.
+
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <iostream>
+#include <map>
+#include <string>
+
+#include <stackgen/config_text.hpp>
+#include <stackgen/status.hpp>
+
+#include "bus/bus.h"
+#include "bus/channels.h"
+#include "gen/config/config.h"
+#include "gen/scene/scene_generator.h"
+
+namespace stackgen {
+namespace {
+
+std::atomic<bool> g_stop{false};
+
+void OnSignal(int) { g_stop = true; }
+
+constexpr const char* kUsage = R"(usage: stackgen [flags]
+
+Drops copies of a part into a bin with Bullet physics, renders the settled pile headless
+(EGL/OpenGL), labels every object and publishes each scene on LCM.
+
+flags:
+  --config FILE       generator config, protobuf text (default: %s)
+  --count N           scenes to publish, then exit; 0 = until SIGINT/SIGTERM (default: 0)
+  --seed S            base seed; scene k is a pure function of (config, S, G, k) (default: 0)
+  --generator-id G    id of this generator, 0..65535, distinct per concurrent generator
+                      (default: 0)
+  --lcm-url URL       LCM bus (default: $STACKGEN_LCM_URL, else
+                      udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304)
+  --cache-dir DIR     where convex decompositions are cached
+                      (default: $XDG_CACHE_HOME/stackgen, else ~/.cache/stackgen)
+  --help              this text
+
+channels published: STACKGEN_SCENE (labels + images), STACKGEN_LABELS (labels only),
+STACKGEN_STATUS (1 Hz), STACKGEN_CONFIG (the config in force, 1 Hz).
+On exit and on SIGINT it prints the mean milliseconds per scene of each stage.
+)";
+
+// a flag value as a non-negative integer up to `max`, or a usage error naming the flag.
+int64_t ParseCount(const std::string& flag, const std::string& text, int64_t max) {
+  char* end = nullptr;
+  errno = 0;
+  const long long value = std::strtoll(text.c_str(), &end, 10);
+  if (text.empty() || *end != '\0' || errno != 0 || value < 0 || value > max) {
+    throw std::invalid_argument(flag + ": '" + text + "' is not an integer in 0.." +
+                                std::to_string(max));
+  }
+  return value;
+}
+
+std::string DefaultCacheDir() {
+  const char* xdg = std::getenv("XDG_CACHE_HOME");
+  if (xdg != nullptr && xdg[0] != '\0') return std::string(xdg) + "/stackgen";
+  const char* home = std::getenv("HOME");
+  if (home != nullptr && home[0] != '\0') return std::string(home) + "/.cache/stackgen";
+  return "/tmp/stackgen-cache";
+}
+
+std::string FormatMs(double total_ms, int64_t scenes) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.1f", scenes > 0 ? total_ms / scenes : 0.0);
+  return text;
+}
+
+int Run(int argc, char** argv) {
+  // flags.
+  std::map<std::string, std::string> flags = {{"--config", STACKGEN_DEFAULT_CONFIG},
+                                              {"--count", "0"},
+                                              {"--seed", "0"},
+                                              {"--generator-id", "0"},
+                                              {"--lcm-url", ""},
+                                              {"--cache-dir", DefaultCacheDir()}};
+  for (int i = 1; i < argc; ++i) {
+    std::string arg = argv[i];
+    if (arg == "--help" || arg == "-h") {
+      std::printf(kUsage, STACKGEN_DEFAULT_CONFIG);
+      return 0;
+    }
+    std::string value;
+    const size_t equals = arg.find('=');
+    if (equals != std::string::npos) {
+      value = arg.substr(equals + 1);
+      arg = arg.substr(0, equals);
+    } else if (flags.count(arg) != 0) {
+      if (i + 1 >= argc) throw std::invalid_argument(arg + " needs a value");
+      value = argv[++i];
+    }
+    if (flags.count(arg) == 0) throw std::invalid_argument("unknown flag " + arg + " (see --help)");
+    flags[arg] = value;
+  }
+  const int64_t count = ParseCount("--count", flags["--count"], INT64_MAX);
+  const uint64_t seed = static_cast<uint64_t>(ParseCount("--seed", flags["--seed"], INT64_MAX));
+  const int32_t generator_id =
+      static_cast<int32_t>(ParseCount("--generator-id", flags["--generator-id"], 65535));
+
+  // config, bus and the scene generator: everything is checked before the first scene.
+  const LoadedConfig config = LoadConfig(flags["--config"]);
+  Bus bus(ResolveLcmUrl(flags["--lcm-url"]));
+  SceneGenerator generator(config, generator_id, seed, flags["--cache-dir"]);
+  std::printf("stackgen: generator %d, seed %llu, config %s, bus %s\n%s\n", generator_id,
+              static_cast<unsigned long long>(seed), config.path.c_str(), bus.url().c_str(),
+              generator.Description().c_str());
+  std::fflush(stdout);
+
+  std::signal(SIGINT, OnSignal);
+  std::signal(SIGTERM, OnSignal);
+  const bool progress = isatty(STDERR_FILENO) != 0;
+
+  using Clock = std::chrono::steady_clock;
+  const auto now_us = [] {
+    return std::chrono::duration_cast<std::chrono::microseconds>(
+               std::chrono::system_clock::now().time_since_epoch())
+        .count();
+  };
+  config_text config_message;
+  config_message.path = config.path;
+  config_message.pbtxt = EffectiveConfigText(config.config);
+  config_message.header.generator_id = generator_id;
+  config_message.header.seed = static_cast<int64_t>(seed);
+
+  StageTimes times;
+  double publish_ms = 0;
+  int64_t published = 0;
+  int64_t published_at_last_status = 0;
+  const Clock::time_point start = Clock::now();
+  Clock::time_point last_status = start - std::chrono::seconds(1);
+
+  // publishes the config and the status, about once a second.
+  const auto publish_periodic = [&](bool force) {
+    const Clock::time_point now = Clock::now();
+    const double since = std::chrono::duration<double>(now - last_status).count();
+    if (!force && since < 1.0) return;
+    config_message.header.seq = published;
+    config_message.header.utime = now_us();
+    bus.Publish(kConfigChannel, config_message);
+    status message{};
+    message.header.seq = published;
+    message.header.generator_id = generator_id;
+    message.header.seed = static_cast<int64_t>(seed);
+    message.header.utime = now_us();
+    message.process = "stackgen";
+    message.scenes = published;
+    message.scenes_rejected = times.redraws;
+    message.rate_hz = since > 0 ? (published - published_at_last_status) / since : 0;
+    const double n = published > 0 ? static_cast<double>(published) : 1.0;
+    message.physics_ms = times.physics_ms / n;
+    message.render_ms = times.render_ms / n;
+    message.annotate_ms = times.annotate_ms / n;
+    message.publish_ms = (times.encode_ms + publish_ms) / n;
+    bus.Publish(kStatusChannel, message);
+    last_status = now;
+    published_at_last_status = published;
+  };
+
+  publish_periodic(true);
+  for (int64_t seq = 0; (count == 0 || seq < count) && !g_stop; ++seq) {
+    scene message = generator.Generate(seq, &times);
+
+    // publish the scene and its labels.
+    const Clock::time_point publish_start = Clock::now();
+    message.header.utime = now_us();
+    bus.Publish(kSceneChannel, message);
+    bus.Publish(kLabelsChannel, LabelsOf(message));
+    publish_ms += std::chrono::duration<double, std::milli>(Clock::now() - publish_start).count();
+    ++published;
+    publish_periodic(false);
+
+    if (progress) {
+      const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
+      const double rate = published / elapsed;
+      if (count > 0) {
+        std::fprintf(stderr, "\rstackgen: %lld/%lld scenes, %.2f scenes/s, %.0f s left   ",
+                     static_cast<long long>(published), static_cast<long long>(count), rate,
+                     (count - published) / rate);
+      } else {
+        std::fprintf(stderr, "\rstackgen: %lld scenes, %.2f scenes/s   ",
+                     static_cast<long long>(published), rate);
+      }
+    }
+  }
+  publish_periodic(true);
+  if (progress) std::fprintf(stderr, "\n");
+
+  // the summary, also after SIGINT.
+  const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
+  std::printf(
+      "stackgen: %lld scenes in %.1f s (%.2f scenes/s)%s; per scene: physics %s ms, render %s "
+      "ms, annotate %s ms, publish %s ms; %d drops redrawn\n",
+      static_cast<long long>(published), elapsed, elapsed > 0 ? published / elapsed : 0.0,
+      g_stop ? ", stopped by signal" : "", FormatMs(times.physics_ms, published).c_str(),
+      FormatMs(times.render_ms, published).c_str(),
+      FormatMs(times.annotate_ms, published).c_str(),
+      FormatMs(times.encode_ms + publish_ms, published).c_str(), times.redraws);
+  return 0;
+}
+
+}  // namespace
+}  // namespace stackgen
+
+int main(int argc, char** argv) {
+  try {
+    return stackgen::Run(argc, argv);
+  } catch (const std::invalid_argument& error) {
+    std::fprintf(stderr, "stackgen: error: %s\n", error.what());
+    return 2;
+  } catch (const std::exception& error) {
+    std::fprintf(stderr, "stackgen: error: %s\n", error.what());
+    return 1;
+  }
+}

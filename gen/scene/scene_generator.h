@@ -1,0 +1,55 @@
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include <stackgen/labels.hpp>
+#include <stackgen/scene.hpp>
+
+#include "gen/config/config.h"
+
+namespace stackgen {
+
+/// Milliseconds spent per stage on one scene, and how often it was redrawn.
+struct StageTimes {
+  double physics_ms = 0;
+  double render_ms = 0;
+  double annotate_ms = 0;
+  double encode_ms = 0;
+  /// Drops that failed a check (unsettled, a part outside the bin, interpenetration) and were
+  /// redrawn with a derived seed before this scene succeeded.
+  int redraws = 0;
+};
+
+/// The seed of scene `seq` of generator `generator_id` for base seed `base_seed`, after
+/// `redraw` failed attempts: a SplitMix64 mix of all four, so nearby inputs give unrelated seeds.
+uint64_t SceneSeed(uint64_t base_seed, int32_t generator_id, int64_t seq, int redraw);
+
+/// Makes scenes: drops the part into the bin, renders the settled pile and labels it. Every
+/// scene is a pure function of (config, base seed, generator id, seq).
+class SceneGenerator {
+ public:
+  /// Loads the part's meshes, prepares collision shapes (decompositions cached in `cache_dir`)
+  /// and the renderer. Throws naming the file or field when a mesh cannot be used or the bin is
+  /// too small for the parts.
+  SceneGenerator(const LoadedConfig& config, int32_t generator_id, uint64_t base_seed,
+                 const std::string& cache_dir);
+  ~SceneGenerator();
+
+  /// Generates scene `seq` (header.utime is left 0 for the publisher to set). Adds the time of
+  /// each stage to `times` when not null. Throws when max_redraws drops in a row fail.
+  scene Generate(int64_t seq, StageTimes* times);
+
+  /// Lines describing the collision shape and the renderer in use.
+  std::string Description() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// The labels of a scene: the same header, camera and instances, without images.
+labels LabelsOf(const scene& scene);
+
+}  // namespace stackgen

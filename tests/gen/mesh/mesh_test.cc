@@ -1,0 +1,330 @@
+#include "gen/mesh/mesh.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+#include <gtest/gtest.h>
+#include <Eigen/Geometry>
+
+namespace stackgen {
+namespace {
+
+namespace fs = std::filesystem;
+
+// a 2 x 2 x 2 cube centred at (1, 0, 0), faces as quads
+constexpr char kCubeObj[] = R"(# unit test cube
+v 0 -1 -1
+v 2 -1 -1
+v 2 1 -1
+v 0 1 -1
+v 0 -1 1
+v 2 -1 1
+v 2 1 1
+v 0 1 1
+f 1 4 3 2
+f 5 6 7 8
+f 1 2 6 5
+f 2 3 7 6
+f 3 4 8 7
+f 4 1 5 8
+)";
+
+// a tetrahedron with corners at the origin and on the three axes (4 triangles)
+constexpr char kTetraStl[] = R"(solid tetra
+facet normal 0 0 -1
+  outer loop
+    vertex 0 0 0
+    vertex 0 3 0
+    vertex 3 0 0
+  endloop
+endfacet
+facet normal 0 -1 0
+  outer loop
+    vertex 0 0 0
+    vertex 3 0 0
+    vertex 0 0 3
+  endloop
+endfacet
+facet normal -1 0 0
+  outer loop
+    vertex 0 0 0
+    vertex 0 0 3
+    vertex 0 3 0
+  endloop
+endfacet
+facet normal 1 1 1
+  outer loop
+    vertex 3 0 0
+    vertex 0 3 0
+    vertex 0 0 3
+  endloop
+endfacet
+endsolid tetra
+)";
+
+// two unit cubes side by side as separate objects
+constexpr char kTwoCubesObj[] = R"(o left
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 0 0 1
+v 1 0 1
+v 1 1 1
+v 0 1 1
+f 1 4 3 2
+f 5 6 7 8
+f 1 2 6 5
+f 2 3 7 6
+f 3 4 8 7
+f 4 1 5 8
+o right
+v 3 0 0
+v 4 0 0
+v 4 1 0
+v 3 1 0
+v 3 0 1
+v 4 0 1
+v 4 1 1
+v 3 1 1
+f 9 12 11 10
+f 13 14 15 16
+f 9 10 14 13
+f 10 11 15 14
+f 11 12 16 15
+f 12 9 13 16
+)";
+
+// a flat square: triangles but no extent in z
+constexpr char kFlatObj[] = R"(v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+f 1 2 3 4
+)";
+
+class MeshTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("stackgen_mesh_test_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  std::string Write(const std::string& name, const std::string& text) {
+    const fs::path path = dir_ / name;
+    std::ofstream(path) << text;
+    return path.string();
+  }
+
+  fs::path dir_;
+};
+
+struct Bounds {
+  Eigen::Vector3f lo;
+  Eigen::Vector3f hi;
+};
+
+Bounds BoundsOf(const TriangleMesh& mesh) {
+  Bounds b{mesh.positions_mm.at(0), mesh.positions_mm.at(0)};
+  for (const auto& p : mesh.positions_mm) {
+    b.lo = b.lo.cwiseMin(p);
+    b.hi = b.hi.cwiseMax(p);
+  }
+  return b;
+}
+
+double Volume(const TriangleMesh& mesh) {
+  double volume = 0;
+  for (const auto& t : mesh.triangles) {
+    volume +=
+        mesh.positions_mm[t[0]].cast<double>().dot(
+            mesh.positions_mm[t[1]].cast<double>().cross(mesh.positions_mm[t[2]].cast<double>())) /
+        6.0;
+  }
+  return volume;
+}
+
+// Every edge, with vertices welded by position, is used once in each direction.
+bool IsClosedAndConsistent(const TriangleMesh& mesh) {
+  std::map<std::tuple<float, float, float>, int> ids;
+  auto id = [&](uint32_t v) {
+    const auto& p = mesh.positions_mm[v];
+    return ids.emplace(std::make_tuple(p.x(), p.y(), p.z()), static_cast<int>(ids.size()))
+        .first->second;
+  };
+  std::map<std::pair<int, int>, int> directed;
+  for (const auto& t : mesh.triangles) {
+    for (int k = 0; k < 3; ++k) ++directed[{id(t[k]), id(t[(k + 1) % 3])}];
+  }
+  for (const auto& [edge, count] : directed) {
+    const auto reverse = directed.find({edge.second, edge.first});
+    if (count != 1 || reverse == directed.end() || reverse->second != 1) return false;
+  }
+  return true;
+}
+
+// An OBJ with quads loads as triangles with its bounds, outward winding and flat normals.
+TEST_F(MeshTest, LoadsObjCube) {
+  const TriangleMesh mesh = LoadMesh(Write("cube.obj", kCubeObj), 1.0);
+  EXPECT_EQ(mesh.triangles.size(), 12u);
+  ASSERT_EQ(mesh.normals.size(), mesh.positions_mm.size());
+  // hard 90 degree edges: each corner is split into one vertex per face
+  EXPECT_EQ(mesh.positions_mm.size(), 24u);
+  const Bounds b = BoundsOf(mesh);
+  EXPECT_TRUE(b.lo.isApprox(Eigen::Vector3f(0, -1, -1)));
+  EXPECT_TRUE(b.hi.isApprox(Eigen::Vector3f(2, 1, 1)));
+  EXPECT_NEAR(Volume(mesh), 8.0, 1e-5);
+  EXPECT_TRUE(IsClosedAndConsistent(mesh));
+  // every normal is a face normal: one axis component is +-1
+  for (const auto& n : mesh.normals) EXPECT_NEAR(n.cwiseAbs().maxCoeff(), 1.0f, 1e-5f);
+}
+
+// scale_to_mm multiplies every coordinate.
+TEST_F(MeshTest, ScalesToMillimetres) {
+  const TriangleMesh mesh = LoadMesh(Write("cube.obj", kCubeObj), 10.0);
+  const Bounds b = BoundsOf(mesh);
+  EXPECT_TRUE(b.lo.isApprox(Eigen::Vector3f(0, -10, -10)));
+  EXPECT_TRUE(b.hi.isApprox(Eigen::Vector3f(20, 10, 10)));
+  EXPECT_NEAR(Volume(mesh), 8000.0, 1e-2);
+}
+
+// An ASCII STL loads with its triangle count, bounds and volume.
+TEST_F(MeshTest, LoadsAsciiStl) {
+  const TriangleMesh mesh = LoadMesh(Write("tetra.stl", kTetraStl), 10.0);
+  EXPECT_EQ(mesh.triangles.size(), 4u);
+  const Bounds b = BoundsOf(mesh);
+  EXPECT_TRUE(b.lo.isApprox(Eigen::Vector3f(0, 0, 0)));
+  EXPECT_TRUE(b.hi.isApprox(Eigen::Vector3f(30, 30, 30)));
+  EXPECT_NEAR(Volume(mesh), 30.0 * 30 * 30 / 6, 1e-2);
+  EXPECT_TRUE(IsClosedAndConsistent(mesh));
+}
+
+// A missing file is an error that names the path.
+TEST_F(MeshTest, MissingFileNamesPath) {
+  const std::string path = (dir_ / "no_such_part.obj").string();
+  try {
+    LoadMesh(path, 1.0);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+  }
+}
+
+// An empty file is an error that names the path.
+TEST_F(MeshTest, EmptyFileIsError) {
+  const std::string path = Write("empty.obj", "");
+  try {
+    LoadMesh(path, 1.0);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+  }
+}
+
+// A flat mesh (no extent in one axis) is refused as degenerate.
+TEST_F(MeshTest, FlatMeshIsDegenerate) {
+  const std::string path = Write("flat.obj", kFlatObj);
+  try {
+    LoadMesh(path, 1.0);
+    FAIL() << "no exception";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("degenerate"), std::string::npos) << e.what();
+  }
+}
+
+// A non-positive scale is refused.
+TEST_F(MeshTest, BadScaleIsError) {
+  EXPECT_THROW(LoadMesh(Write("cube.obj", kCubeObj), 0.0), std::runtime_error);
+}
+
+// Each object of an OBJ is one piece; LoadMesh joins them.
+TEST_F(MeshTest, LoadsPieces) {
+  const std::string path = Write("two.obj", kTwoCubesObj);
+  const std::vector<TriangleMesh> pieces = LoadMeshPieces(path, 1.0);
+  ASSERT_EQ(pieces.size(), 2u);
+  const Bounds left = BoundsOf(pieces[0]);
+  const Bounds right = BoundsOf(pieces[1]);
+  EXPECT_TRUE(left.lo.isApprox(Eigen::Vector3f(0, 0, 0)));
+  EXPECT_TRUE(right.hi.isApprox(Eigen::Vector3f(4, 1, 1)));
+  for (const auto& piece : pieces) {
+    EXPECT_EQ(piece.triangles.size(), 12u);
+    EXPECT_NEAR(Volume(piece), 1.0, 1e-5);
+  }
+  const TriangleMesh joined = LoadMesh(path, 1.0);
+  EXPECT_EQ(joined.triangles.size(), 24u);
+  EXPECT_NEAR(Volume(joined), 2.0, 1e-5);
+}
+
+// An inside-out mesh is turned outward-facing.
+TEST_F(MeshTest, InsideOutMeshIsReoriented) {
+  std::string inverted = kCubeObj;
+  // reverse every face's vertex order
+  inverted = R"(v 0 -1 -1
+v 2 -1 -1
+v 2 1 -1
+v 0 1 -1
+v 0 -1 1
+v 2 -1 1
+v 2 1 1
+v 0 1 1
+f 2 3 4 1
+f 8 7 6 5
+f 5 6 2 1
+f 6 7 3 2
+f 7 8 4 3
+f 8 5 1 4
+)";
+  const TriangleMesh mesh = LoadMesh(Write("inverted.obj", inverted), 1.0);
+  EXPECT_NEAR(Volume(mesh), 8.0, 1e-5);
+  // normals still point away from the centre
+  for (size_t i = 0; i < mesh.positions_mm.size(); ++i) {
+    EXPECT_GT(mesh.normals[i].dot(mesh.positions_mm[i] - Eigen::Vector3f(1, 0, 0)), 0);
+  }
+}
+
+// The built-in connector is closed, outward-wound and in its documented frame.
+TEST_F(MeshTest, BuiltInConnector) {
+  const std::string dir = std::string(STACKGEN_SOURCE_DIR) + "/config/models/";
+  const TriangleMesh mesh = LoadMesh(dir + "corner_connector.obj", 1.0);
+  EXPECT_TRUE(IsClosedAndConsistent(mesh));
+  const Bounds b = BoundsOf(mesh);
+  EXPECT_TRUE(b.lo.isApprox(Eigen::Vector3f(-27.5f, -27.5f, 0), 1e-5f)) << b.lo.transpose();
+  EXPECT_TRUE(b.hi.isApprox(Eigen::Vector3f(27.5f, 27.5f, 55), 1e-5f)) << b.hi.transpose();
+  // two plates, a gusset, two 8.5 mm holes
+  EXPECT_NEAR(Volume(mesh), 35518.4, 1.0);
+  const std::vector<TriangleMesh> pieces =
+      LoadMeshPieces(dir + "corner_connector_collision.obj", 1.0);
+  EXPECT_GT(pieces.size(), 2u);
+  double pieces_volume = 0;
+  for (const auto& piece : pieces) pieces_volume += Volume(piece);
+  // the square-approximated holes remove a little more than the round ones
+  EXPECT_NEAR(pieces_volume, Volume(mesh), 0.01 * Volume(mesh));
+}
+
+// The open bin spans the inner box plus walls, with the inner floor at z = 0.
+TEST_F(MeshTest, OpenBinBounds) {
+  const TriangleMesh bin = MakeOpenBinMesh(200, 150, 100, 5);
+  const Bounds b = BoundsOf(bin);
+  EXPECT_TRUE(b.lo.isApprox(Eigen::Vector3f(-105, -80, -5)));
+  EXPECT_TRUE(b.hi.isApprox(Eigen::Vector3f(105, 80, 100)));
+  EXPECT_EQ(bin.normals.size(), bin.positions_mm.size());
+  // floor and walls: 5 closed boxes
+  EXPECT_EQ(bin.triangles.size(), 5u * 12u);
+  // the x walls span the outer width, the y walls the inner length
+  const double walls = 2 * (5.0 * 160 * 100) + 2 * (200.0 * 5 * 100);
+  EXPECT_NEAR(Volume(bin), 210.0 * 160 * 5 + walls, 1.0);
+  EXPECT_THROW(MakeOpenBinMesh(0, 150, 100, 5), std::runtime_error);
+}
+
+}  // namespace
+}  // namespace stackgen

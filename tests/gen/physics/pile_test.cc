@@ -1,0 +1,248 @@
+#include "gen/physics/pile.h"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <Eigen/Geometry>
+
+#include "gen/mesh/mesh.h"
+
+namespace stackgen {
+namespace {
+
+namespace fs = std::filesystem;
+
+// the default bin of config/default.pbtxt: 12 connectors lie two to three deep
+constexpr BinSpec kBin{200, 150, 100, 8};
+
+std::string ModelPath(const std::string& name) {
+  return std::string(STACKGEN_SOURCE_DIR) + "/config/models/" + name;
+}
+
+// A closed, outward-wound axis-aligned box from lo to hi, mm.
+TriangleMesh Box(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) {
+  TriangleMesh mesh;
+  for (int i = 0; i < 8; ++i) {
+    mesh.positions_mm.emplace_back(i & 1 ? hi.x() : lo.x(), i & 2 ? hi.y() : lo.y(),
+                                   i & 4 ? hi.z() : lo.z());
+    mesh.normals.push_back((mesh.positions_mm.back() - (lo + hi) / 2).normalized());
+  }
+  mesh.triangles = {{0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6}, {0, 1, 5}, {0, 5, 4},
+                    {2, 6, 7}, {2, 7, 3}, {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};
+  return mesh;
+}
+
+// An L-shaped prism (two 30 x 10 mm legs, 10 mm thick) as one closed mesh: not convex.
+constexpr char kLObj[] = R"(v 0 0 0
+v 30 0 0
+v 30 10 0
+v 10 10 0
+v 10 30 0
+v 0 30 0
+v 0 0 10
+v 30 0 10
+v 30 10 10
+v 10 10 10
+v 10 30 10
+v 0 30 10
+f 6 5 4 3 2 1
+f 7 8 9 10 11 12
+f 1 2 8 7
+f 2 3 9 8
+f 3 4 10 9
+f 4 5 11 10
+f 5 6 12 11
+f 6 1 7 12
+)";
+
+class PileTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("stackgen_pile_test_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  static const TriangleMesh& Connector() {
+    static const TriangleMesh mesh = LoadMesh(ModelPath("corner_connector.obj"), 1.0);
+    return mesh;
+  }
+  static const std::vector<TriangleMesh>& ConnectorPieces() {
+    static const std::vector<TriangleMesh> pieces =
+        LoadMeshPieces(ModelPath("corner_connector_collision.obj"), 1.0);
+    return pieces;
+  }
+  PileSimulator ConnectorSimulator() const {
+    return PileSimulator(Connector(), ConnectorPieces(), PartPhysics{}, kBin, SimulationParams{},
+                         (dir_ / "cache").string());
+  }
+
+  fs::path dir_;
+};
+
+// Twelve built-in connectors settle inside the bin without sinking into each other or the bin.
+TEST_F(PileTest, ConnectorPileSettlesInsideBin) {
+  const PileSimulator simulator = ConnectorSimulator();
+  EXPECT_NE(simulator.CollisionDescription().find("9 convex pieces"), std::string::npos)
+      << simulator.CollisionDescription();
+  for (uint64_t seed : {1u, 2u}) {
+    const PileResult pile = simulator.Simulate(12, seed);
+    ASSERT_EQ(pile.world_from_object.size(), 12u);
+    EXPECT_TRUE(pile.settled) << "seed " << seed;
+    EXPECT_EQ(pile.num_outside, 0) << "seed " << seed;
+    EXPECT_LT(pile.max_penetration_mm, 0.5) << "seed " << seed;
+    EXPECT_GT(pile.simulated_s, 0.25);
+    EXPECT_LT(pile.simulated_s, SimulationParams{}.max_sim_time_s);
+    // no vertex is below the floor or, below the rim, inside a wall (a part may lean over it)
+    for (const auto& world_from_object : pile.world_from_object) {
+      for (const auto& v : Connector().positions_mm) {
+        const Eigen::Vector3d p = world_from_object * v.cast<double>();
+        EXPECT_GT(p.z(), -0.5);
+        if (p.z() < kBin.inner_height_mm) {
+          EXPECT_LT(std::abs(p.x()), kBin.inner_length_mm / 2 + 0.5);
+          EXPECT_LT(std::abs(p.y()), kBin.inner_width_mm / 2 + 0.5);
+        }
+      }
+    }
+  }
+}
+
+// The same seed gives bit-identical poses, from one simulator or another; other seeds differ.
+TEST_F(PileTest, SameSeedIsBitIdentical) {
+  const PileSimulator first = ConnectorSimulator();
+  const PileSimulator second = ConnectorSimulator();
+  const PileResult a = first.Simulate(12, 7);
+  const PileResult b = first.Simulate(12, 7);
+  const PileResult c = second.Simulate(12, 7);
+  const PileResult d = first.Simulate(12, 8);
+  ASSERT_EQ(a.world_from_object.size(), 12u);
+  for (size_t i = 0; i < a.world_from_object.size(); ++i) {
+    EXPECT_TRUE(a.world_from_object[i].matrix() == b.world_from_object[i].matrix()) << i;
+    EXPECT_TRUE(a.world_from_object[i].matrix() == c.world_from_object[i].matrix()) << i;
+    EXPECT_FALSE(a.world_from_object[i].matrix().isApprox(d.world_from_object[i].matrix(), 1e-3))
+        << i;
+  }
+  EXPECT_EQ(a.simulated_s, b.simulated_s);
+  EXPECT_EQ(a.max_penetration_mm, c.max_penetration_mm);
+}
+
+// A 20 mm cube comes to rest flat on a face, on the floor.
+TEST_F(PileTest, CubeRestsOnFace) {
+  const TriangleMesh cube = Box({-10, -10, -10}, {10, 10, 10});
+  const PileSimulator simulator(cube, {}, PartPhysics{}, kBin, SimulationParams{},
+                                (dir_ / "cache").string());
+  EXPECT_NE(simulator.CollisionDescription().find("convex hull"), std::string::npos)
+      << simulator.CollisionDescription();
+  for (uint64_t seed : {3u, 4u, 5u}) {
+    const PileResult pile = simulator.Simulate(1, seed);
+    ASSERT_TRUE(pile.settled) << "seed " << seed;
+    const Eigen::Isometry3d& world_from_cube = pile.world_from_object.at(0);
+    // one of the cube's axes is vertical within 3 degrees
+    const double vertical = world_from_cube.linear().row(2).cwiseAbs().maxCoeff();
+    EXPECT_GT(vertical, std::cos(3 * M_PI / 180)) << "seed " << seed;
+    // its centre is half its size above the floor (z = 0)
+    EXPECT_NEAR(world_from_cube.translation().z(), 10.0, 0.3) << "seed " << seed;
+    EXPECT_LT(pile.max_penetration_mm, 0.5);
+  }
+}
+
+// Mass follows from the mesh volume: a 10 mm cube of density 1000 kg/m^3 weighs 1 g.
+TEST_F(PileTest, MassFromVolume) {
+  PartPhysics water;
+  water.density_kg_m3 = 1000;
+  const PileSimulator cube(Box({0, 0, 0}, {10, 10, 10}), {}, water, kBin, SimulationParams{}, "");
+  EXPECT_NEAR(cube.mass_kg(), 1e-3, 1e-9);
+  // the connector: about 35.5 cm^3 of aluminium
+  EXPECT_NEAR(ConnectorSimulator().mass_kg(), 35518.4e-9 * 2700, 1e-4);
+}
+
+// A non-convex part without pieces gets a HACD decomposition of more than one piece, cached on
+// disk: the second construction reads it back and simulates the same.
+TEST_F(PileTest, DecompositionIsCached) {
+  const fs::path obj = dir_ / "l.obj";
+  std::ofstream(obj) << kLObj;
+  const TriangleMesh l_part = LoadMesh(obj.string(), 1.0);
+  const std::string cache = (dir_ / "cache" / "nested").string();
+
+  const PileSimulator computed(l_part, {}, PartPhysics{}, kBin, SimulationParams{}, cache);
+  std::smatch match;
+  const std::string description = computed.CollisionDescription();
+  ASSERT_TRUE(std::regex_search(description, match,
+                                std::regex("HACD decomposition, ([0-9]+) pieces \\(computed")))
+      << description;
+  EXPECT_GT(std::stoi(match[1]), 1) << description;
+  ASSERT_TRUE(fs::is_directory(cache));
+  int files = 0;
+  for (const auto& entry : fs::directory_iterator(cache)) {
+    EXPECT_EQ(entry.path().extension(), ".obj") << entry.path();  // no temporary left behind
+    ++files;
+  }
+  EXPECT_EQ(files, 1);
+
+  const PileSimulator cached(l_part, {}, PartPhysics{}, kBin, SimulationParams{}, cache);
+  EXPECT_NE(cached.CollisionDescription().find("(cached"), std::string::npos)
+      << cached.CollisionDescription();
+  const PileResult a = computed.Simulate(3, 11);
+  const PileResult b = cached.Simulate(3, 11);
+  EXPECT_TRUE(a.settled);
+  for (size_t i = 0; i < a.world_from_object.size(); ++i) {
+    EXPECT_TRUE(a.world_from_object[i].matrix() == b.world_from_object[i].matrix()) << i;
+  }
+}
+
+// Bad input is refused with a message naming the field or the problem.
+TEST_F(PileTest, RefusesBadInput) {
+  auto message = [&](auto make) -> std::string {
+    try {
+      make();
+    } catch (const std::runtime_error& e) {
+      return e.what();
+    }
+    return "no exception";
+  };
+  const TriangleMesh cube = Box({0, 0, 0}, {10, 10, 10});
+  PartPhysics no_density;
+  no_density.density_kg_m3 = 0;
+  EXPECT_NE(
+      message([&] { PileSimulator(cube, {}, no_density, kBin, {}, ""); }).find("density_kg_m3"),
+      std::string::npos);
+  SimulationParams no_step;
+  no_step.time_step_s = 0;
+  EXPECT_NE(message([&] { PileSimulator(cube, {}, {}, kBin, no_step, ""); }).find("time_step_s"),
+            std::string::npos);
+  BinSpec no_wall = kBin;
+  no_wall.wall_mm = -1;
+  EXPECT_NE(message([&] { PileSimulator(cube, {}, {}, no_wall, {}, ""); }).find("wall_mm"),
+            std::string::npos);
+  // collision pieces in metres for a part in millimetres
+  std::vector<TriangleMesh> metres = {Box({0, 0, 0}, {0.01f, 0.01f, 0.01f})};
+  EXPECT_NE(message([&] { PileSimulator(cube, metres, {}, kBin, {}, ""); }).find("units"),
+            std::string::npos);
+  // an inside-out part has no positive volume
+  TriangleMesh inverted = cube;
+  for (auto& t : inverted.triangles) std::swap(t[1], t[2]);
+  EXPECT_NE(message([&] { PileSimulator(inverted, {}, {}, kBin, {}, ""); }).find("volume"),
+            std::string::npos);
+  EXPECT_THROW(PileSimulator(cube, {}, {}, kBin, {}, "").Simulate(-1, 0), std::runtime_error);
+}
+
+// Dropping nothing is a settled, empty pile.
+TEST_F(PileTest, EmptyPile) {
+  const PileResult pile = ConnectorSimulator().Simulate(0, 1);
+  EXPECT_TRUE(pile.settled);
+  EXPECT_TRUE(pile.world_from_object.empty());
+  EXPECT_EQ(pile.num_outside, 0);
+}
+
+}  // namespace
+}  // namespace stackgen

@@ -1,0 +1,70 @@
+#include "gen/physics/settle_detector.h"
+
+#include <cmath>
+#include <stdexcept>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+namespace stackgen {
+namespace {
+
+Eigen::Isometry3d Pose(double x_mm, double angle_deg) {
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  pose.translation().x() = x_mm;
+  pose.linear() = Eigen::AngleAxisd(angle_deg * M_PI / 180, Eigen::Vector3d::UnitZ()).matrix();
+  return pose;
+}
+
+// Bodies that do not move settle once the samples span the window, not before.
+TEST(SettleDetectorTest, StillBodiesSettleAfterWindow) {
+  SettleDetector detector(1.0, 1.0, 0.25);
+  const std::vector<Eigen::Isometry3d> poses = {Pose(0, 0), Pose(50, 30)};
+  for (int k = 0; k <= 24; ++k) EXPECT_FALSE(detector.AddSample(k * 0.01, poses)) << k;
+  EXPECT_TRUE(detector.AddSample(0.25, poses));
+}
+
+// Samples on a grid that does not divide the window (every 10.5 ms) still settle, a full window
+// after the first sample.
+TEST(SettleDetectorTest, SettlesWithUnalignedSampling) {
+  SettleDetector detector(1.0, 1.0, 0.25);
+  const std::vector<Eigen::Isometry3d> poses = {Pose(0, 0)};
+  bool settled = false;
+  int k = 0;
+  for (; k < 100 && !settled; ++k) settled = detector.AddSample(k * 0.0105, poses);
+  EXPECT_TRUE(settled);
+  EXPECT_EQ(k, 25);  // sample 24, at 0.252 s
+}
+
+// A slow creep (0.8 mm per 0.1 s) is not settled, though each step is tiny.
+TEST(SettleDetectorTest, CreepIsNotSettled) {
+  SettleDetector detector(1.0, 1.0, 0.25);
+  for (int k = 0; k <= 100; ++k) {
+    EXPECT_FALSE(detector.AddSample(k * 0.01, {Pose(0, 0), Pose(0.08 * k, 0)})) << k;
+  }
+}
+
+// A part rocking back and forth by 2 degrees is not settled, though it returns to its start.
+TEST(SettleDetectorTest, RockingIsNotSettled) {
+  SettleDetector detector(1.0, 1.0, 0.25);
+  for (int k = 0; k <= 100; ++k) {
+    EXPECT_FALSE(detector.AddSample(k * 0.01, {Pose(0, 2 * std::sin(k * 0.5))})) << k;
+  }
+}
+
+// Motion below both thresholds settles; Reset() starts a new window.
+TEST(SettleDetectorTest, SmallMotionSettlesAndResetRestarts) {
+  SettleDetector detector(1.0, 1.0, 0.25);
+  bool settled = false;
+  for (int k = 0; k <= 30 && !settled; ++k) {
+    settled = detector.AddSample(k * 0.01, {Pose(0.01 * k, 0.01 * k)});
+  }
+  EXPECT_TRUE(settled);
+  detector.Reset();
+  EXPECT_FALSE(detector.AddSample(0.31, {Pose(0, 0), Pose(1, 1)}));
+  EXPECT_THROW(detector.AddSample(0.32, {Pose(0, 0)}), std::runtime_error);
+  EXPECT_THROW(SettleDetector(0, 1, 1), std::runtime_error);
+}
+
+}  // namespace
+}  // namespace stackgen

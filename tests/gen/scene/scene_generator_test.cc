@@ -1,0 +1,127 @@
+#include "gen/scene/scene_generator.h"
+
+#include <set>
+#include <string>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+
+#include "gen/annotate/rle.h"
+#include "tests/support/process.h"
+
+namespace stackgen {
+namespace {
+
+LoadedConfig DefaultConfig() {
+  return LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/default.pbtxt");
+}
+
+cv::Mat DecodeImage(const image& message, int flags) {
+  EXPECT_EQ(message.encoding, image::ENCODING_PNG);
+  return cv::imdecode(message.data, flags);
+}
+
+// seeds of neighbouring scenes, generators and redraws all differ.
+TEST(SceneGeneratorTest, SeedsDiffer) {
+  std::set<uint64_t> seeds;
+  for (int g = 0; g < 4; ++g) {
+    for (int k = 0; k < 50; ++k) {
+      for (int r = 0; r < 3; ++r) seeds.insert(SceneSeed(1, g, k, r));
+    }
+  }
+  EXPECT_EQ(seeds.size(), 4u * 50 * 3);
+  EXPECT_EQ(SceneSeed(5, 1, 2, 0), SceneSeed(5, 1, 2, 0));
+}
+
+// one scene of the default config: the images, the instance map and the labels agree, and the
+// same seq gives bit-identical labels again.
+TEST(SceneGeneratorTest, SceneIsConsistentAndRepeatable) {
+  const std::string cache = testing::MakeTempDir("stackgen-cache");
+  SceneGenerator generator(DefaultConfig(), 0, 42, cache);
+  StageTimes times;
+  const scene first = generator.Generate(0, &times);
+  EXPECT_GT(times.physics_ms, 0);
+
+  // header and camera.
+  EXPECT_EQ(first.header.seq, 0);
+  EXPECT_EQ(first.header.generator_id, 0);
+  EXPECT_EQ(first.num_instances, 12);
+  ASSERT_EQ(first.instances.size(), 12u);
+  EXPECT_EQ(first.camera.width, 640);
+  EXPECT_EQ(first.camera.height, 480);
+
+  // the images decode to the camera's size.
+  const cv::Mat color = DecodeImage(first.color, cv::IMREAD_UNCHANGED);
+  const cv::Mat depth = DecodeImage(first.depth, cv::IMREAD_UNCHANGED);
+  const cv::Mat ids = DecodeImage(first.instance_map, cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(color.size(), cv::Size(640, 480));
+  EXPECT_EQ(color.type(), CV_8UC3);
+  ASSERT_EQ(depth.type(), CV_16UC1);
+  ASSERT_EQ(ids.type(), CV_16UC1);
+
+  // every instance's mask is exactly its pixels in the instance map.
+  int annotated = 0;
+  for (const instance& object : first.instances) {
+    const cv::Mat from_map = ids == object.instance_id;
+    EXPECT_EQ(cv::countNonZero(from_map), object.px_count_visib);
+    const cv::Mat from_rle = DecodeRle(object.mask_visib_rle, 480, 640);
+    EXPECT_EQ(cv::countNonZero(from_rle != from_map), 0) << "instance " << object.instance_id;
+    EXPECT_GE(object.px_count_all, object.px_count_visib);
+    EXPECT_LE(object.visib_fract, 1.0);
+    if (object.annotated) ++annotated;
+    // objects lie in the bin: below the rim plus one part height, above the floor.
+    EXPECT_LT(object.world_from_object.translation_mm[2], 100 + 60);
+    EXPECT_GT(object.world_from_object.translation_mm[2], -1);
+  }
+  EXPECT_GT(annotated, 0);
+
+  // the depth of visible part pixels is between the rim and the floor (mm = value * scale).
+  double min_depth = 1e9;
+  double max_depth = 0;
+  for (int v = 0; v < ids.rows; ++v) {
+    for (int u = 0; u < ids.cols; ++u) {
+      if (ids.at<uint16_t>(v, u) == 0) continue;
+      const double mm = depth.at<uint16_t>(v, u) * first.camera.depth_scale_mm;
+      min_depth = std::min(min_depth, mm);
+      max_depth = std::max(max_depth, mm);
+    }
+  }
+  EXPECT_GT(min_depth, 450 - 100 - 60);
+  EXPECT_LE(max_depth, 450.5);
+
+  // the same scene again is bit-identical in its labels.
+  const scene again = generator.Generate(0, nullptr);
+  ASSERT_EQ(again.instances.size(), first.instances.size());
+  for (size_t i = 0; i < first.instances.size(); ++i) {
+    for (int j = 0; j < 3; ++j) {
+      EXPECT_EQ(again.instances[i].world_from_object.translation_mm[j],
+                first.instances[i].world_from_object.translation_mm[j]);
+    }
+    EXPECT_EQ(again.instances[i].mask_visib_rle, first.instances[i].mask_visib_rle);
+  }
+  EXPECT_EQ(again.header.seed, first.header.seed);
+
+  // labels carry the same header and instances.
+  const labels small = LabelsOf(first);
+  EXPECT_EQ(small.header.seed, first.header.seed);
+  EXPECT_EQ(small.num_instances, first.num_instances);
+}
+
+// a bin too small for the parts is refused before anything runs, naming the config.
+TEST(SceneGeneratorTest, BinTooSmallIsRefused) {
+  LoadedConfig config = DefaultConfig();
+  config.config.mutable_bin()->set_inner_length_mm(40);
+  try {
+    SceneGenerator generator(config, 0, 1, testing::MakeTempDir("stackgen-cache"));
+    FAIL() << "expected a ConfigError";
+  } catch (const ConfigError& error) {
+    EXPECT_NE(std::string(error.what()).find("default.pbtxt"), std::string::npos) << error.what();
+    EXPECT_NE(std::string(error.what()).find("bin"), std::string::npos) << error.what();
+  }
+  config = DefaultConfig();
+  config.config.mutable_part()->set_count(200);
+  EXPECT_THROW(SceneGenerator(config, 0, 1, testing::MakeTempDir("stackgen-cache")), ConfigError);
+}
+
+}  // namespace
+}  // namespace stackgen

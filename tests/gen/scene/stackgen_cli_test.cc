@@ -1,0 +1,117 @@
+// The stackgen program refuses bad input with one clear line and a non-zero exit, and answers
+// --help.
+
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "tests/support/process.h"
+
+namespace stackgen {
+namespace {
+
+using testing::Process;
+
+struct Outcome {
+  int code;
+  std::string out;
+  std::string err;
+};
+
+Outcome RunStackgen(const std::vector<std::string>& args, const std::string& dir) {
+  std::vector<std::string> argv = {std::string(STACKGEN_BIN_DIR) + "/stackgen"};
+  argv.insert(argv.end(), args.begin(), args.end());
+  Process process(argv, dir + "/run");
+  const int code = process.Wait(120);
+  return {code, process.Stdout(), process.Stderr()};
+}
+
+std::string WriteConfig(const std::string& dir, const std::string& text) {
+  const std::string path = dir + "/bad.pbtxt";
+  std::ofstream(path) << text;
+  return path;
+}
+
+// stderr is exactly one line.
+void ExpectOneLine(const std::string& err) {
+  ASSERT_FALSE(err.empty());
+  EXPECT_EQ(err.find('\n'), err.size() - 1) << err;
+}
+
+// --help lists every flag with its default.
+TEST(StackgenCliTest, Help) {
+  const Outcome outcome = RunStackgen({"--help"}, testing::MakeTempDir("stackgen-cli"));
+  EXPECT_EQ(outcome.code, 0);
+  for (const char* flag : {"--config", "--count", "--seed", "--generator-id", "--lcm-url",
+                           "--cache-dir", "default"}) {
+    EXPECT_NE(outcome.out.find(flag), std::string::npos) << flag;
+  }
+}
+
+// a negative count is a usage error naming the flag.
+TEST(StackgenCliTest, NegativeCount) {
+  const Outcome outcome = RunStackgen({"--count", "-3"}, testing::MakeTempDir("stackgen-cli"));
+  EXPECT_EQ(outcome.code, 2);
+  EXPECT_NE(outcome.err.find("--count"), std::string::npos) << outcome.err;
+  ExpectOneLine(outcome.err);
+}
+
+// a missing mesh names the file.
+TEST(StackgenCliTest, MissingMesh) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  const std::string config = WriteConfig(dir, "part { mesh: \"no_such_part.stl\" }\n");
+  const Outcome outcome =
+      RunStackgen({"--config", config, "--count", "1", "--lcm-url", "memq://"}, dir);
+  EXPECT_EQ(outcome.code, 1);
+  EXPECT_NE(outcome.err.find("no_such_part.stl"), std::string::npos) << outcome.err;
+  ExpectOneLine(outcome.err);
+}
+
+// an empty mesh file names the file.
+TEST(StackgenCliTest, EmptyMesh) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  std::ofstream(dir + "/empty.obj") << "# nothing\n";
+  const std::string config = WriteConfig(dir, "part { mesh: \"empty.obj\" }\n");
+  const Outcome outcome =
+      RunStackgen({"--config", config, "--count", "1", "--lcm-url", "memq://"}, dir);
+  EXPECT_EQ(outcome.code, 1);
+  EXPECT_NE(outcome.err.find("empty.obj"), std::string::npos) << outcome.err;
+  ExpectOneLine(outcome.err);
+}
+
+// an unknown config field names the file and line.
+TEST(StackgenCliTest, UnknownField) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  const std::string config = WriteConfig(dir, "bin {\n  inner_length_mm: 300\n  depth: 3\n}\n");
+  const Outcome outcome = RunStackgen({"--config", config, "--lcm-url", "memq://"}, dir);
+  EXPECT_EQ(outcome.code, 1);
+  EXPECT_NE(outcome.err.find("bad.pbtxt:3:"), std::string::npos) << outcome.err;
+  EXPECT_NE(outcome.err.find("depth"), std::string::npos) << outcome.err;
+  ExpectOneLine(outcome.err);
+}
+
+// a bin too small for the parts is refused, naming the config file.
+TEST(StackgenCliTest, BinTooSmall) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  const std::string config = WriteConfig(
+      dir, "part { mesh: \"" STACKGEN_SOURCE_DIR "/config/models/corner_connector.obj\" }\n"
+           "bin { inner_length_mm: 30 inner_width_mm: 30 }\n");
+  const Outcome outcome =
+      RunStackgen({"--config", config, "--count", "1", "--lcm-url", "memq://"}, dir);
+  EXPECT_EQ(outcome.code, 1);
+  EXPECT_NE(outcome.err.find("bad.pbtxt"), std::string::npos) << outcome.err;
+  EXPECT_NE(outcome.err.find("bin"), std::string::npos) << outcome.err;
+  ExpectOneLine(outcome.err);
+}
+
+// a missing config file names it.
+TEST(StackgenCliTest, MissingConfig) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  const Outcome outcome = RunStackgen({"--config", dir + "/nope.pbtxt"}, dir);
+  EXPECT_EQ(outcome.code, 1);
+  EXPECT_NE(outcome.err.find("nope.pbtxt"), std::string::npos) << outcome.err;
+  ExpectOneLine(outcome.err);
+}
+
+}  // namespace
+}  // namespace stackgen

@@ -1,9 +1,5 @@
 #include "bus/bus.h"
 
-#include <netinet/in.h>
-#include <sys/socket.h>
-#include <unistd.h>
-
 #include <cstdlib>
 #include <string>
 #include <vector>
@@ -13,22 +9,10 @@
 #include <stackgen/status.hpp>
 
 #include "bus/channels.h"
+#include "tests/support/process.h"
 
 namespace stackgen {
 namespace {
-
-// a UDP port nobody on this host is bound to right now.
-int FreeUdpPort() {
-  const int fd = socket(AF_INET, SOCK_DGRAM, 0);
-  sockaddr_in address{};
-  address.sin_family = AF_INET;
-  address.sin_addr.s_addr = htonl(INADDR_ANY);
-  bind(fd, reinterpret_cast<sockaddr*>(&address), sizeof(address));
-  socklen_t length = sizeof(address);
-  getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length);
-  close(fd);
-  return ntohs(address.sin_port);
-}
 
 status MakeStatus(int64_t seq) {
   status message{};
@@ -124,8 +108,7 @@ TEST(BusTest, RejectsNonMulticastAddress) {
 
 // messages cross real UDP multicast on loopback between two bus instances.
 TEST(BusTest, MulticastRoundTrip) {
-  const std::string url =
-      "udpm://239.255.76.67:" + std::to_string(FreeUdpPort()) + "?ttl=0&recv_buf_size=4194304";
+  const std::string url = testing::FreeMulticastUrl();
   Bus receiver(url);
   Bus sender(url);
   std::vector<int64_t> seqs;

@@ -113,18 +113,6 @@ void VisitNodes(const aiScene& scene, const aiNode& node, const aiMatrix4x4& wor
   }
 }
 
-// Signed volume enclosed by the triangles, mm^3 (positive when wound outward).
-double SignedVolume(const TriangleMesh& mesh) {
-  double volume = 0;
-  for (const auto& t : mesh.triangles) {
-    const Eigen::Vector3d a = mesh.positions_mm[t[0]].cast<double>();
-    const Eigen::Vector3d b = mesh.positions_mm[t[1]].cast<double>();
-    const Eigen::Vector3d c = mesh.positions_mm[t[2]].cast<double>();
-    volume += a.dot(b.cross(c)) / 6.0;
-  }
-  return volume;
-}
-
 // Throws unless `mesh` has triangles, extent in every axis and volume; turns an inside-out mesh
 // (negative volume) the right way round. `what` names the file (and piece) in messages.
 void CheckAndOrient(const std::string& what, TriangleMesh* mesh) {
@@ -133,13 +121,7 @@ void CheckAndOrient(const std::string& what, TriangleMesh* mesh) {
   }
 
   // extent: every axis must be spanned
-  Eigen::Vector3f lo = mesh->positions_mm[0];
-  Eigen::Vector3f hi = lo;
-  for (const auto& p : mesh->positions_mm) {
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
-  }
-  const Eigen::Vector3d extent = (hi - lo).cast<double>();
+  const Eigen::Vector3d extent = Bounds(*mesh).sizes();
   const double diagonal = extent.norm();
   if (!(extent.minCoeff() > 1e-6 * std::max(diagonal, 1e-30))) {
     std::ostringstream message;
@@ -194,6 +176,23 @@ void AppendBox(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, TriangleMes
 }
 
 }  // namespace
+
+double SignedVolume(const TriangleMesh& mesh) {
+  double volume = 0;
+  for (const auto& t : mesh.triangles) {
+    const Eigen::Vector3d a = mesh.positions_mm[t[0]].cast<double>();
+    const Eigen::Vector3d b = mesh.positions_mm[t[1]].cast<double>();
+    const Eigen::Vector3d c = mesh.positions_mm[t[2]].cast<double>();
+    volume += a.dot(b.cross(c)) / 6.0;
+  }
+  return volume;
+}
+
+Eigen::AlignedBox3d Bounds(const TriangleMesh& mesh) {
+  Eigen::AlignedBox3d bounds;
+  for (const Eigen::Vector3f& p : mesh.positions_mm) bounds.extend(p.cast<double>());
+  return bounds;
+}
 
 TriangleMesh LoadMesh(const std::string& path, double scale_to_mm) {
   Assimp::Importer importer;

@@ -6,6 +6,7 @@
 #include <vector>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 
 namespace stackgen {
 
@@ -27,6 +28,12 @@ TriangleMesh LoadMesh(const std::string& path, double scale_to_mm);
 /// Loads each mesh of a model file as a separate piece (e.g. the convex pieces of a
 /// `*_collision.obj`), scaled by `scale_to_mm`. Throws as LoadMesh.
 std::vector<TriangleMesh> LoadMeshPieces(const std::string& path, double scale_to_mm);
+
+/// Signed volume enclosed by the triangles, mm^3 (positive when wound outward).
+double SignedVolume(const TriangleMesh& mesh);
+
+/// Axis-aligned bounds of the vertices, mm (empty for a mesh without vertices).
+Eigen::AlignedBox3d Bounds(const TriangleMesh& mesh);
 
 /// An open box standing on z = 0 with its inner floor centred at the origin: floor and four walls
 /// of thickness `wall_mm` around an inner space of length (x) x width (y) x height (z), mm.

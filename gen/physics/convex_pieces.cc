@@ -99,17 +99,6 @@ double HullVolume(const Hull& hull) {
   return std::abs(volume);
 }
 
-double MeshVolume(const TriangleMesh& mesh) {
-  double volume = 0;
-  for (const auto& t : mesh.triangles) {
-    volume +=
-        mesh.positions_mm[t[0]].cast<double>().dot(
-            mesh.positions_mm[t[1]].cast<double>().cross(mesh.positions_mm[t[2]].cast<double>())) /
-        6.0;
-  }
-  return volume;
-}
-
 // Drops flat pieces and pieces that lie inside another piece (they add cost, not shape).
 std::vector<std::vector<Eigen::Vector3d>> PruneContainedPieces(
     std::vector<std::vector<Eigen::Vector3d>> pieces, double extent_mm) {
@@ -346,7 +335,7 @@ ConvexPieces MakeConvexPieces(const TriangleMesh& part, const std::vector<Triang
   for (const auto& p : part.positions_mm) all_points.push_back(p.cast<double>());
   const Hull hull = ComputeHull(all_points);
   const double hull_volume = HullVolume(hull);
-  if (MeshVolume(part) >= settings.convex_volume_ratio * hull_volume) {
+  if (SignedVolume(part) >= settings.convex_volume_ratio * hull_volume) {
     result.points_mm.push_back(hull.vertices);
     result.description = "convex hull (" + std::to_string(hull.vertices.size()) + " vertices)";
     return result;

@@ -116,13 +116,8 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   }
 
   // refuse a bin too small for the parts: each must fit lying down, all of them in its volume.
-  Eigen::Vector3f low = part_mesh.positions_mm.front();
-  Eigen::Vector3f high = low;
-  for (const Eigen::Vector3f& p : part_mesh.positions_mm) {
-    low = low.cwiseMin(p);
-    high = high.cwiseMax(p);
-  }
-  std::vector<double> extent = {high.x() - low.x(), high.y() - low.y(), high.z() - low.z()};
+  const Eigen::Vector3d sizes = Bounds(part_mesh).sizes();
+  std::vector<double> extent = {sizes.x(), sizes.y(), sizes.z()};
   std::sort(extent.begin(), extent.end());
   const double floor_short = std::min(bin.inner_length_mm(), bin.inner_width_mm());
   const double floor_long = std::max(bin.inner_length_mm(), bin.inner_width_mm());

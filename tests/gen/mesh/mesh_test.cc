@@ -142,17 +142,6 @@ Bounds BoundsOf(const TriangleMesh& mesh) {
   return b;
 }
 
-double Volume(const TriangleMesh& mesh) {
-  double volume = 0;
-  for (const auto& t : mesh.triangles) {
-    volume +=
-        mesh.positions_mm[t[0]].cast<double>().dot(
-            mesh.positions_mm[t[1]].cast<double>().cross(mesh.positions_mm[t[2]].cast<double>())) /
-        6.0;
-  }
-  return volume;
-}
-
 // Every edge, with vertices welded by position, is used once in each direction.
 bool IsClosedAndConsistent(const TriangleMesh& mesh) {
   std::map<std::tuple<float, float, float>, int> ids;
@@ -182,7 +171,7 @@ TEST_F(MeshTest, LoadsObjCube) {
   const Bounds b = BoundsOf(mesh);
   EXPECT_TRUE(b.lo.isApprox(Eigen::Vector3f(0, -1, -1)));
   EXPECT_TRUE(b.hi.isApprox(Eigen::Vector3f(2, 1, 1)));
-  EXPECT_NEAR(Volume(mesh), 8.0, 1e-5);
+  EXPECT_NEAR(SignedVolume(mesh), 8.0, 1e-5);
   EXPECT_TRUE(IsClosedAndConsistent(mesh));
   // every normal is a face normal: one axis component is +-1
   for (const auto& n : mesh.normals) EXPECT_NEAR(n.cwiseAbs().maxCoeff(), 1.0f, 1e-5f);
@@ -194,7 +183,7 @@ TEST_F(MeshTest, ScalesToMillimetres) {
   const Bounds b = BoundsOf(mesh);
   EXPECT_TRUE(b.lo.isApprox(Eigen::Vector3f(0, -10, -10)));
   EXPECT_TRUE(b.hi.isApprox(Eigen::Vector3f(20, 10, 10)));
-  EXPECT_NEAR(Volume(mesh), 8000.0, 1e-2);
+  EXPECT_NEAR(SignedVolume(mesh), 8000.0, 1e-2);
 }
 
 // An ASCII STL loads with its triangle count, bounds and volume.
@@ -204,7 +193,7 @@ TEST_F(MeshTest, LoadsAsciiStl) {
   const Bounds b = BoundsOf(mesh);
   EXPECT_TRUE(b.lo.isApprox(Eigen::Vector3f(0, 0, 0)));
   EXPECT_TRUE(b.hi.isApprox(Eigen::Vector3f(30, 30, 30)));
-  EXPECT_NEAR(Volume(mesh), 30.0 * 30 * 30 / 6, 1e-2);
+  EXPECT_NEAR(SignedVolume(mesh), 30.0 * 30 * 30 / 6, 1e-2);
   EXPECT_TRUE(IsClosedAndConsistent(mesh));
 }
 
@@ -258,11 +247,11 @@ TEST_F(MeshTest, LoadsPieces) {
   EXPECT_TRUE(right.hi.isApprox(Eigen::Vector3f(4, 1, 1)));
   for (const auto& piece : pieces) {
     EXPECT_EQ(piece.triangles.size(), 12u);
-    EXPECT_NEAR(Volume(piece), 1.0, 1e-5);
+    EXPECT_NEAR(SignedVolume(piece), 1.0, 1e-5);
   }
   const TriangleMesh joined = LoadMesh(path, 1.0);
   EXPECT_EQ(joined.triangles.size(), 24u);
-  EXPECT_NEAR(Volume(joined), 2.0, 1e-5);
+  EXPECT_NEAR(SignedVolume(joined), 2.0, 1e-5);
 }
 
 // An inside-out mesh is turned outward-facing.
@@ -285,7 +274,7 @@ f 7 8 4 3
 f 8 5 1 4
 )";
   const TriangleMesh mesh = LoadMesh(Write("inverted.obj", inverted), 1.0);
-  EXPECT_NEAR(Volume(mesh), 8.0, 1e-5);
+  EXPECT_NEAR(SignedVolume(mesh), 8.0, 1e-5);
   // normals still point away from the centre
   for (size_t i = 0; i < mesh.positions_mm.size(); ++i) {
     EXPECT_GT(mesh.normals[i].dot(mesh.positions_mm[i] - Eigen::Vector3f(1, 0, 0)), 0);
@@ -301,14 +290,14 @@ TEST_F(MeshTest, BuiltInConnector) {
   EXPECT_TRUE(b.lo.isApprox(Eigen::Vector3f(-27.5f, -27.5f, 0), 1e-5f)) << b.lo.transpose();
   EXPECT_TRUE(b.hi.isApprox(Eigen::Vector3f(27.5f, 27.5f, 55), 1e-5f)) << b.hi.transpose();
   // two plates, a gusset, two 8.5 mm holes
-  EXPECT_NEAR(Volume(mesh), 35518.4, 1.0);
+  EXPECT_NEAR(SignedVolume(mesh), 35518.4, 1.0);
   const std::vector<TriangleMesh> pieces =
       LoadMeshPieces(dir + "corner_connector_collision.obj", 1.0);
   EXPECT_GT(pieces.size(), 2u);
   double pieces_volume = 0;
-  for (const auto& piece : pieces) pieces_volume += Volume(piece);
+  for (const auto& piece : pieces) pieces_volume += SignedVolume(piece);
   // the square-approximated holes remove a little more than the round ones
-  EXPECT_NEAR(pieces_volume, Volume(mesh), 0.01 * Volume(mesh));
+  EXPECT_NEAR(pieces_volume, SignedVolume(mesh), 0.01 * SignedVolume(mesh));
 }
 
 // The open bin spans the inner box plus walls, with the inner floor at z = 0.
@@ -322,7 +311,7 @@ TEST_F(MeshTest, OpenBinBounds) {
   EXPECT_EQ(bin.triangles.size(), 5u * 12u);
   // the x walls span the outer width, the y walls the inner length
   const double walls = 2 * (5.0 * 160 * 100) + 2 * (200.0 * 5 * 100);
-  EXPECT_NEAR(Volume(bin), 210.0 * 160 * 5 + walls, 1.0);
+  EXPECT_NEAR(SignedVolume(bin), 210.0 * 160 * 5 + walls, 1.0);
   EXPECT_THROW(MakeOpenBinMesh(0, 150, 100, 5), std::runtime_error);
 }
 

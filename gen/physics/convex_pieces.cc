@@ -30,19 +30,10 @@ constexpr char kCacheVersion[] = "stackgen-hacd-v1";
 // HACD works on coordinates scaled so the part's largest extent is this long
 constexpr double kHacdExtent = 1000.0;
 
-struct Box {
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(HUGE_VAL);
-  Eigen::Vector3d hi = Eigen::Vector3d::Constant(-HUGE_VAL);
-  void Add(const Eigen::Vector3d& p) {
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
-  }
-};
-
-std::string FormatBox(const Box& box) {
+std::string FormatBox(const Eigen::AlignedBox3d& box) {
   std::ostringstream text;
-  text << "[" << box.lo.x() << ", " << box.lo.y() << ", " << box.lo.z() << "] .. [" << box.hi.x()
-       << ", " << box.hi.y() << ", " << box.hi.z() << "] mm";
+  text << "[" << box.min().x() << ", " << box.min().y() << ", " << box.min().z() << "] .. ["
+       << box.max().x() << ", " << box.max().y() << ", " << box.max().z() << "] mm";
   return text.str();
 }
 
@@ -232,11 +223,11 @@ void WriteCache(const fs::path& path, const std::vector<std::vector<Eigen::Vecto
 }
 
 // Runs HACD on `part` with vertices welded by position.
-std::vector<std::vector<Eigen::Vector3d>> Decompose(const TriangleMesh& part, const Box& bounds,
+std::vector<std::vector<Eigen::Vector3d>> Decompose(const TriangleMesh& part, const Eigen::AlignedBox3d& bounds,
                                                     const DecompositionSettings& settings) {
   // weld: HACD walks triangle adjacency, so shared edges need shared vertices
-  const Eigen::Vector3d centre = (bounds.lo + bounds.hi) / 2;
-  const double extent = (bounds.hi - bounds.lo).maxCoeff();
+  const Eigen::Vector3d centre = bounds.center();
+  const double extent = bounds.sizes().maxCoeff();
   const double scale = kHacdExtent / extent;
   std::map<std::tuple<float, float, float>, long> index_of;
   std::vector<HACD::Vec3<HACD::Real>> points;
@@ -296,25 +287,24 @@ double ConvexHullVolume(const std::vector<Eigen::Vector3d>& points) {
 ConvexPieces MakeConvexPieces(const TriangleMesh& part, const std::vector<TriangleMesh>& supplied,
                               const std::string& cache_dir, const DecompositionSettings& settings) {
   if (part.triangles.empty()) throw std::runtime_error("the part mesh holds no triangles");
-  Box part_box;
-  for (const auto& p : part.positions_mm) part_box.Add(p.cast<double>());
-  const double extent = (part_box.hi - part_box.lo).maxCoeff();
+  const Eigen::AlignedBox3d part_box = Bounds(part);
+  const double extent = part_box.sizes().maxCoeff();
   ConvexPieces result;
 
   // supplied pieces: together they must span the part, each must have volume
   if (!supplied.empty()) {
-    Box pieces_box;
+    Eigen::AlignedBox3d pieces_box;
     for (const auto& piece : supplied) {
       std::vector<Eigen::Vector3d> points;
       for (const auto& p : piece.positions_mm) {
         points.push_back(p.cast<double>());
-        pieces_box.Add(points.back());
+        pieces_box.extend(points.back());
       }
       result.points_mm.push_back(std::move(points));
     }
     const double tolerance = 0.1 * extent;
-    if ((pieces_box.lo - part_box.lo).cwiseAbs().maxCoeff() > tolerance ||
-        (pieces_box.hi - part_box.hi).cwiseAbs().maxCoeff() > tolerance) {
+    if ((pieces_box.min() - part_box.min()).cwiseAbs().maxCoeff() > tolerance ||
+        (pieces_box.max() - part_box.max()).cwiseAbs().maxCoeff() > tolerance) {
       throw std::runtime_error("the collision pieces span " + FormatBox(pieces_box) +
                                " but the part spans " + FormatBox(part_box) +
                                "; are they in the part's units and frame?");

@@ -468,6 +468,7 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
         {"px_count_visib", instance->px_count_visib},
         {"bbox_obj", std::vector<int32_t>(instance->bbox_obj, instance->bbox_obj + 4)},
         {"posture_deg", std::vector<double>(instance->posture_deg, instance->posture_deg + 3)},
+        {"resting_face", instance->resting_face},
         {"cam_R_m2c",
          std::vector<double>(camera_from_object.rotation, camera_from_object.rotation + 9)},
         {"cam_t_m2c", std::vector<double>(camera_from_object.translation_mm,

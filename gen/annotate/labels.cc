@@ -81,6 +81,7 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
     label.camera_from_object = ToPoseMessage(camera_from_world * object.world_from_object);
     const Eigen::Vector3d posture = PostureAnglesDeg(object.world_from_object.linear());
     for (int k = 0; k < 3; ++k) label.posture_deg[k] = posture[k];
+    label.resting_face = object.resting_face;
 
     // the whole object from its silhouette
     label.px_count_all = cv::countNonZero(silhouettes[i]);

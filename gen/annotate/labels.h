@@ -18,6 +18,8 @@ struct ObjectTruth {
   std::string class_name;
   /// Object pose in the world (bin) frame, millimetres.
   Eigen::Isometry3d world_from_object = Eigen::Isometry3d::Identity();
+  /// Index of the hull face that points down (see instance.lcm resting_face); -1 unknown.
+  int resting_face = -1;
 };
 
 /// Labels every object from one render. `instance_map` is CV_16UC1 (0 = background, else the

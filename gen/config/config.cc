@@ -36,21 +36,28 @@ class FieldNamer {
   FieldNamer(std::string name, const pb::TextFormat::ParseInfoTree* tree)
       : name_(std::move(name)), tree_(tree) {}
 
-  std::string Where(const std::string& message_field, const std::string& field) const {
+  // `index` picks the element of a repeated message field (part); -1 for singular ones.
+  std::string Where(const std::string& message_field, const std::string& field,
+                    int index = -1) const {
     const pb::Descriptor* root = config::GeneratorConfig::descriptor();
     const pb::FieldDescriptor* outer = root->FindFieldByName(message_field);
+    const int outer_index = outer != nullptr && outer->is_repeated() ? index : -1;
+    const bool outer_set = tree_ != nullptr && outer != nullptr &&
+                           (outer_index < 0 || tree_->GetLocation(outer, outer_index).line >= 0);
     const pb::TextFormat::ParseInfoTree* nested =
-        tree_ != nullptr && outer != nullptr ? tree_->GetTreeForNested(outer, -1) : nullptr;
+        outer_set ? tree_->GetTreeForNested(outer, outer_index) : nullptr;
     const pb::FieldDescriptor* inner =
         outer != nullptr && !field.empty() ? outer->message_type()->FindFieldByName(field)
                                            : nullptr;
     int line = -1;
     if (nested != nullptr && inner != nullptr) {
       line = nested->GetLocation(inner, -1).line;
-    } else if (tree_ != nullptr && outer != nullptr && field.empty()) {
-      line = tree_->GetLocation(outer, -1).line;
+    } else if (outer_set && field.empty()) {
+      line = tree_->GetLocation(outer, outer_index).line;
     }
-    const std::string dotted = field.empty() ? message_field : message_field + "." + field;
+    std::string dotted = message_field;
+    if (outer_index >= 0) dotted += "[" + std::to_string(outer_index) + "]";
+    if (!field.empty()) dotted += "." + field;
     if (line >= 0) return name_ + ":" + std::to_string(line + 1) + ": " + dotted;
     return name_ + ": " + dotted + " (default)";
   }
@@ -69,10 +76,10 @@ std::string Number(double value) {
 // checks min <= value <= max (open bounds where asked) or throws naming the field.
 void CheckRange(const FieldNamer& namer, const std::string& message_field,
                 const std::string& field, double value, double min, double max,
-                bool min_open = false) {
+                bool min_open = false, int index = -1) {
   const bool low = min_open ? !(value > min) : !(value >= min);
   if (low || !(value <= max) || !std::isfinite(value)) {
-    throw ConfigError(namer.Where(message_field, field) + ": " + Number(value) +
+    throw ConfigError(namer.Where(message_field, field, index) + ": " + Number(value) +
                       " is out of range, must be in " + (min_open ? "(" : "[") + Number(min) +
                       ", " + Number(max) + "]");
   }
@@ -89,20 +96,54 @@ void CheckOrdered(const FieldNamer& namer, const std::string& message_field,
 
 void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   const double kHuge = 1e6;
-  // part
-  const config::PartConfig& part = c.part();
-  if (part.mesh().empty()) throw ConfigError(n.Where("part", "mesh") + ": must name a mesh file");
-  CheckRange(n, "part", "scale_to_mm", part.scale_to_mm(), 0, kHuge, true);
-  if (part.class_name().empty()) {
-    throw ConfigError(n.Where("part", "class_name") + ": must not be empty");
+  // parts
+  int max_objects = 0;
+  bool any_part = false;
+  for (int i = 0; i < c.part_size(); ++i) {
+    const config::PartConfig& part = c.part(i);
+    const auto range = [&](const std::string& field, double value, double min, double max,
+                           bool min_open = false) {
+      CheckRange(n, "part", field, value, min, max, min_open, i);
+    };
+    if (part.mesh().empty()) {
+      throw ConfigError(n.Where("part", "mesh", i) + ": must name a mesh file");
+    }
+    range("scale_to_mm", part.scale_to_mm(), 0, kHuge, true);
+    if (part.class_name().empty()) {
+      throw ConfigError(n.Where("part", "class_name", i) + ": must not be empty");
+    }
+    if (part.count_max() > 0) {
+      range("count_max", part.count_max(), 1, 1000);
+      range("count_min", part.count_min(), 0, part.count_max());
+      max_objects += part.count_max();
+    } else {
+      if (part.count_min() != 0) {
+        throw ConfigError(n.Where("part", "count_min", i) +
+                          ": needs count_max too (the number is drawn from [count_min, "
+                          "count_max])");
+      }
+      range("count", part.count(), 1, 1000);
+      max_objects += part.count();
+    }
+    range("density_kg_m3", part.density_kg_m3(), 0, 30000, true);
+    range("friction", part.friction(), 0, 2);
+    range("restitution", part.restitution(), 0, 1);
+    range("rolling_friction_mm", part.rolling_friction_mm(), 0, 10);
+    range("color_r", part.color_r(), 0, 1);
+    range("color_g", part.color_g(), 0, 1);
+    range("color_b", part.color_b(), 0, 1);
+    if (part.role() == config::PartConfig::ROLE_UNSPECIFIED) {
+      throw ConfigError(n.Where("part", "role", i) +
+                        ": must be PART, DISTRACTOR or LABELLED_DISTRACTOR");
+    }
+    any_part = any_part || part.role() == config::PartConfig::PART;
   }
-  CheckRange(n, "part", "count", part.count(), 1, 1000);
-  CheckRange(n, "part", "density_kg_m3", part.density_kg_m3(), 0, 30000, true);
-  CheckRange(n, "part", "friction", part.friction(), 0, 2);
-  CheckRange(n, "part", "restitution", part.restitution(), 0, 1);
-  CheckRange(n, "part", "color_r", part.color_r(), 0, 1);
-  CheckRange(n, "part", "color_g", part.color_g(), 0, 1);
-  CheckRange(n, "part", "color_b", part.color_b(), 0, 1);
+  if (!any_part) throw ConfigError(n.Where("part", "role", 0) + ": no part has role PART");
+  // annotation ids leave room for 999 instances per scene
+  if (max_objects > 999) {
+    throw ConfigError(n.Where("part", "count", 0) + ": up to " + std::to_string(max_objects) +
+                      " objects per scene; at most 999");
+  }
 
   // bin
   const config::BinConfig& bin = c.bin();
@@ -113,6 +154,9 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "bin", "color_r", bin.color_r(), 0, 1);
   CheckRange(n, "bin", "color_g", bin.color_g(), 0, 1);
   CheckRange(n, "bin", "color_b", bin.color_b(), 0, 1);
+  CheckRange(n, "bin", "mesh_scale_to_mm", bin.mesh_scale_to_mm(), 0, kHuge, true);
+  CheckRange(n, "bin", "friction", bin.friction(), 0, 2);
+  CheckRange(n, "bin", "restitution", bin.restitution(), 0, 1);
 
   // camera
   const config::CameraConfig& camera = c.camera();
@@ -156,6 +200,14 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
              physics.max_sim_time_s());
   CheckRange(n, "physics", "drop_height_mm", physics.drop_height_mm(), 0, 10000);
   CheckRange(n, "physics", "max_redraws", physics.max_redraws(), 0, 1000);
+  if (physics.drop_mode() == config::PhysicsConfig::DROP_MODE_UNSPECIFIED) {
+    throw ConfigError(n.Where("physics", "drop_mode") + ": must be RANDOM_VOLUME or SEQUENTIAL");
+  }
+  CheckRange(n, "physics", "drop_point_x_mm", physics.drop_point_x_mm(),
+             -bin.inner_length_mm() / 2, bin.inner_length_mm() / 2);
+  CheckRange(n, "physics", "drop_point_y_mm", physics.drop_point_y_mm(),
+             -bin.inner_width_mm() / 2, bin.inner_width_mm() / 2);
+  CheckRange(n, "physics", "max_penetration_mm", physics.max_penetration_mm(), 0.01, 10);
 
   // annotation and output
   CheckRange(n, "annotation", "min_visib_fract", c.annotation().min_visib_fract(), 0, 1);
@@ -216,6 +268,8 @@ LoadedConfig ParseConfig(const std::string& text, const std::string& name,
     throw ConfigError(errors.first().empty() ? name + ": cannot parse the config"
                                              : errors.first());
   }
+  // no part block: one default part, the built-in connector
+  if (loaded.config.part_size() == 0) loaded.config.add_part();
   Validate(loaded.config, FieldNamer(name, &tree));
   return loaded;
 }
@@ -241,7 +295,14 @@ std::string EffectiveConfigText(const config::GeneratorConfig& config) {
     const pb::Descriptor* descriptor = message->GetDescriptor();
     for (int i = 0; i < descriptor->field_count(); ++i) {
       const pb::FieldDescriptor* field = descriptor->field(i);
-      if (field->is_repeated()) continue;
+      if (field->is_repeated()) {
+        if (field->cpp_type() == pb::FieldDescriptor::CPPTYPE_MESSAGE) {
+          for (int k = 0; k < reflection->FieldSize(*message, field); ++k) {
+            pending.push_back(reflection->MutableRepeatedMessage(message, field, k));
+          }
+        }
+        continue;
+      }
       if (field->cpp_type() == pb::FieldDescriptor::CPPTYPE_MESSAGE) {
         pending.push_back(reflection->MutableMessage(message, field));
         continue;

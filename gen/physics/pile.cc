@@ -48,6 +48,17 @@ constexpr double kFallS = 0.1;
 // after this long without a release, the first waiting part goes above whatever blocks it, s
 constexpr double kStallS = 0.5;
 
+// sequential drops: a part has landed once it moved less than kLandedMm and kLandedDeg over
+// kLandedWindowS, or kLandedMaxS after its release
+constexpr double kLandedMm = 1;
+constexpr double kLandedDeg = 2;
+constexpr double kLandedWindowS = 0.1;
+constexpr double kLandedMaxS = 2;
+
+// a part reaching further than this beyond the inner walls' planes is outside the bin (below the
+// rim) or leans over the rim (above it), mm
+constexpr double kOverhangToleranceMm = 1;
+
 // releases and the settle rule are checked this many times per settle window
 constexpr int kChecksPerWindow = 25;
 
@@ -176,6 +187,7 @@ struct World {
   btCollisionDispatcher dispatcher{&configuration};
   btDbvtBroadphase broadphase;
   btSequentialImpulseConstraintSolver solver;
+  std::vector<std::unique_ptr<btTriangleMesh>> meshes;  // triangles of mesh shapes
   std::vector<std::unique_ptr<btCollisionShape>> shapes;
   std::vector<std::unique_ptr<btRigidBody>> bodies;
   std::unique_ptr<btDiscreteDynamicsWorld> world;
@@ -205,6 +217,7 @@ struct World {
 
 // How one part is dropped, drawn up front from the seed's engine.
 struct Release {
+  int type = 0;
   Eigen::Quaterniond world_from_object_rotation = Eigen::Quaterniond::Identity();
   Eigen::Vector3d object_origin_in_box_mm = Eigen::Vector3d::Zero();  // from the box's low corner
   Eigen::Vector3d size_mm = Eigen::Vector3d::Zero();                  // rotated bounding box
@@ -228,10 +241,13 @@ struct Release {
 // box at the release height is free; one blocked only by parts resting in the pile (a pile
 // higher than the release height) goes just above them; after kStallS without any release the
 // first waiting part goes above whatever blocks it.
+//
+// Sequential: only the first waiting part may go, and only once the previous one has landed; it
+// goes at the release height, or just above whatever is there.
 class ReleaseQueue {
  public:
-  ReleaseQueue(std::vector<Release> releases, double release_z_mm)
-      : releases_(std::move(releases)), release_z_mm_(release_z_mm) {
+  ReleaseQueue(std::vector<Release> releases, double release_z_mm, bool sequential)
+      : releases_(std::move(releases)), release_z_mm_(release_z_mm), sequential_(sequential) {
     for (size_t i = 0; i < releases_.size(); ++i) waiting_.push_back(static_cast<int>(i));
   }
 
@@ -239,10 +255,11 @@ class ReleaseQueue {
   const Release& release(int part) const { return releases_[part]; }
   double release_z_mm() const { return release_z_mm_; }
 
-  // Given the boxes of the bodies in the bin and whether each rests in the pile, returns the
-  // parts to release now with the height of their boxes' bottoms.
+  // Given the boxes of the bodies in the bin, whether each rests in the pile and whether the last
+  // released part has landed, returns the parts to release now with the height of their boxes'
+  // bottoms.
   std::vector<std::pair<int, double>> Next(double time_s, std::vector<Box> boxes,
-                                           const std::vector<bool>& in_pile) {
+                                           const std::vector<bool>& in_pile, bool landed) {
     auto free_at = [&](const Release& r, double z) {
       const Box box = r.BoxAt(z);
       return std::none_of(boxes.begin(), boxes.end(),
@@ -266,6 +283,16 @@ class ReleaseQueue {
       }
       return heights.back();  // unreachable: the highest candidate is always free
     };
+
+    // sequential: the next part, once the previous one has landed
+    if (sequential_) {
+      if (waiting_.empty() || !landed) return {};
+      const int part = waiting_.front();
+      waiting_.erase(waiting_.begin());
+      const Release& r = releases_[part];
+      last_release_s_ = time_s;
+      return {{part, free_at(r, release_z_mm_) ? release_z_mm_ : lowest_free(r)}};
+    }
 
     // every waiting part in order; each released box blocks the ones after it
     const bool stalled = time_s - last_release_s_ >= kStallS;
@@ -292,38 +319,98 @@ class ReleaseQueue {
  private:
   std::vector<Release> releases_;
   double release_z_mm_;
+  bool sequential_;
   std::vector<int> waiting_;
   double last_release_s_ = 0;
 };
 
-}  // namespace
-
-struct PileSimulator::Model {
+// One part type, ready to simulate.
+struct TypeModel {
   PartPhysics physics;
-  BinSpec bin;
-  SimulationParams params;
   MassProperties mass;
   // the body frame: at the centre of mass, along the principal axes of inertia; mm
   Eigen::Isometry3d body_from_object = Eigen::Isometry3d::Identity();
   Eigen::Isometry3d object_from_body = Eigen::Isometry3d::Identity();
   std::vector<Piece> pieces;
   std::vector<Eigen::Vector3d> hull_vertices_mm;  // object frame, for release boxes
+  std::vector<HullFace> hull_faces;
   double max_extent_mm = 0;
   std::string description;
+};
+
+// Builds a part type; errors start with `what`.
+TypeModel MakeTypeModel(const PartType& type, const std::string& what,
+                        const std::string& cache_dir) {
+  const PartPhysics& physics = type.physics;
+  CheckRange((what + "PartPhysics").c_str(), "density_kg_m3", physics.density_kg_m3, 1e-3, 1e6);
+  CheckRange((what + "PartPhysics").c_str(), "friction", physics.friction, 0, 10);
+  CheckRange((what + "PartPhysics").c_str(), "restitution", physics.restitution, 0, 1);
+  CheckRange((what + "PartPhysics").c_str(), "rolling_friction_mm", physics.rolling_friction_mm,
+             0, 100);
+  if (type.mesh.triangles.empty()) {
+    throw std::runtime_error("PileSimulator: " + what + "the part mesh is empty");
+  }
+  TypeModel model;
+  model.physics = physics;
+
+  // mass properties from the closed mesh; the body frame is the principal frame at the centre
+  // of mass
+  model.mass = ComputeMassProperties(type.mesh, physics.density_kg_m3,
+                                     "PileSimulator: " + what + "part mesh");
+  model.body_from_object = model.mass.principal_from_object;
+  model.object_from_body = model.body_from_object.inverse();
+
+  // collision pieces, in the body frame
+  ConvexPieces convex;
+  try {
+    convex = MakeConvexPieces(type.mesh, type.collision_pieces, cache_dir);
+  } catch (const std::runtime_error& e) {
+    throw std::runtime_error("PileSimulator: " + what + e.what());
+  }
+  model.pieces = MakePieces(convex.points_mm, model.body_from_object);
+  model.description = convex.description;
+
+  // the part's hull: its vertices give each released part's bounding box, its faces the
+  // resting face
+  std::vector<Eigen::Vector3d> points;
+  for (const auto& p : type.mesh.positions_mm) points.push_back(p.cast<double>());
+  btConvexHullComputer computer;
+  computer.compute(points[0].data(), sizeof(Eigen::Vector3d), static_cast<int>(points.size()), 0,
+                   0);
+  Box bounds;
+  for (int i = 0; i < computer.vertices.size(); ++i) {
+    model.hull_vertices_mm.push_back(points[computer.original_vertex_index[i]]);
+    bounds.Add(model.hull_vertices_mm.back());
+  }
+  model.max_extent_mm = (bounds.hi - bounds.lo).maxCoeff();
+  model.hull_faces = HullFaces(model.hull_vertices_mm);
+  return model;
+}
+
+}  // namespace
+
+struct PileSimulator::Model {
+  BinSpec bin;
+  SimulationParams params;
+  std::vector<TypeModel> types;
 };
 
 PileSimulator::PileSimulator(const TriangleMesh& part,
                              const std::vector<TriangleMesh>& collision_pieces,
                              const PartPhysics& physics, const BinSpec& bin,
+                             const SimulationParams& params, const std::string& cache_dir)
+    : PileSimulator(std::vector<PartType>{PartType{part, collision_pieces, physics}}, bin, params,
+                    cache_dir) {}
+
+PileSimulator::PileSimulator(const std::vector<PartType>& types, const BinSpec& bin,
                              const SimulationParams& params, const std::string& cache_dir) {
   // inputs
-  CheckRange("PartPhysics", "density_kg_m3", physics.density_kg_m3, 1e-3, 1e6);
-  CheckRange("PartPhysics", "friction", physics.friction, 0, 10);
-  CheckRange("PartPhysics", "restitution", physics.restitution, 0, 1);
   CheckRange("BinSpec", "inner_length_mm", bin.inner_length_mm, 1e-3, 1e6);
   CheckRange("BinSpec", "inner_width_mm", bin.inner_width_mm, 1e-3, 1e6);
   CheckRange("BinSpec", "inner_height_mm", bin.inner_height_mm, 1e-3, 1e6);
   CheckRange("BinSpec", "wall_mm", bin.wall_mm, 1e-3, 1e6);
+  CheckRange("BinSpec", "friction", bin.friction, 0, 10);
+  CheckRange("BinSpec", "restitution", bin.restitution, 0, 1);
   CheckRange("SimulationParams", "time_step_s", params.time_step_s, 1e-4, 0.01);
   CheckRange("SimulationParams", "max_sim_time_s", params.max_sim_time_s, params.time_step_s, 1e5);
   CheckRange("SimulationParams", "settle_translation_mm", params.settle_translation_mm, 1e-6, 1e6);
@@ -331,41 +418,19 @@ PileSimulator::PileSimulator(const TriangleMesh& part,
   CheckRange("SimulationParams", "settle_window_s", params.settle_window_s, params.time_step_s,
              params.max_sim_time_s);
   CheckRange("SimulationParams", "drop_height_mm", params.drop_height_mm, 0, 1e6);
-  if (part.triangles.empty()) throw std::runtime_error("PileSimulator: the part mesh is empty");
+  CheckRange("SimulationParams", "drop_point_mm.x", params.drop_point_mm.x(),
+             -bin.inner_length_mm / 2, bin.inner_length_mm / 2);
+  CheckRange("SimulationParams", "drop_point_mm.y", params.drop_point_mm.y(),
+             -bin.inner_width_mm / 2, bin.inner_width_mm / 2);
+  if (types.empty()) throw std::runtime_error("PileSimulator: no part types");
 
   auto model = std::make_unique<Model>();
-  model->physics = physics;
   model->bin = bin;
   model->params = params;
-
-  // mass properties from the closed mesh; the body frame is the principal frame at the centre
-  // of mass
-  model->mass = ComputeMassProperties(part, physics.density_kg_m3, "PileSimulator: part mesh");
-  model->body_from_object = model->mass.principal_from_object;
-  model->object_from_body = model->body_from_object.inverse();
-
-  // collision pieces, in the body frame
-  ConvexPieces convex;
-  try {
-    convex = MakeConvexPieces(part, collision_pieces, cache_dir);
-  } catch (const std::runtime_error& e) {
-    throw std::runtime_error(std::string("PileSimulator: ") + e.what());
+  for (size_t t = 0; t < types.size(); ++t) {
+    const std::string what = types.size() > 1 ? "part type " + std::to_string(t) + ": " : "";
+    model->types.push_back(MakeTypeModel(types[t], what, cache_dir));
   }
-  model->pieces = MakePieces(convex.points_mm, model->body_from_object);
-  model->description = convex.description;
-
-  // the part's hull vertices give each released part's bounding box
-  std::vector<Eigen::Vector3d> points;
-  for (const auto& p : part.positions_mm) points.push_back(p.cast<double>());
-  btConvexHullComputer computer;
-  computer.compute(points[0].data(), sizeof(Eigen::Vector3d), static_cast<int>(points.size()), 0,
-                   0);
-  Box bounds;
-  for (int i = 0; i < computer.vertices.size(); ++i) {
-    model->hull_vertices_mm.push_back(points[computer.original_vertex_index[i]]);
-    bounds.Add(model->hull_vertices_mm.back());
-  }
-  model->max_extent_mm = (bounds.hi - bounds.lo).maxCoeff();
   model_ = std::move(model);
 }
 
@@ -373,16 +438,42 @@ PileSimulator::~PileSimulator() = default;
 PileSimulator::PileSimulator(PileSimulator&&) noexcept = default;
 PileSimulator& PileSimulator::operator=(PileSimulator&&) noexcept = default;
 
-std::string PileSimulator::CollisionDescription() const { return model_->description; }
+namespace {
 
-double PileSimulator::mass_kg() const { return model_->mass.mass_kg; }
+// the model of `type`, or an error naming it
+template <typename Types>
+const auto& TypeAt(const Types& types, int type) {
+  if (type < 0 || type >= static_cast<int>(types.size())) {
+    throw std::runtime_error("PileSimulator: no part type " + std::to_string(type) + " (there are " +
+                             std::to_string(types.size()) + ")");
+  }
+  return types[type];
+}
+
+}  // namespace
+
+std::string PileSimulator::CollisionDescription(int type) const {
+  return TypeAt(model_->types, type).description;
+}
+
+double PileSimulator::mass_kg(int type) const { return TypeAt(model_->types, type).mass.mass_kg; }
+
+const std::vector<HullFace>& PileSimulator::hull_faces(int type) const {
+  return TypeAt(model_->types, type).hull_faces;
+}
 
 PileResult PileSimulator::Simulate(int count, uint64_t seed) const {
   if (count < 0) {
     throw std::runtime_error("PileSimulator::Simulate: count must be >= 0, got " +
                              std::to_string(count));
   }
+  return Simulate(std::vector<int>(count, 0), seed);
+}
+
+PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed) const {
   const Model& m = *model_;
+  for (int type : types) TypeAt(m.types, type);
+  const int count = static_cast<int>(types.size());
   const BinSpec& bin = m.bin;
   const SimulationParams& params = m.params;
   const double dt = params.time_step_s;
@@ -400,13 +491,31 @@ PileResult PileSimulator::Simulate(int count, uint64_t seed) const {
                         SOLVER_ENABLE_FRICTION_DIRECTION_CACHING |
                         SOLVER_DISABLE_VELOCITY_DEPENDENT_FRICTION_DIRECTION;
 
-  // Bullet multiplies the two bodies' coefficients: each gets the square root, so part-part and
-  // part-bin contacts both get the configured value
-  const btScalar friction = static_cast<btScalar>(std::sqrt(m.physics.friction));
-  const btScalar restitution = static_cast<btScalar>(std::sqrt(m.physics.restitution));
+  // Bullet multiplies the two bodies' coefficients: each gets the square root, so a contact
+  // gets the geometric mean of the two surfaces' values
+  const auto root = [](double value) { return static_cast<btScalar>(std::sqrt(value)); };
 
-  // the bin: floor and four walls, a static compound of boxes, on a table at z = -wall
-  {
+  // the bin: a tote mesh, or floor and four walls as a static compound of boxes; on a table
+  if (!bin.mesh.triangles.empty()) {
+    auto triangles = std::make_unique<btTriangleMesh>();
+    for (const auto& t : bin.mesh.triangles) {
+      const auto corner = [&](int k) {
+        return ToSim(Eigen::Vector3d(bin.mesh.positions_mm[t[k]].cast<double>()));
+      };
+      triangles->addTriangle(corner(0), corner(1), corner(2), false);
+    }
+    auto* tote = w.AddShape<btBvhTriangleMeshShape>(triangles.get(), true);
+    tote->setMargin(ToSim(kMarginMm));
+    w.meshes.push_back(std::move(triangles));
+    const double table_z = Bounds(bin.mesh).min().z();
+    auto* table = w.AddShape<btStaticPlaneShape>(btVector3(0, 0, 1), ToSim(table_z));
+    for (btCollisionShape* shape : std::vector<btCollisionShape*>{tote, table}) {
+      btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, shape);
+      info.m_friction = root(bin.friction);
+      info.m_restitution = root(bin.restitution);
+      w.AddBody(info);
+    }
+  } else {
     const double l = bin.inner_length_mm / 2;
     const double wd = bin.inner_width_mm / 2;
     const double h = bin.inner_height_mm;
@@ -426,8 +535,8 @@ PileResult PileSimulator::Simulate(int count, uint64_t seed) const {
     auto* table = w.AddShape<btStaticPlaneShape>(btVector3(0, 0, 1), ToSim(-t));
     for (btCollisionShape* shape : std::vector<btCollisionShape*>{compound, table}) {
       btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, shape);
-      info.m_friction = friction;
-      info.m_restitution = restitution;
+      info.m_friction = root(bin.friction);
+      info.m_restitution = root(bin.restitution);
       w.AddBody(info);
     }
   }
@@ -437,103 +546,154 @@ PileResult PileSimulator::Simulate(int count, uint64_t seed) const {
     return empty;
   }
 
-  // the part: a compound of its pieces around the centre of mass, principal axes
-  auto* part_shape = w.AddShape<btCompoundShape>(true, static_cast<int>(m.pieces.size()));
-  for (const Piece& piece : m.pieces) {
-    btCollisionShape* child = nullptr;
-    if (piece.is_box) {
-      child = w.AddShape<btBoxShape>(ToSim(piece.half_extents_mm));
-    } else {
-      auto* hull = w.AddShape<btConvexHullShape>();
-      for (const auto& p : piece.points_mm) hull->addPoint(ToSim(p), false);
-      hull->recalcLocalAabb();
-      child = hull;
+  // each type used: a compound of its pieces around the centre of mass, principal axes
+  std::vector<btCompoundShape*> type_shape(m.types.size(), nullptr);
+  std::vector<btVector3> type_inertia(m.types.size());
+  for (int type : types) {
+    if (type_shape[type] != nullptr) continue;
+    const TypeModel& tm = m.types[type];
+    auto* shape = w.AddShape<btCompoundShape>(true, static_cast<int>(tm.pieces.size()));
+    for (const Piece& piece : tm.pieces) {
+      btCollisionShape* child = nullptr;
+      if (piece.is_box) {
+        child = w.AddShape<btBoxShape>(ToSim(piece.half_extents_mm));
+      } else {
+        auto* hull = w.AddShape<btConvexHullShape>();
+        for (const auto& p : piece.points_mm) hull->addPoint(ToSim(p), false);
+        hull->recalcLocalAabb();
+        child = hull;
+      }
+      child->setMargin(ToSim(piece.margin_mm));
+      shape->addChildShape(ToSim(piece.body_from_piece), child);
     }
-    child->setMargin(ToSim(piece.margin_mm));
-    part_shape->addChildShape(ToSim(piece.body_from_piece), child);
+    type_shape[type] = shape;
+    const Eigen::Vector3d& moments = tm.mass.principal_moments_kg_mm2;
+    const double inertia_scale = kSimPerMm * kSimPerMm;
+    type_inertia[type] = btVector3(static_cast<btScalar>(moments.x() * inertia_scale),
+                                   static_cast<btScalar>(moments.y() * inertia_scale),
+                                   static_cast<btScalar>(moments.z() * inertia_scale));
   }
-  const Eigen::Vector3d& moments = m.mass.principal_moments_kg_mm2;
-  const double inertia_scale = kSimPerMm * kSimPerMm;
-  const btVector3 inertia(static_cast<btScalar>(moments.x() * inertia_scale),
-                          static_cast<btScalar>(moments.y() * inertia_scale),
-                          static_cast<btScalar>(moments.z() * inertia_scale));
 
   // how each part drops, all drawn now: orientation, bounding box, and x, y inside the opening
   // (centred where the box is wider than the bin)
+  // (sequential: centred on the drop point, kept inside the opening where it fits)
+  const bool sequential = params.drop_mode == DropMode::kSequential;
   std::mt19937_64 engine(seed);
   std::vector<Release> releases;
   const double half_inner[2] = {bin.inner_length_mm / 2, bin.inner_width_mm / 2};
   for (int i = 0; i < count; ++i) {
     Release release;
+    release.type = types[i];
     release.world_from_object_rotation = UniformRotation(engine);
     Box box;
-    for (const auto& v : m.hull_vertices_mm) box.Add(release.world_from_object_rotation * v);
+    for (const auto& v : m.types[types[i]].hull_vertices_mm) {
+      box.Add(release.world_from_object_rotation * v);
+    }
     release.object_origin_in_box_mm = -box.lo;
     release.size_mm = box.hi - box.lo;
     for (int axis = 0; axis < 2; ++axis) {
       const double room = 2 * (half_inner[axis] - kReleaseWallMarginMm) - release.size_mm[axis];
-      const double u = Uniform01(engine);
-      release.box_lo_xy_mm[axis] = room > 0 ? -half_inner[axis] + kReleaseWallMarginMm + u * room
-                                            : -release.size_mm[axis] / 2;
+      const double lowest = -half_inner[axis] + kReleaseWallMarginMm;
+      if (room <= 0) {
+        release.box_lo_xy_mm[axis] = -release.size_mm[axis] / 2;
+      } else if (sequential) {
+        release.box_lo_xy_mm[axis] = std::clamp(
+            params.drop_point_mm[axis] - release.size_mm[axis] / 2, lowest, lowest + room);
+      } else {
+        release.box_lo_xy_mm[axis] = lowest + Uniform01(engine) * room;
+      }
     }
     releases.push_back(release);
   }
-  ReleaseQueue queue(std::move(releases), bin.inner_height_mm + params.drop_height_mm);
+  ReleaseQueue queue(std::move(releases), bin.inner_height_mm + params.drop_height_mm,
+                     sequential);
 
   // releases what the queue lets go; returns whether any part was released
   std::vector<btRigidBody*> body_of_part(count, nullptr);
   std::vector<btRigidBody*> released_bodies;
+  std::vector<int> released_types;
   std::vector<double> released_at_s;
+  // the last released body's poses since its release, for sequential drops
+  std::vector<std::pair<double, Eigen::Isometry3d>> last_poses;
   auto release = [&](double time_s) {
+    // whether the last released part has landed
+    bool landed = released_bodies.empty();
+    if (!landed) {
+      const Eigen::Isometry3d now = FromSim(released_bodies.back()->getWorldTransform());
+      last_poses.emplace_back(time_s, now);
+      landed = time_s - released_at_s.back() >= kLandedMaxS;
+      for (auto it = last_poses.rbegin(); it != last_poses.rend() && !landed; ++it) {
+        if (it->first > time_s - kLandedWindowS + 1e-9) continue;
+        const double moved_mm = (now.translation() - it->second.translation()).norm();
+        const double turned_deg =
+            Eigen::AngleAxisd(now.linear() * it->second.linear().transpose()).angle() * 180 /
+            M_PI;
+        landed = moved_mm < kLandedMm && turned_deg < kLandedDeg;
+        break;
+      }
+    }
     // the released bodies' boxes, and which of them rest in the pile
     std::vector<Box> boxes;
     std::vector<bool> in_pile;
     for (size_t b = 0; b < released_bodies.size(); ++b) {
+      const TypeModel& tm = m.types[released_types[b]];
       const Eigen::Isometry3d world_from_object =
-          FromSim(released_bodies[b]->getWorldTransform()) * m.body_from_object;
+          FromSim(released_bodies[b]->getWorldTransform()) * tm.body_from_object;
       Box box;
-      for (const auto& v : m.hull_vertices_mm) box.Add(world_from_object * v);
+      for (const auto& v : tm.hull_vertices_mm) box.Add(world_from_object * v);
       boxes.push_back(box);
       const double speed_mm_s = released_bodies[b]->getLinearVelocity().length() / kSimPerMm;
       in_pile.push_back(speed_mm_s < kPileSpeedMmS && time_s - released_at_s[b] >= kFallS);
     }
     // the new bodies, at rest
-    const auto parts = queue.Next(time_s, std::move(boxes), in_pile);
+    const auto parts = queue.Next(time_s, std::move(boxes), in_pile, landed);
     for (const auto& [part, z] : parts) {
-      btRigidBody::btRigidBodyConstructionInfo info(static_cast<btScalar>(m.mass.mass_kg), nullptr,
-                                                    part_shape, inertia);
+      const int type = queue.release(part).type;
+      const TypeModel& tm = m.types[type];
+      btRigidBody::btRigidBodyConstructionInfo info(static_cast<btScalar>(tm.mass.mass_kg),
+                                                    nullptr, type_shape[type],
+                                                    type_inertia[type]);
       info.m_startWorldTransform =
-          ToSim(queue.release(part).WorldFromObjectAt(z) * m.object_from_body);
-      info.m_friction = friction;
-      info.m_restitution = restitution;
+          ToSim(queue.release(part).WorldFromObjectAt(z) * tm.object_from_body);
+      info.m_friction = root(tm.physics.friction);
+      info.m_restitution = root(tm.physics.restitution);
+      info.m_rollingFriction = ToSim(tm.physics.rolling_friction_mm);
+      info.m_spinningFriction = ToSim(tm.physics.rolling_friction_mm);
       btRigidBody* body = w.AddBody(info);
       // the settle rule decides when to stop; sleeping bodies would freeze mid-motion
       body->setActivationState(DISABLE_DEACTIVATION);
       body->setDamping(0, static_cast<btScalar>(kAngularDamping));
       body_of_part[part] = body;
       released_bodies.push_back(body);
+      released_types.push_back(type);
       released_at_s.push_back(time_s);
+      last_poses.clear();
     }
     return !parts.empty();
   };
   release(0);
 
-  // step at the fixed step until every part is released and the pile has settled, or the cap;
-  // releases and the settle rule are checked every check_every steps
-  const int max_steps = static_cast<int>(std::ceil(params.max_sim_time_s / dt - 1e-9));
+  // step at the fixed step until every part is released and the pile has settled, or the cap
+  // (max_sim_time_s after the last release; releases get kLandedMaxS per part at most, waves
+  // kStallS); releases and the settle rule are checked every check_every steps
+  const int settle_steps = static_cast<int>(std::ceil(params.max_sim_time_s / dt - 1e-9));
+  const int max_steps =
+      settle_steps +
+      static_cast<int>(std::ceil(count * std::max(kLandedMaxS, kStallS) / dt - 1e-9));
+  int last_release_step = 0;
   const int check_every =
       std::max(1, static_cast<int>(std::lround(params.settle_window_s / kChecksPerWindow / dt)));
   SettleDetector settle(params.settle_translation_mm, params.settle_rotation_deg,
                         params.settle_window_s);
   PileResult result;
   int step = 0;
-  while (step < max_steps && !result.settled) {
+  while (step < max_steps && step - last_release_step < settle_steps && !result.settled) {
     w.world->stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
     ++step;
     if (step % check_every != 0) continue;
     const double time_s = step * dt;
     if (!queue.empty()) {
-      release(time_s);
+      if (release(time_s)) last_release_step = step;
       continue;
     }
     // the settle window starts with the last release
@@ -553,13 +713,28 @@ PileResult PileSimulator::Simulate(int count, uint64_t seed) const {
       ++result.num_outside;
       continue;
     }
+    const TypeModel& tm = m.types[types[i]];
     const Eigen::Isometry3d world_from_body = FromSim(body_of_part[i]->getWorldTransform());
-    result.world_from_object.push_back(world_from_body * m.body_from_object);
+    result.world_from_object.push_back(world_from_body * tm.body_from_object);
     const Eigen::Vector3d com = world_from_body.translation();
     const bool inside = std::abs(com.x()) <= bin.inner_length_mm / 2 &&
                         std::abs(com.y()) <= bin.inner_width_mm / 2 && com.z() >= 0 &&
-                        com.z() <= bin.inner_height_mm + m.max_extent_mm;
-    if (!inside) ++result.num_outside;
+                        com.z() <= bin.inner_height_mm + tm.max_extent_mm;
+    // parts reaching beyond the walls' planes: hanging outside below the rim, leaning over it
+    // above
+    bool hooked = false, leaning = false;
+    for (const auto& v : tm.hull_vertices_mm) {
+      const Eigen::Vector3d p = result.world_from_object.back() * v;
+      const bool beyond = std::abs(p.x()) > bin.inner_length_mm / 2 + kOverhangToleranceMm ||
+                          std::abs(p.y()) > bin.inner_width_mm / 2 + kOverhangToleranceMm;
+      if (beyond && p.z() < bin.inner_height_mm - kOverhangToleranceMm) hooked = true;
+      if (beyond) leaning = true;
+    }
+    if (!inside || hooked) {
+      ++result.num_outside;
+    } else if (leaning) {
+      ++result.num_overhanging;
+    }
   }
 
   // the deepest penetration over the current contacts

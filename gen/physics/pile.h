@@ -8,35 +8,61 @@
 #include <Eigen/Geometry>
 
 #include "gen/mesh/mesh.h"
+#include "gen/physics/hull_faces.h"
 
 namespace stackgen {
 
 /// The bin, millimetres: an open box on z = 0 whose inner floor is centred at the origin, z up.
 /// The inner floor is the plane z = 0 (the floor slab fills z in [-wall_mm, 0]) and the rim is at
 /// z = inner_height_mm, as in MakeOpenBinMesh. The bin stands on a table at z = -wall_mm that
-/// catches parts which fall out.
+/// catches parts which fall out. With a `mesh` (a real tote, same frame), that mesh is the bin's
+/// collision shape instead of the box (a static triangle mesh), the table lies at its lowest
+/// point, and the inner sizes still say where parts are released and what counts as inside.
 struct BinSpec {
   double inner_length_mm;  // along x
   double inner_width_mm;   // along y
   double inner_height_mm;  // inner floor to rim, along z
   double wall_mm;          // thickness of the floor and the walls
+  double friction = 0.6;   // Coulomb coefficient of the bin's surfaces, >= 0
+  double restitution = 0.1;  // 0..1
+  TriangleMesh mesh;         // optional tote mesh, world frame, mm; empty = the box above
 };
 
-/// Material of the part. Friction and restitution apply to part-part and part-bin contacts alike.
+/// Material of a part type. A contact gets the geometric mean of the two surfaces' friction and
+/// of their restitution.
 struct PartPhysics {
-  double density_kg_m3 = 2700;  // > 0; aluminium
-  double friction = 0.6;        // Coulomb coefficient, >= 0
-  double restitution = 0.1;     // 0..1
+  double density_kg_m3 = 2700;     // > 0; aluminium
+  double friction = 0.6;           // Coulomb coefficient, >= 0
+  double restitution = 0.1;        // 0..1
+  double rolling_friction_mm = 0;  // lever arm resisting rolling and spinning, mm, >= 0
+};
+
+/// One part type: its mesh (mm, closed, outward-wound), optional convex collision pieces (mm,
+/// same frame; empty = decomposition or hull, see PileSimulator) and material.
+struct PartType {
+  TriangleMesh mesh;
+  std::vector<TriangleMesh> collision_pieces;
+  PartPhysics physics;
+};
+
+/// How parts are released into the bin.
+enum class DropMode {
+  /// random orientation and x, y over the opening; released in waves as space frees up
+  kRandomVolume,
+  /// the paper's: one by one from a fixed point, each once the previous one has landed
+  kSequential,
 };
 
 /// How a pile is simulated and when it counts as settled.
 struct SimulationParams {
   double time_step_s = 1.0 / 600;    // fixed physics step, 1e-4..0.01 s
-  double max_sim_time_s = 10;        // simulated-time cap, s
+  double max_sim_time_s = 10;        // simulated-time cap after the last release, s
   double settle_translation_mm = 1;  // settled when every body's centre of mass moved less than
   double settle_rotation_deg = 1;    // this and turned less than this over the last
   double settle_window_s = 0.25;     // settle_window_s seconds (a sliding window)
   double drop_height_mm = 40;        // gap between the rim and the lowest released part, >= 0
+  DropMode drop_mode = DropMode::kRandomVolume;
+  Eigen::Vector2d drop_point_mm = Eigen::Vector2d::Zero();  // kSequential: x, y of the release
 };
 
 /// A settled (or capped) pile.
@@ -46,16 +72,22 @@ struct PileResult {
   // every body moved < settle_translation_mm and < settle_rotation_deg over the last
   // settle_window_s
   bool settled = false;
-  // parts whose centre of mass is not inside the bin's inner box (x,y within inner size, z
-  // between the floor and the rim + one part size: an overfull pile still counts as inside)
+  // parts outside the bin: the centre of mass is not inside the bin's inner box (x,y within
+  // inner size, z between the floor and the rim + one part size: an overfull pile still counts as
+  // inside), or the part reaches more than 1 mm beyond an inner wall's plane below the rim (hooked
+  // over the wall, hanging outside)
   int num_outside = 0;
+  // parts inside by the rule above that reach more than 1 mm beyond an inner wall's plane above
+  // the rim: leaning over the rim, as parts in a full real bin do
+  int num_overhanging = 0;
   // simulated time until settled or the cap
   double simulated_s = 0;
   // deepest contact penetration at the end (part-part and part-bin)
   double max_penetration_mm = 0;
 };
 
-/// Drops copies of one rigid part into an open bin with Bullet and runs until they settle.
+/// Drops copies of rigid parts (one or more part types) into an open bin with Bullet and runs
+/// until they settle.
 /// Bullet works in centimetres with 0.2 mm collision margins (hull pieces are shrunk by the
 /// margin first), 20 solver iterations per fixed step, split-impulse contacts and a little angular
 /// damping; at the default 1/600 s step a 6 mm plate does not tunnel and penetrations stay far
@@ -73,26 +105,39 @@ class PileSimulator {
   PileSimulator(const TriangleMesh& part, const std::vector<TriangleMesh>& collision_pieces,
                 const PartPhysics& physics, const BinSpec& bin, const SimulationParams& params,
                 const std::string& cache_dir);
+
+  /// As above for several part types (at least one); errors name the type by index
+  /// ("part type 1: ...").
+  PileSimulator(const std::vector<PartType>& types, const BinSpec& bin,
+                const SimulationParams& params, const std::string& cache_dir);
   ~PileSimulator();
   PileSimulator(PileSimulator&&) noexcept;
   PileSimulator& operator=(PileSimulator&&) noexcept;
 
-  /// Drops `count` copies into the bin and runs until settled or max_sim_time_s. Pure function of
-  /// (inputs, seed): bit-identical across runs and processes. All randomness from an engine seeded
-  /// with `seed`: each part gets a rotation uniform over SO(3) and a random x, y that keeps its
-  /// bounding box inside the opening. Parts are released at rest, their lowest point
-  /// drop_height_mm above the rim, in quick waves: a part goes as soon as its bounding box there
-  /// is free of the others (so none overlaps and none falls far); if the pile itself reaches that
-  /// height, just above it. The settle window starts after the last release. Throws
-  /// std::runtime_error if count < 0.
+  /// Drops one part of type types[i] for each i, in that order, and runs until settled or
+  /// max_sim_time_s. Pure function of (inputs, seed): bit-identical across runs and processes.
+  /// All randomness from an engine seeded with `seed`: each part gets a rotation uniform over
+  /// SO(3) and, with kRandomVolume, a random x, y that keeps its bounding box inside the opening.
+  /// Parts are released at rest, their lowest point drop_height_mm above the rim. kRandomVolume
+  /// releases them in quick waves: a part goes as soon as its bounding box there is free of the
+  /// others (so none overlaps and none falls far). kSequential centres each on drop_point_mm and
+  /// releases it once the previous one has landed (moved < 1 mm and < 2 degrees over 0.1 s, or
+  /// 2 s passed). If the pile itself reaches the release height, parts go just above it. The
+  /// settle window starts after the last release. Throws std::runtime_error for an unknown type.
+  PileResult Simulate(const std::vector<int>& types, uint64_t seed) const;
+
+  /// `count` copies of type 0. Throws std::runtime_error if count < 0.
   PileResult Simulate(int count, uint64_t seed) const;
 
-  /// One line saying which collision shape is used, e.g. "compound of 4 convex pieces
+  /// One line saying which collision shape type `type` uses, e.g. "compound of 4 convex pieces
   /// (supplied)" / "HACD decomposition, 7 pieces (cached, <file>)" / "convex hull (8 vertices)".
-  std::string CollisionDescription() const;
+  std::string CollisionDescription(int type = 0) const;
 
-  /// Mass of one part, kg, from the mesh volume and the density.
-  double mass_kg() const;
+  /// Mass of one part of type `type`, kg, from the mesh volume and the density.
+  double mass_kg(int type = 0) const;
+
+  /// The planar faces of the convex hull of type `type` (see HullFaces), for resting faces.
+  const std::vector<HullFace>& hull_faces(int type = 0) const;
 
  private:
   struct Model;

@@ -198,12 +198,14 @@ int Run(int argc, char** argv) {
   const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
   std::printf(
       "stackgen: %lld scenes in %.1f s (%.2f scenes/s)%s; per scene: physics %s ms, render %s "
-      "ms, annotate %s ms, publish %s ms; %d drops redrawn\n",
+      "ms, annotate %s ms, publish %s ms; %d drops redrawn (%d unsettled, %d outside the bin, %d "
+      "interpenetrating)\n",
       static_cast<long long>(published), elapsed, elapsed > 0 ? published / elapsed : 0.0,
       g_stop ? ", stopped by signal" : "", FormatMs(times.physics_ms, published).c_str(),
       FormatMs(times.render_ms, published).c_str(),
       FormatMs(times.annotate_ms, published).c_str(),
-      FormatMs(times.encode_ms + publish_ms, published).c_str(), times.redraws);
+      FormatMs(times.encode_ms + publish_ms, published).c_str(), times.redraws,
+      times.redraws_unsettled, times.redraws_outside, times.redraws_penetrating);
   return 0;
 }
 

@@ -32,8 +32,17 @@ uint64_t SplitMix64(uint64_t x) {
   return x ^ (x >> 31);
 }
 
-// largest penetration a published scene may have, mm.
-constexpr double kMaxPenetrationMm = 0.5;
+// a number drawn uniformly from [lo, hi] (the same on every platform).
+int UniformCount(std::mt19937_64& engine, int lo, int hi) {
+  return lo + static_cast<int>(engine() % static_cast<uint64_t>(hi - lo + 1));
+}
+
+// "60 x 40 x 10 mm": the sides of a box, longest first.
+std::string SizeText(const Eigen::Vector3d& sides) {
+  std::ostringstream text;
+  text << sides[2] << " x " << sides[1] << " x " << sides[0] << " mm";
+  return text.str();
+}
 
 // turns an image into an image message, raw (little-endian rows) or PNG.
 image EncodeImage(const cv::Mat& pixels, int8_t pixel_format,
@@ -71,13 +80,20 @@ uint64_t SceneSeed(uint64_t base_seed, int32_t generator_id, int64_t seq, int re
   return SplitMix64(seed ^ static_cast<uint64_t>(redraw));
 }
 
+// One part type of the config, as the scene uses it.
+struct TypeInScene {
+  int mesh_id = 0;
+  // class id among the labelled types (1, 2, ... by first class_name), 0 = not labelled
+  int class_id = 0;
+};
+
 struct SceneGenerator::Impl {
   LoadedConfig loaded;
   int32_t generator_id = 0;
   uint64_t base_seed = 0;
   std::unique_ptr<PileSimulator> simulator;
   std::unique_ptr<Renderer> renderer;
-  int part_mesh_id = 0;
+  std::vector<TypeInScene> types;
   int bin_mesh_id = 0;
   std::string description;
 
@@ -105,46 +121,80 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   impl_->loaded = config;
   impl_->generator_id = generator_id;
   impl_->base_seed = base_seed;
-  const config::PartConfig& part = config.config.part();
   const config::BinConfig& bin = config.config.bin();
 
-  // the part, and its convex collision pieces when the config names them.
-  const TriangleMesh part_mesh = LoadMesh(config.Resolve(part.mesh()), part.scale_to_mm());
-  std::vector<TriangleMesh> pieces;
-  if (!part.collision_mesh().empty()) {
-    pieces = LoadMeshPieces(config.Resolve(part.collision_mesh()), part.scale_to_mm());
+  // each part type: its mesh and, when the config names them, its convex collision pieces.
+  std::vector<PartType> types;
+  for (const config::PartConfig& part : config.config.part()) {
+    PartType type;
+    type.mesh = LoadMesh(config.Resolve(part.mesh()), part.scale_to_mm());
+    if (!part.collision_mesh().empty()) {
+      type.collision_pieces =
+          LoadMeshPieces(config.Resolve(part.collision_mesh()), part.scale_to_mm());
+    }
+    type.physics.density_kg_m3 = part.density_kg_m3();
+    type.physics.friction = part.friction();
+    type.physics.restitution = part.restitution();
+    type.physics.rolling_friction_mm = part.rolling_friction_mm();
+    types.push_back(std::move(type));
   }
 
   // refuse a bin too small for the parts: each must fit lying down, all of them in its volume.
-  const Eigen::Vector3d sizes = Bounds(part_mesh).sizes();
-  std::vector<double> extent = {sizes.x(), sizes.y(), sizes.z()};
-  std::sort(extent.begin(), extent.end());
   const double floor_short = std::min(bin.inner_length_mm(), bin.inner_width_mm());
   const double floor_long = std::max(bin.inner_length_mm(), bin.inner_width_mm());
-  const double parts_volume = part.count() * extent[0] * extent[1] * extent[2];
   const double bin_volume = bin.inner_length_mm() * bin.inner_width_mm() * bin.inner_height_mm();
-  std::ostringstream size;
-  size << extent[2] << " x " << extent[1] << " x " << extent[0] << " mm";
-  if (extent[1] > floor_short || extent[2] > floor_long) {
-    throw ConfigError(config.path + ": bin.inner_length_mm/inner_width_mm: the part (" +
-                      size.str() + ") does not fit on the bin floor (" +
-                      std::to_string(bin.inner_length_mm()) + " x " +
-                      std::to_string(bin.inner_width_mm()) + " mm)");
+  double parts_volume = 0;
+  std::ostringstream parts_text;
+  for (size_t t = 0; t < types.size(); ++t) {
+    const config::PartConfig& part = config.config.part(static_cast<int>(t));
+    const Eigen::Vector3d sizes = Bounds(types[t].mesh).sizes();
+    std::vector<double> extent = {sizes.x(), sizes.y(), sizes.z()};
+    std::sort(extent.begin(), extent.end());
+    const Eigen::Vector3d sides(extent[0], extent[1], extent[2]);
+    if (extent[1] > floor_short || extent[2] > floor_long) {
+      std::ostringstream text;
+      text << config.path << ": bin.inner_length_mm/inner_width_mm: part[" << t << "] ("
+           << SizeText(sides) << ") does not fit on the bin floor (" << bin.inner_length_mm()
+           << " x " << bin.inner_width_mm() << " mm)";
+      throw ConfigError(text.str());
+    }
+    const int most = part.count_max() > 0 ? part.count_max() : part.count();
+    parts_volume += most * sides.prod();
+    parts_text << (t > 0 ? " + " : "") << most << " of " << SizeText(sides);
   }
   if (parts_volume > bin_volume) {
     std::ostringstream text;
-    text << config.path << ": bin: " << part.count() << " parts of " << size.str()
-         << " fill " << parts_volume / 1e6 << " L of bounding boxes, more than the bin's "
-         << bin_volume / 1e6 << " L; enlarge the bin or lower part.count";
+    text << config.path << ": bin: " << parts_text.str() << " fill " << parts_volume / 1e6
+         << " L of bounding boxes, more than the bin's " << bin_volume / 1e6
+         << " L; enlarge the bin or lower the part counts";
     throw ConfigError(text.str());
+  }
+
+  // the bin: a tote mesh from the config, or a box bin from its sizes.
+  BinSpec bin_spec{bin.inner_length_mm(), bin.inner_width_mm(), bin.inner_height_mm(),
+                   bin.wall_thickness_mm(), bin.friction(), bin.restitution(), TriangleMesh{}};
+  if (!bin.mesh().empty()) {
+    bin_spec.mesh = LoadMesh(config.Resolve(bin.mesh()), bin.mesh_scale_to_mm());
+    const Eigen::AlignedBox3d box = Bounds(bin_spec.mesh);
+    const double half_l = bin.inner_length_mm() / 2, half_w = bin.inner_width_mm() / 2;
+    if (box.min().x() > -half_l || box.max().x() < half_l || box.min().y() > -half_w ||
+        box.max().y() < half_w || box.min().z() > 0 || box.max().z() < bin.inner_height_mm()) {
+      std::ostringstream text;
+      text << config.Resolve(bin.mesh()) << ": bin.mesh spans x " << box.min().x() << ".."
+           << box.max().x() << ", y " << box.min().y() << ".." << box.max().y() << ", z "
+           << box.min().z() << ".." << box.max().z()
+           << " mm, which does not enclose the inner box (x, y within +-" << half_l << ", +-"
+           << half_w << ", z 0.." << bin.inner_height_mm()
+           << "); the mesh's origin must be the centre of its inner floor, z up";
+      throw ConfigError(text.str());
+    }
+  } else {
+    bin_spec.mesh = MakeOpenBinMesh(bin.inner_length_mm(), bin.inner_width_mm(),
+                                    bin.inner_height_mm(), bin.wall_thickness_mm());
   }
 
   // physics.
   const config::PhysicsConfig& p = config.config.physics();
-  PartPhysics physics;
-  physics.density_kg_m3 = part.density_kg_m3();
-  physics.friction = part.friction();
-  physics.restitution = part.restitution();
   SimulationParams params;
   params.time_step_s = p.time_step_s();
   params.max_sim_time_s = p.max_sim_time_s();
@@ -152,22 +202,37 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   params.settle_rotation_deg = p.settle_rotation_deg();
   params.settle_window_s = p.settle_window_s();
   params.drop_height_mm = p.drop_height_mm();
-  const BinSpec bin_spec{bin.inner_length_mm(), bin.inner_width_mm(), bin.inner_height_mm(),
-                         bin.wall_thickness_mm()};
-  impl_->simulator =
-      std::make_unique<PileSimulator>(part_mesh, pieces, physics, bin_spec, params, cache_dir);
+  params.drop_mode = p.drop_mode() == config::PhysicsConfig::SEQUENTIAL ? DropMode::kSequential
+                                                                         : DropMode::kRandomVolume;
+  params.drop_point_mm = Eigen::Vector2d(p.drop_point_x_mm(), p.drop_point_y_mm());
+  // the box bin collides as boxes (exact, fast); only a tote mesh collides as triangles
+  const TriangleMesh bin_render_mesh = bin_spec.mesh;
+  if (bin.mesh().empty()) bin_spec.mesh = TriangleMesh{};
+  impl_->simulator = std::make_unique<PileSimulator>(types, bin_spec, params, cache_dir);
 
-  // rendering.
+  // rendering, and the class ids of the labelled types.
   impl_->renderer =
       std::make_unique<Renderer>(config.config.camera().width(), config.config.camera().height());
-  impl_->part_mesh_id = impl_->renderer->AddMesh(part_mesh);
-  impl_->bin_mesh_id = impl_->renderer->AddMesh(
-      MakeOpenBinMesh(bin.inner_length_mm(), bin.inner_width_mm(), bin.inner_height_mm(),
-                      bin.wall_thickness_mm()));
-  impl_->description = "part " + config.Resolve(part.mesh()) + ": " +
-                       std::to_string(part_mesh.triangles.size()) + " triangles, " +
-                       impl_->simulator->CollisionDescription() + "\nrenderer: " +
-                       impl_->renderer->Description();
+  std::vector<std::string> class_names;
+  std::ostringstream description;
+  for (size_t t = 0; t < types.size(); ++t) {
+    const config::PartConfig& part = config.config.part(static_cast<int>(t));
+    TypeInScene type;
+    type.mesh_id = impl_->renderer->AddMesh(types[t].mesh);
+    if (part.role() != config::PartConfig::DISTRACTOR) {
+      auto it = std::find(class_names.begin(), class_names.end(), part.class_name());
+      if (it == class_names.end()) it = class_names.insert(it, part.class_name());
+      type.class_id = static_cast<int>(it - class_names.begin()) + 1;
+    }
+    impl_->types.push_back(type);
+    description << (part.role() == config::PartConfig::PART ? "part " : "distractor ")
+                << config.Resolve(part.mesh()) << ": " << types[t].mesh.triangles.size()
+                << " triangles, " << impl_->simulator->CollisionDescription(static_cast<int>(t))
+                << "\n";
+  }
+  impl_->bin_mesh_id = impl_->renderer->AddMesh(bin_render_mesh);
+  description << "renderer: " << impl_->renderer->Description();
+  impl_->description = description.str();
 }
 
 SceneGenerator::~SceneGenerator() = default;
@@ -182,6 +247,7 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
   Clock::time_point start = Clock::now();
   uint64_t seed = 0;
   PileResult pile;
+  std::vector<int> object_types;
   for (int redraw = 0;; ++redraw) {
     if (redraw > config.physics().max_redraws()) {
       throw std::runtime_error("scene " + std::to_string(seq) + ": " +
@@ -191,11 +257,26 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
     }
     seed = SceneSeed(impl_->base_seed, impl_->generator_id, seq, redraw);
     std::mt19937_64 physics_rng(seed);
-    pile = impl_->simulator->Simulate(config.part().count(), physics_rng());
-    if (pile.settled && pile.num_outside == 0 && pile.max_penetration_mm <= kMaxPenetrationMm) {
-      break;
+    const uint64_t pile_seed = physics_rng();
+    // how many of each type, then the type of every object in config order
+    object_types.clear();
+    for (int t = 0; t < config.part_size(); ++t) {
+      const config::PartConfig& part = config.part(t);
+      const int count = part.count_max() > 0
+                            ? UniformCount(physics_rng, part.count_min(), part.count_max())
+                            : part.count();
+      object_types.insert(object_types.end(), count, t);
     }
+    pile = impl_->simulator->Simulate(object_types, pile_seed);
+    // every check a published scene must pass
+    const bool settled = pile.settled;
+    const bool inside = pile.num_outside == 0;
+    const bool apart = pile.max_penetration_mm <= config.physics().max_penetration_mm();
+    if (settled && inside && apart) break;
     ++local.redraws;
+    local.redraws_unsettled += settled ? 0 : 1;
+    local.redraws_outside += inside ? 0 : 1;
+    local.redraws_penetrating += apart ? 0 : 1;
   }
   local.physics_ms = MillisecondsSince(start);
 
@@ -231,20 +312,32 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
   bin_item.material.specular = 0.15f;
   bin_item.material.shininess = 8;
   items.push_back(bin_item);
+  // labelled objects get instance ids 1, 2, ...; unlabelled distractors draw as 0, like the bin
   std::vector<ObjectTruth> objects;
   for (size_t i = 0; i < pile.world_from_object.size(); ++i) {
+    const int t = object_types[i];
+    const config::PartConfig& part = config.part(t);
+    const TypeInScene& type = impl_->types[t];
     DrawItem part_item;
-    part_item.mesh_id = impl_->part_mesh_id;
+    part_item.mesh_id = type.mesh_id;
     part_item.world_from_object = pile.world_from_object[i];
-    part_item.instance_id = static_cast<uint16_t>(i + 1);
-    part_item.material.color = Eigen::Vector3f(static_cast<float>(config.part().color_r()),
-                                               static_cast<float>(config.part().color_g()),
-                                               static_cast<float>(config.part().color_b()));
+    part_item.material.color = Eigen::Vector3f(static_cast<float>(part.color_r()),
+                                               static_cast<float>(part.color_g()),
+                                               static_cast<float>(part.color_b()));
     part_item.material.specular = 0.6f;
     part_item.material.shininess = 40;
+    if (type.class_id > 0) {
+      ObjectTruth object;
+      object.instance_id = static_cast<int>(objects.size() + 1);
+      object.class_id = type.class_id;
+      object.class_name = part.class_name();
+      object.world_from_object = pile.world_from_object[i];
+      object.resting_face =
+          RestingFace(impl_->simulator->hull_faces(t), pile.world_from_object[i].linear());
+      objects.push_back(object);
+      part_item.instance_id = static_cast<uint16_t>(object.instance_id);
+    }
     items.push_back(part_item);
-    objects.push_back(ObjectTruth{static_cast<int>(i + 1), 1, config.part().class_name(),
-                                  pile.world_from_object[i]});
   }
   const RenderResult rendered = impl_->renderer->Render(camera, {light}, background, items);
   const std::vector<cv::Mat> silhouettes = impl_->renderer->RenderSilhouettes(camera, items);
@@ -292,6 +385,9 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
     times->annotate_ms += local.annotate_ms;
     times->encode_ms += local.encode_ms;
     times->redraws += local.redraws;
+    times->redraws_unsettled += local.redraws_unsettled;
+    times->redraws_outside += local.redraws_outside;
+    times->redraws_penetrating += local.redraws_penetrating;
   }
   return out;
 }

@@ -20,6 +20,11 @@ struct StageTimes {
   /// Drops that failed a check (unsettled, a part outside the bin, interpenetration) and were
   /// redrawn with a derived seed before this scene succeeded.
   int redraws = 0;
+  /// Of those, the drops that did not settle in time, that left a part outside the bin, and
+  /// that ended deeper than physics.max_penetration_mm (a drop may fail several checks).
+  int redraws_unsettled = 0;
+  int redraws_outside = 0;
+  int redraws_penetrating = 0;
 };
 
 /// The seed of scene `seq` of generator `generator_id` for base seed `base_seed`, after

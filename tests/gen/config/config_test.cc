@@ -21,15 +21,15 @@ std::string ErrorOf(const std::string& text) {
 TEST(ConfigTest, ShippedConfigsAreValid) {
   for (const char* name : {"default.pbtxt", "tote.pbtxt"}) {
     const LoadedConfig loaded = LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/" + name);
-    EXPECT_GT(loaded.config.part().count(), 0) << name;
+    EXPECT_GT(loaded.config.part(0).count(), 0) << name;
   }
 }
 
 // an empty config takes the documented defaults, and relative paths resolve to its folder.
 TEST(ConfigTest, DefaultsAndPaths) {
   const LoadedConfig loaded = ParseConfig("", "test.pbtxt", "/configs");
-  EXPECT_EQ(loaded.config.part().count(), 12);
-  EXPECT_DOUBLE_EQ(loaded.config.part().density_kg_m3(), 2700);
+  EXPECT_EQ(loaded.config.part(0).count(), 12);
+  EXPECT_DOUBLE_EQ(loaded.config.part(0).density_kg_m3(), 2700);
   EXPECT_DOUBLE_EQ(loaded.config.annotation().min_visib_fract(), 0.3);
   EXPECT_EQ(loaded.Resolve("models/a.obj"), "/configs/models/a.obj");
   EXPECT_EQ(loaded.Resolve("/abs/a.obj"), "/abs/a.obj");
@@ -46,8 +46,41 @@ TEST(ConfigTest, UnknownFieldNamesFileAndLine) {
 TEST(ConfigTest, OutOfRangeNamesLineAndField) {
   const std::string error = ErrorOf("bin {\n  inner_length_mm: 200\n  inner_width_mm: -5\n}\n");
   EXPECT_NE(error.find("test.pbtxt:3: bin.inner_width_mm"), std::string::npos) << error;
-  EXPECT_NE(ErrorOf("part { count: -1 }").find("part.count"), std::string::npos);
-  EXPECT_NE(ErrorOf("part { count: 0 }").find("part.count"), std::string::npos);
+  EXPECT_NE(ErrorOf("part { count: -1 }").find("part[0].count"), std::string::npos);
+  EXPECT_NE(ErrorOf("part { count: 0 }").find("part[0].count"), std::string::npos);
+}
+
+// several part blocks: an error names the block by index and its line.
+TEST(ConfigTest, SeveralPartsNameTheBlock) {
+  const std::string error =
+      ErrorOf("part { count: 3 }\npart {\n  mesh: \"b.obj\"\n  friction: 7\n}\n");
+  EXPECT_NE(error.find("test.pbtxt:4: part[1].friction"), std::string::npos) << error;
+  const LoadedConfig loaded =
+      ParseConfig("part { count: 3 }\npart { count_min: 0 count_max: 4 role: DISTRACTOR }",
+                  "test.pbtxt", ".");
+  ASSERT_EQ(loaded.config.part_size(), 2);
+  EXPECT_EQ(loaded.config.part(1).role(), config::PartConfig::DISTRACTOR);
+  // no part block at all: one default part, the built-in connector
+  const LoadedConfig plain = ParseConfig("", "test.pbtxt", ".");
+  ASSERT_EQ(plain.config.part_size(), 1);
+  EXPECT_EQ(plain.config.part(0).mesh(), "models/corner_connector.obj");
+}
+
+// count ranges, roles and drop settings that cannot work are refused, naming the field.
+TEST(ConfigTest, CountRangeRoleAndDropChecks) {
+  EXPECT_NE(ErrorOf("part { count_min: 2 }").find("part[0].count_min"), std::string::npos);
+  EXPECT_NE(ErrorOf("part { count_min: 5 count_max: 4 }").find("part[0].count_min"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("part { role: DISTRACTOR }").find("no part has role PART"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("part { count: 600 }\npart { count: 600 }").find("at most 999"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("physics { drop_point_x_mm: 150 }").find("physics.drop_point_x_mm"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("physics { max_penetration_mm: 0 }").find("physics.max_penetration_mm"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("part { rolling_friction_mm: -1 }").find("part[0].rolling_friction_mm"),
+            std::string::npos);
 }
 
 // min above max is refused.
@@ -76,7 +109,14 @@ TEST(ConfigTest, EffectiveTextRoundTrips) {
   EXPECT_NE(text.find("density_kg_m3: 2700"), std::string::npos) << text;
   EXPECT_NE(text.find("count: 5"), std::string::npos) << text;
   const LoadedConfig again = ParseConfig(text, "again.pbtxt", ".");
-  EXPECT_EQ(again.config.part().count(), 5);
+  EXPECT_EQ(again.config.part(0).count(), 5);
+  EXPECT_EQ(EffectiveConfigText(again.config), text);
+  // a count range survives the round trip too
+  const LoadedConfig ranged = ParseConfig("part { count_min: 2 count_max: 7 }", "r.pbtxt", ".");
+  const LoadedConfig ranged_again =
+      ParseConfig(EffectiveConfigText(ranged.config), "again.pbtxt", ".");
+  EXPECT_EQ(ranged_again.config.part(0).count_max(), 7);
+  EXPECT_EQ(ranged_again.config.part(0).count_min(), 2);
 }
 
 // the camera looks straight down: the bin centre projects to the principal point.

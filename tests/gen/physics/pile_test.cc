@@ -21,7 +21,7 @@ namespace {
 namespace fs = std::filesystem;
 
 // the default bin of config/default.pbtxt: 12 connectors lie two to three deep
-constexpr BinSpec kBin{200, 150, 100, 8};
+const BinSpec kBin{200, 150, 100, 8, 0.6, 0.1, {}};
 
 std::string ModelPath(const std::string& name) {
   return std::string(STACKGEN_SOURCE_DIR) + "/config/models/" + name;

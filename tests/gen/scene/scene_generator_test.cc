@@ -119,8 +119,56 @@ TEST(SceneGeneratorTest, BinTooSmallIsRefused) {
     EXPECT_NE(std::string(error.what()).find("bin"), std::string::npos) << error.what();
   }
   config = DefaultConfig();
-  config.config.mutable_part()->set_count(200);
+  config.config.mutable_part(0)->set_count(200);
   EXPECT_THROW(SceneGenerator(config, 0, 1, testing::MakeTempDir("stackgen-cache")), ConfigError);
+}
+
+}  // namespace
+}  // namespace stackgen
+
+namespace stackgen {
+namespace {
+
+// config/mixed.pbtxt: connectors and pins are labelled as classes 1 and 2 in their count ranges,
+// the foam-block distractors fall into the pile and show in the image but never become instances,
+// and every instance carries its resting face.
+TEST(SceneGeneratorTest, MixedPartsAndDistractors) {
+  LoadedConfig config = LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/mixed.pbtxt");
+  config.config.mutable_physics()->set_drop_mode(config::PhysicsConfig::RANDOM_VOLUME);
+  const std::string cache = testing::MakeTempDir("stackgen-cache");
+  SceneGenerator generator(config, 0, 7, cache);
+  std::set<std::pair<int, int>> count_pairs;
+  int distractor_px = 0;
+  for (int seq = 0; seq < 4; ++seq) {
+    const scene s = generator.Generate(seq, nullptr);
+    int connectors = 0, pins = 0;
+    for (const instance& object : s.instances) {
+      ASSERT_TRUE(object.class_id == 1 || object.class_id == 2) << object.class_id;
+      EXPECT_EQ(object.class_name, object.class_id == 1 ? "corner_connector" : "dowel_pin");
+      EXPECT_GE(object.resting_face, 0);
+      (object.class_id == 1 ? connectors : pins) += 1;
+    }
+    EXPECT_GE(connectors, 6);
+    EXPECT_LE(connectors, 10);
+    EXPECT_GE(pins, 2);
+    EXPECT_LE(pins, 6);
+    count_pairs.insert({connectors, pins});
+
+    // unlabelled surfaces above the floor in the middle of the bin (no walls there): distractors
+    const cv::Mat ids = cv::imdecode(s.instance_map.data, cv::IMREAD_UNCHANGED);
+    const cv::Mat depth = cv::imdecode(s.depth.data, cv::IMREAD_UNCHANGED);
+    const double floor_depth = 520 / s.camera.depth_scale_mm;
+    for (int v = ids.rows / 4; v < 3 * ids.rows / 4; ++v) {
+      for (int u = ids.cols / 4; u < 3 * ids.cols / 4; ++u) {
+        const uint16_t d = depth.at<uint16_t>(v, u);
+        if (ids.at<uint16_t>(v, u) == 0 && d > 0 && d < floor_depth - 5 / s.camera.depth_scale_mm) {
+          ++distractor_px;
+        }
+      }
+    }
+  }
+  EXPECT_GT(count_pairs.size(), 1u) << "the counts never varied";
+  EXPECT_GT(distractor_px, 200);
 }
 
 }  // namespace

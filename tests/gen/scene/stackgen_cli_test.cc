@@ -67,6 +67,21 @@ TEST(StackgenCliTest, MissingMesh) {
   ExpectOneLine(outcome.err);
 }
 
+// a tote mesh that does not enclose the configured inner box names the mesh and bin.mesh.
+TEST(StackgenCliTest, ToteMeshTooSmall) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  std::ofstream(dir + "/tote.obj") << "v -10 -10 0\nv 10 -10 0\nv 0 10 0\nv 0 0 10\n"
+                                      "f 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n";
+  const std::string config = WriteConfig(
+      dir, "part { mesh: \"" + std::string(STACKGEN_SOURCE_DIR) +
+               "/config/models/corner_connector.obj\" }\nbin { mesh: \"tote.obj\" }\n");
+  const Outcome outcome =
+      RunStackgen({"--config", config, "--count", "1", "--lcm-url", "memq://"}, dir);
+  EXPECT_EQ(outcome.code, 1);
+  EXPECT_NE(outcome.err.find("tote.obj: bin.mesh"), std::string::npos) << outcome.err;
+  ExpectOneLine(outcome.err);
+}
+
 // an empty mesh file names the file.
 TEST(StackgenCliTest, EmptyMesh) {
   const std::string dir = testing::MakeTempDir("stackgen-cli");

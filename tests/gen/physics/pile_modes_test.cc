@@ -1,0 +1,167 @@
+// Tests of the drop modes, several part types, rolling friction and tote meshes of PileSimulator.
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <Eigen/Geometry>
+
+#include "gen/mesh/mesh.h"
+#include "gen/physics/pile.h"
+
+namespace stackgen {
+namespace {
+
+namespace fs = std::filesystem;
+
+const BinSpec kBin{200, 150, 100, 8, 0.6, 0.1, {}};
+
+std::string ModelPath(const std::string& name) {
+  return std::string(STACKGEN_SOURCE_DIR) + "/config/models/" + name;
+}
+
+// A closed, outward-wound axis-aligned box of the given size centred at the origin, mm.
+TriangleMesh Box(const Eigen::Vector3f& size) {
+  TriangleMesh mesh;
+  const Eigen::Vector3f lo = -size / 2, hi = size / 2;
+  for (int i = 0; i < 8; ++i) {
+    mesh.positions_mm.emplace_back(i & 1 ? hi.x() : lo.x(), i & 2 ? hi.y() : lo.y(),
+                                   i & 4 ? hi.z() : lo.z());
+    mesh.normals.push_back(mesh.positions_mm.back().normalized());
+  }
+  mesh.triangles = {{0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6}, {0, 1, 5}, {0, 5, 4},
+                    {2, 6, 7}, {2, 7, 3}, {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};
+  return mesh;
+}
+
+class PileModesTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("stackgen_pile_modes_test_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  static PartType Connector() {
+    static const PartType type{LoadMesh(ModelPath("corner_connector.obj"), 1.0),
+                               LoadMeshPieces(ModelPath("corner_connector_collision.obj"), 1.0),
+                               PartPhysics{}};
+    return type;
+  }
+  static PartType Pin(double rolling_friction_mm) {
+    PartType type{LoadMesh(ModelPath("dowel_pin.obj"), 1.0), {}, PartPhysics{}};
+    type.physics.density_kg_m3 = 7850;
+    type.physics.rolling_friction_mm = rolling_friction_mm;
+    return type;
+  }
+  std::string Cache() const { return (dir_ / "cache").string(); }
+
+  fs::path dir_;
+};
+
+// mean horizontal distance of the parts' mesh origins from (x, y), mm
+double MeanDistanceFrom(const PileResult& pile, const Eigen::Vector2d& point) {
+  double sum = 0;
+  for (const auto& pose : pile.world_from_object) {
+    sum += (pose.translation().head<2>() - point).norm();
+  }
+  return sum / pile.world_from_object.size();
+}
+
+// Two part types in one pile: each object gets its own type's shape, mass and hull faces, and
+// the pile settles inside the bin.
+TEST_F(PileModesTest, SeveralPartTypesInOnePile) {
+  const PileSimulator simulator({Connector(), PartType{Box({30, 20, 10}), {}, PartPhysics{}}},
+                                kBin, SimulationParams{}, Cache());
+  EXPECT_NEAR(simulator.mass_kg(0), 0.0959, 0.001);
+  EXPECT_NEAR(simulator.mass_kg(1), 30 * 20 * 10 * 2700e-9, 1e-9);
+  EXPECT_EQ(simulator.hull_faces(1).size(), 6u);
+  EXPECT_GT(simulator.hull_faces(0).size(), 6u);
+  EXPECT_NE(simulator.CollisionDescription(1).find("convex hull"), std::string::npos);
+  const std::vector<int> types = {0, 1, 1, 0, 1, 0, 0, 1};
+  const PileResult pile = simulator.Simulate(types, 5);
+  ASSERT_EQ(pile.world_from_object.size(), types.size());
+  EXPECT_TRUE(pile.settled);
+  EXPECT_EQ(pile.num_outside, 0);
+  EXPECT_LT(pile.max_penetration_mm, 0.5);
+  // a box rests flat on one of its faces or on another part: its centre is at least 5 mm up
+  for (size_t i = 0; i < types.size(); ++i) {
+    if (types[i] == 1) {
+      EXPECT_GE(pile.world_from_object[i].translation().z(), 5 - 0.5) << i;
+    }
+  }
+  EXPECT_THROW(simulator.Simulate({0, 2}, 1), std::runtime_error);
+  EXPECT_THROW(PileSimulator({}, kBin, SimulationParams{}, Cache()), std::runtime_error);
+}
+
+// Sequential drops from a fixed point heap the parts around that point; random-volume drops
+// spread them over the floor. Both settle inside the bin, without interpenetration.
+TEST_F(PileModesTest, SequentialDropsHeapAroundTheDropPoint) {
+  SimulationParams sequential;
+  sequential.drop_mode = DropMode::kSequential;
+  sequential.drop_point_mm = Eigen::Vector2d(-70, 40);
+  const BinSpec wide{300, 240, 100, 8, 0.6, 0.1, {}};
+  const PileSimulator heap({Connector()}, wide, sequential, Cache());
+  const PileSimulator rain({Connector()}, wide, SimulationParams{}, Cache());
+  double heap_distance = 0, rain_distance = 0;
+  for (uint64_t seed = 1; seed <= 4; ++seed) {
+    const PileResult a = heap.Simulate(8, seed);
+    const PileResult b = rain.Simulate(8, seed);
+    for (const PileResult* pile : {&a, &b}) {
+      EXPECT_TRUE(pile->settled) << seed;
+      EXPECT_EQ(pile->num_outside, 0) << seed;
+      EXPECT_LT(pile->max_penetration_mm, 0.5) << seed;
+    }
+    heap_distance += MeanDistanceFrom(a, sequential.drop_point_mm) / 4;
+    rain_distance += MeanDistanceFrom(b, sequential.drop_point_mm) / 4;
+    // one by one: the sequential pile takes longer to build than the waves
+    EXPECT_GT(a.simulated_s, b.simulated_s) << seed;
+  }
+  std::printf("mean distance from the drop point: sequential %.1f mm, random volume %.1f mm\n",
+              heap_distance, rain_distance);
+  EXPECT_LT(heap_distance, 0.6 * rain_distance)
+      << "sequential " << heap_distance << " mm, random volume " << rain_distance << " mm";
+}
+
+// Rolling friction stops round parts sooner: dowel pins settle in less simulated time with it.
+TEST_F(PileModesTest, RollingFrictionSettlesRoundPartsSooner) {
+  const PileSimulator smooth({Pin(0)}, kBin, SimulationParams{}, Cache());
+  const PileSimulator resisting({Pin(1.0)}, kBin, SimulationParams{}, Cache());
+  double smooth_s = 0, resisting_s = 0;
+  for (uint64_t seed = 1; seed <= 8; ++seed) {
+    const PileResult a = smooth.Simulate(4, seed);
+    const PileResult b = resisting.Simulate(4, seed);
+    EXPECT_TRUE(b.settled) << seed;
+    smooth_s += a.simulated_s;
+    resisting_s += b.simulated_s;
+  }
+  std::printf("settling time of 8 piles of 4 pins: %.2f s with rolling friction, %.2f s without\n",
+              resisting_s, smooth_s);
+  EXPECT_LT(resisting_s, smooth_s) << "with " << resisting_s << " s, without " << smooth_s << " s";
+}
+
+// A tote given as a triangle mesh (thin walls, no boxes) holds a settled pile like the box bin.
+TEST_F(PileModesTest, ToteMeshHoldsThePile) {
+  BinSpec tote = kBin;
+  tote.mesh = MakeOpenBinMesh(kBin.inner_length_mm, kBin.inner_width_mm, kBin.inner_height_mm,
+                              kBin.wall_mm);
+  const PileSimulator simulator({Connector()}, tote, SimulationParams{}, Cache());
+  for (uint64_t seed : {1u, 2u, 3u}) {
+    const PileResult pile = simulator.Simulate(12, seed);
+    EXPECT_TRUE(pile.settled) << seed;
+    EXPECT_EQ(pile.num_outside, 0) << seed;
+    EXPECT_LT(pile.max_penetration_mm, 0.5) << seed;
+    for (const auto& pose : pile.world_from_object) {
+      EXPECT_GT(pose.translation().z(), -1.0) << seed;  // nothing fell through the floor
+    }
+  }
+}
+
+}  // namespace
+}  // namespace stackgen

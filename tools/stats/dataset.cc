@@ -1,0 +1,281 @@
+#include "tools/stats/dataset.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+#include <utility>
+
+#include <Eigen/Geometry>
+#include <nlohmann/json.hpp>
+#include <stackgen/labels.hpp>
+#include <stackgen/scene.hpp>
+
+#include "bus/channels.h"
+#include "bus/log.h"
+#include "gen/annotate/pose.h"
+
+namespace stackgen::stats {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+// tolerance on R^T R = I and det R = 1 for rotations read from a file
+constexpr double kRotationTolerance = 1e-6;
+// below this |(w, z)| of the unit quaternion the heading is undefined
+constexpr double kHeadingUndefined = 1e-9;
+
+// the reference frame of `class_name`, identity when none is set
+Eigen::Matrix3d ReferenceOf(const ReadOptions& options, const std::string& class_name) {
+  const auto found = options.object_R_reference.find(class_name);
+  return found == options.object_R_reference.end() ? Eigen::Matrix3d::Identity() : found->second;
+}
+
+// a rotation from 9 row-major values; throws `where` + the fault if it is not one
+Eigen::Matrix3d RotationFromRowMajor(const double* values, const std::string& where) {
+  Eigen::Matrix3d rotation;
+  for (int k = 0; k < 9; ++k) {
+    if (!std::isfinite(values[k])) {
+      throw std::runtime_error(where + "[" + std::to_string(k) + "] is not finite");
+    }
+    rotation(k / 3, k % 3) = values[k];
+  }
+  const double orthonormal_error =
+      (rotation.transpose() * rotation - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff();
+  const double determinant = rotation.determinant();
+  if (orthonormal_error > kRotationTolerance || std::fabs(determinant - 1.0) > kRotationTolerance) {
+    std::ostringstream text;
+    text << where << " is not a rotation (|R^T R - I| = " << orthonormal_error
+         << ", det = " << determinant << ")";
+    throw std::runtime_error(text.str());
+  }
+  return rotation;
+}
+
+// adds one instance to `dataset`, or counts why it is left out
+void AddInstance(const std::string& class_name, const Eigen::Matrix3d& world_R_object,
+                 int resting_face, const ReadOptions& options, Dataset* dataset) {
+  if (!options.class_name.empty() && class_name != options.class_name) {
+    ++dataset->other_class;
+    return;
+  }
+  PostureSample sample = PostureOf(world_R_object, ReferenceOf(options, class_name));
+  sample.class_name = class_name;
+  sample.resting_face = resting_face;
+  dataset->samples.push_back(std::move(sample));
+  ++dataset->class_counts[class_name];
+}
+
+// the first character of the file that is not white space, or 0
+char FirstNonSpace(const std::string& path) {
+  std::ifstream file(path, std::ios::binary);
+  char c = 0;
+  while (file.get(c)) {
+    if (c != ' ' && c != '\t' && c != '\n' && c != '\r') return c;
+  }
+  return 0;
+}
+
+// the number at `field` of `record`, or throws naming the file, the record and the field
+double NumberAt(const json& record, const char* field, const std::string& where) {
+  const auto found = record.find(field);
+  if (found == record.end() || !found->is_number()) {
+    throw std::runtime_error(where + "." + field + " is missing or not a number");
+  }
+  return found->get<double>();
+}
+
+// `count` numbers at `field` of `record`
+std::vector<double> NumbersAt(const json& record, const char* field, size_t count,
+                              const std::string& where) {
+  const auto found = record.find(field);
+  if (found == record.end() || !found->is_array() || found->size() != count) {
+    throw std::runtime_error(where + "." + field + " is missing or not " + std::to_string(count) +
+                             " numbers");
+  }
+  std::vector<double> values;
+  for (const json& value : *found) {
+    if (!value.is_number()) {
+      throw std::runtime_error(where + "." + field + " holds something that is not a number");
+    }
+    values.push_back(value.get<double>());
+  }
+  return values;
+}
+
+void ReadCoco(const std::string& path, const ReadOptions& options, Dataset* dataset) {
+  dataset->kind = "COCO";
+  json root;
+  {
+    std::ifstream file(path);
+    try {
+      root = json::parse(file);
+    } catch (const json::exception& error) {
+      throw std::runtime_error(path + ": not valid JSON (" + std::string(error.what()) + ")");
+    }
+  }
+  for (const char* field : {"images", "categories", "annotations"}) {
+    if (!root.is_object() || !root.contains(field) || !root[field].is_array()) {
+      throw std::runtime_error(path + ": not a COCO file (no \"" + field + "\" array)");
+    }
+  }
+  dataset->scenes = static_cast<int64_t>(root["images"].size());
+
+  // class names by category id
+  std::map<int64_t, std::string> names;
+  for (size_t k = 0; k < root["categories"].size(); ++k) {
+    const json& category = root["categories"][k];
+    const std::string where = path + ": categories[" + std::to_string(k) + "]";
+    if (!category.is_object() || !category.contains("name") || !category["name"].is_string()) {
+      throw std::runtime_error(where + ".name is missing or not a string");
+    }
+    names[static_cast<int64_t>(NumberAt(category, "id", where))] = category["name"];
+  }
+
+  // every annotation: its class, rotation and resting face
+  const json& annotations = root["annotations"];
+  for (size_t k = 0; k < annotations.size(); ++k) {
+    const json& annotation = annotations[k];
+    const std::string where = path + ": annotations[" + std::to_string(k) + "]";
+    if (!annotation.is_object()) throw std::runtime_error(where + " is not an object");
+    const int64_t category_id = static_cast<int64_t>(NumberAt(annotation, "category_id", where));
+    const auto name = names.find(category_id);
+    if (name == names.end()) {
+      throw std::runtime_error(where + ".category_id " + std::to_string(category_id) +
+                               " is not in categories");
+    }
+    Eigen::Matrix3d world_R_object;
+    if (annotation.contains("world_R_m2w")) {
+      const std::vector<double> values = NumbersAt(annotation, "world_R_m2w", 9, where);
+      world_R_object = RotationFromRowMajor(values.data(), where + ".world_R_m2w");
+    } else if (annotation.contains("posture_deg")) {
+      const std::vector<double> angles = NumbersAt(annotation, "posture_deg", 3, where);
+      world_R_object = RotationFromPostureDeg(Eigen::Vector3d(angles[0], angles[1], angles[2]));
+    } else {
+      throw std::runtime_error(where + " has neither world_R_m2w nor posture_deg");
+    }
+    int resting_face = -1;
+    if (annotation.contains("resting_face")) {
+      resting_face = static_cast<int>(NumberAt(annotation, "resting_face", where));
+    }
+    AddInstance(name->second, world_R_object, resting_face, options, dataset);
+  }
+}
+
+// the instances of one labels or scene message
+void AddMessageInstances(const std::vector<stackgen::instance>& instances, const std::string& where,
+                         const ReadOptions& options, Dataset* dataset) {
+  for (size_t k = 0; k < instances.size(); ++k) {
+    const stackgen::instance& instance = instances[k];
+    if (!instance.annotated && !options.all_instances) {
+      ++dataset->not_annotated;
+      continue;
+    }
+    const Eigen::Matrix3d world_R_object = RotationFromRowMajor(
+        instance.world_from_object.rotation,
+        where + ".instances[" + std::to_string(k) + "].world_from_object.rotation");
+    AddInstance(instance.class_name, world_R_object, instance.resting_face, options, dataset);
+  }
+}
+
+void ReadLcmLog(const std::string& path, const ReadOptions& options, Dataset* dataset) {
+  dataset->kind = "LCM log";
+  // scenes by (generator_id, seq): the labels and the scene of one render count once
+  std::set<std::pair<int32_t, int64_t>> seen;
+  int64_t messages = 0;
+  try {
+    const LogSummary summary = ReadLog(path, [&](const LogEvent& event) {
+      const bool is_labels = event.channel == kLabelsChannel;
+      const bool is_scene = event.channel == kSceneChannel;
+      if (!is_labels && !is_scene) return;
+      ++messages;
+      const std::string where =
+          path + ": event " + std::to_string(event.number) + " on " + event.channel;
+      if (is_labels) {
+        const stackgen::labels labels = DecodeLogEvent<stackgen::labels>(event);
+        if (!seen.emplace(labels.header.generator_id, labels.header.seq).second) {
+          ++dataset->repeated_scenes;
+          return;
+        }
+        AddMessageInstances(labels.instances, where, options, dataset);
+      } else {
+        const stackgen::scene scene = DecodeLogEvent<stackgen::scene>(event);
+        if (!seen.emplace(scene.header.generator_id, scene.header.seq).second) {
+          ++dataset->repeated_scenes;
+          return;
+        }
+        AddMessageInstances(scene.instances, where, options, dataset);
+      }
+    });
+    dataset->truncated_bytes = summary.truncated_bytes;
+  } catch (const DecodeError& error) {
+    throw std::runtime_error(path + ": " + error.what());
+  }
+  if (messages == 0) {
+    throw std::runtime_error(path + ": the log holds no " + std::string(kLabelsChannel) + " or " +
+                             kSceneChannel + " messages");
+  }
+  dataset->scenes = static_cast<int64_t>(seen.size());
+}
+
+}  // namespace
+
+double HeadingDeg(const Eigen::Matrix3d& world_R_reference) {
+  // with q = q_z(heading) * q_swing and q_swing = (p, x, y, 0): q.w = cos(h/2) p, q.z = sin(h/2) p
+  const Eigen::Quaterniond q(world_R_reference);
+  if (std::hypot(q.w(), q.z()) < kHeadingUndefined) {
+    return std::numeric_limits<double>::quiet_NaN();
+  }
+  double heading = 2.0 * std::atan2(q.z(), q.w()) * 180.0 / M_PI;
+  // q and -q give headings 360 degrees apart
+  while (heading > 180.0) heading -= 360.0;
+  while (heading <= -180.0) heading += 360.0;
+  return heading;
+}
+
+PostureSample PostureOf(const Eigen::Matrix3d& world_R_object,
+                        const Eigen::Matrix3d& object_R_reference) {
+  const Eigen::Matrix3d world_R_reference = world_R_object * object_R_reference;
+  const Eigen::Vector3d angles = PostureAnglesDeg(world_R_reference);
+  PostureSample sample;
+  sample.alpha_deg = angles[0];
+  sample.beta_deg = angles[1];
+  sample.gamma_deg = angles[2];
+  sample.heading_deg = HeadingDeg(world_R_reference);
+  return sample;
+}
+
+Dataset ReadDataset(const std::string& path, const ReadOptions& options) {
+  Dataset dataset;
+  dataset.path = path;
+  // a COCO dataset folder stands for its annotations.json
+  std::error_code error;
+  std::string file = path;
+  if (fs::is_directory(path, error)) {
+    file = (fs::path(path) / "annotations.json").string();
+    if (!fs::exists(file, error)) {
+      throw std::runtime_error(path + " is a folder without annotations.json");
+    }
+  }
+  if (!fs::exists(file, error)) throw std::runtime_error(file + " does not exist");
+  {
+    std::ifstream probe(file, std::ios::binary);
+    if (!probe) throw std::runtime_error("cannot read " + file);
+  }
+
+  // the kind by content
+  if (IsLcmLog(file)) {
+    ReadLcmLog(file, options, &dataset);
+  } else if (FirstNonSpace(file) == '{') {
+    ReadCoco(file, options, &dataset);
+  } else {
+    throw std::runtime_error(file + " is neither a COCO file (JSON object) nor an LCM log");
+  }
+  return dataset;
+}
+
+}  // namespace stackgen::stats

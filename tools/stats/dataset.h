@@ -1,0 +1,81 @@
+#pragma once
+
+// The postures of the instances in a dataset: a COCO file written by stackgen-coco, or an LCM
+// log (lcm-logger) of STACKGEN_LABELS or STACKGEN_SCENE messages.
+
+#include <cstdint>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+namespace stackgen::stats {
+
+/// The orientation of one instance, in the bin (world) frame.
+struct PostureSample {
+  std::string class_name;
+  /// Posture angles of world_R_reference = Rz(alpha) Ry(beta) Rx(gamma), degrees: alpha and
+  /// gamma in (-180, 180], beta in [-90, 90] (gen/annotate/pose.h PostureAnglesDeg).
+  double alpha_deg = 0.0;
+  double beta_deg = 0.0;
+  double gamma_deg = 0.0;
+  /// The angle about the vertical: world_R_reference = Rz(heading) S where S turns about a
+  /// horizontal axis (the twist of the rotation about world Z), degrees in (-180, 180]; NaN when
+  /// S is a half turn and the heading is undefined.
+  double heading_deg = 0.0;
+  /// Index of the convex-hull face that points down (0 = largest); -1 when unknown.
+  int resting_face = -1;
+};
+
+/// What was read from one file.
+struct Dataset {
+  std::string path;
+  /// "COCO" or "LCM log".
+  std::string kind;
+  /// Images (COCO) or distinct scenes (log: by generator_id and seq) read.
+  int64_t scenes = 0;
+  /// Log messages that repeated a scene already read (the same scene on STACKGEN_LABELS and
+  /// STACKGEN_SCENE, or a resend).
+  int64_t repeated_scenes = 0;
+  /// Logs: bytes of an incomplete last event that were ignored (a logger stopped mid-write).
+  int64_t truncated_bytes = 0;
+  /// Instances left out because they are not annotated (logs, without all_instances).
+  int64_t not_annotated = 0;
+  /// Instances left out because they are of another class than the one asked for.
+  int64_t other_class = 0;
+  /// The instances used, in file order.
+  std::vector<PostureSample> samples;
+  /// Instances used per class name.
+  std::map<std::string, int64_t> class_counts;
+};
+
+/// How to read a dataset.
+struct ReadOptions {
+  /// Per class name, the rotation object_R_reference of the reference frame the posture is
+  /// measured in; classes not listed use the object (mesh) frame.
+  std::map<std::string, Eigen::Matrix3d> object_R_reference;
+  /// Only instances of this class; empty: all.
+  std::string class_name;
+  /// Logs: also instances that are not annotated (too hidden). COCO files hold annotated
+  /// instances only.
+  bool all_instances = false;
+};
+
+/// The posture of an instance whose rotation is world_R_object, measured in the reference frame
+/// object_R_reference of its class.
+PostureSample PostureOf(const Eigen::Matrix3d& world_R_object,
+                        const Eigen::Matrix3d& object_R_reference);
+
+/// The angle about world Z of `world_R_reference` (see PostureSample::heading_deg), degrees.
+double HeadingDeg(const Eigen::Matrix3d& world_R_reference);
+
+/// Reads the dataset at `path`, telling a COCO file (JSON starting with '{') from an LCM log
+/// (event magic 0xEDA1DA01) by its content. The rotation of an instance is world_R_m2w (COCO) or
+/// world_from_object.rotation (log); a COCO annotation without world_R_m2w falls back to its
+/// posture_deg. Throws std::runtime_error with one line naming the file and, where there is
+/// one, the record and field at fault, for a file that cannot be read, is neither kind, or
+/// holds a bad record (a missing field, a matrix that is not a rotation).
+Dataset ReadDataset(const std::string& path, const ReadOptions& options);
+
+}  // namespace stackgen::stats

@@ -5,9 +5,8 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
-#include <vector>
-
 #include <lcm/lcm-cpp.hpp>
+#include <vector>
 
 namespace stackgen {
 namespace {

@@ -1,12 +1,12 @@
 #include "gen/config/config.h"
 
+#include <google/protobuf/io/tokenizer.h>
+#include <google/protobuf/text_format.h>
+
 #include <cmath>
 #include <fstream>
 #include <sstream>
 #include <vector>
-
-#include <google/protobuf/io/tokenizer.h>
-#include <google/protobuf/text_format.h>
 
 namespace stackgen {
 namespace {
@@ -46,8 +46,8 @@ class FieldNamer {
                            (outer_index < 0 || tree_->GetLocation(outer, outer_index).line >= 0);
     const pb::TextFormat::ParseInfoTree* nested =
         outer_set ? tree_->GetTreeForNested(outer, outer_index) : nullptr;
-    const pb::FieldDescriptor* inner =
-        outer != nullptr && !field.empty() ? outer->message_type()->FindFieldByName(field)
+    const pb::FieldDescriptor* inner = outer != nullptr && !field.empty()
+                                           ? outer->message_type()->FindFieldByName(field)
                                            : nullptr;
     int line = -1;
     if (nested != nullptr && inner != nullptr) {
@@ -74,9 +74,8 @@ std::string Number(double value) {
 }
 
 // checks min <= value <= max (open bounds where asked) or throws naming the field.
-void CheckRange(const FieldNamer& namer, const std::string& message_field,
-                const std::string& field, double value, double min, double max,
-                bool min_open = false, int index = -1) {
+void CheckRange(const FieldNamer& namer, const std::string& message_field, const std::string& field,
+                double value, double min, double max, bool min_open = false, int index = -1) {
   const bool low = min_open ? !(value > min) : !(value >= min);
   if (low || !(value <= max) || !std::isfinite(value)) {
     throw ConfigError(namer.Where(message_field, field, index) + ": " + Number(value) +
@@ -89,8 +88,8 @@ void CheckOrdered(const FieldNamer& namer, const std::string& message_field,
                   const std::string& min_field, double min, const std::string& max_field,
                   double max) {
   if (min > max) {
-    throw ConfigError(namer.Where(message_field, max_field) + ": " + Number(max) +
-                      " is below " + message_field + "." + min_field + " = " + Number(min));
+    throw ConfigError(namer.Where(message_field, max_field) + ": " + Number(max) + " is below " +
+                      message_field + "." + min_field + " = " + Number(min));
   }
 }
 
@@ -193,8 +192,7 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   // coarser steps let 6 mm plates tunnel through each other.
   CheckRange(n, "physics", "time_step_s", physics.time_step_s(), 1e-4, 1.0 / 300);
   CheckRange(n, "physics", "max_sim_time_s", physics.max_sim_time_s(), 0, 600, true);
-  CheckRange(n, "physics", "settle_translation_mm", physics.settle_translation_mm(), 0, 100,
-             true);
+  CheckRange(n, "physics", "settle_translation_mm", physics.settle_translation_mm(), 0, 100, true);
   CheckRange(n, "physics", "settle_rotation_deg", physics.settle_rotation_deg(), 0, 90, true);
   CheckRange(n, "physics", "settle_window_s", physics.settle_window_s(), physics.time_step_s(),
              physics.max_sim_time_s());
@@ -203,10 +201,10 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   if (physics.drop_mode() == config::PhysicsConfig::DROP_MODE_UNSPECIFIED) {
     throw ConfigError(n.Where("physics", "drop_mode") + ": must be RANDOM_VOLUME or SEQUENTIAL");
   }
-  CheckRange(n, "physics", "drop_point_x_mm", physics.drop_point_x_mm(),
-             -bin.inner_length_mm() / 2, bin.inner_length_mm() / 2);
-  CheckRange(n, "physics", "drop_point_y_mm", physics.drop_point_y_mm(),
-             -bin.inner_width_mm() / 2, bin.inner_width_mm() / 2);
+  CheckRange(n, "physics", "drop_point_x_mm", physics.drop_point_x_mm(), -bin.inner_length_mm() / 2,
+             bin.inner_length_mm() / 2);
+  CheckRange(n, "physics", "drop_point_y_mm", physics.drop_point_y_mm(), -bin.inner_width_mm() / 2,
+             bin.inner_width_mm() / 2);
   CheckRange(n, "physics", "max_penetration_mm", physics.max_penetration_mm(), 0.01, 10);
 
   // annotation and output
@@ -218,8 +216,8 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   // the camera must be above the rim and see the whole bin interior.
   if (camera.height_mm() <= bin.inner_height_mm()) {
     throw ConfigError(n.Where("camera", "height_mm") + ": " + Number(camera.height_mm()) +
-                      " mm puts the camera below the bin rim at " +
-                      Number(bin.inner_height_mm()) + " mm");
+                      " mm puts the camera below the bin rim at " + Number(bin.inner_height_mm()) +
+                      " mm");
   }
   const Eigen::Isometry3d camera_from_world = WorldFromCamera(camera).inverse();
   const Eigen::Vector2d principal = PrincipalPoint(camera);
@@ -233,9 +231,8 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
         const double v = camera.fy() * p.y() / p.z() + principal.y();
         if (u < 0 || v < 0 || u > camera.width() - 1 || v > camera.height() - 1) {
           throw ConfigError(n.Where("camera", "height_mm") + ": the camera (" +
-                            std::to_string(camera.width()) + "x" +
-                            std::to_string(camera.height()) + ", fx " + Number(camera.fx()) +
-                            ", " + Number(camera.height_mm()) +
+                            std::to_string(camera.width()) + "x" + std::to_string(camera.height()) +
+                            ", fx " + Number(camera.fx()) + ", " + Number(camera.height_mm()) +
                             " mm above the floor) cannot see the whole bin: corner (" +
                             Number(sx * half_l) + ", " + Number(sy * half_w) + ", " + Number(z) +
                             ") mm falls outside the image; raise height_mm or lower fx/fy");
@@ -265,8 +262,7 @@ LoadedConfig ParseConfig(const std::string& text, const std::string& name,
   parser.RecordErrorsTo(&errors);
   parser.WriteLocationsTo(&tree);
   if (!parser.ParseFromString(text, &loaded.config)) {
-    throw ConfigError(errors.first().empty() ? name + ": cannot parse the config"
-                                             : errors.first());
+    throw ConfigError(errors.first().empty() ? name + ": cannot parse the config" : errors.first());
   }
   // no part block: one default part, the built-in connector
   if (loaded.config.part_size() == 0) loaded.config.add_part();

@@ -1,7 +1,10 @@
 #include "gen/physics/convex_pieces.h"
 
+#include <HACD/hacdHACD.h>
+#include <LinearMath/btConvexHullComputer.h>
 #include <unistd.h>
 
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -14,10 +17,6 @@
 #include <sstream>
 #include <stdexcept>
 #include <tuple>
-
-#include <HACD/hacdHACD.h>
-#include <LinearMath/btConvexHullComputer.h>
-#include <Eigen/Geometry>
 
 namespace stackgen {
 namespace {
@@ -179,8 +178,8 @@ void WriteCache(const fs::path& path, const std::vector<std::vector<Eigen::Vecto
                 const std::string& key) {
   // unique per process and call, so concurrent writers never share a temporary file
   static std::atomic<unsigned> writes{0};
-  const fs::path temporary = path.string() + ".tmp." + std::to_string(::getpid()) + "." +
-                             std::to_string(writes++);
+  const fs::path temporary =
+      path.string() + ".tmp." + std::to_string(::getpid()) + "." + std::to_string(writes++);
   {
     std::ofstream out(temporary);
     out << "# " << kCacheVersion << " key " << key << ": convex pieces in millimetres\n";
@@ -223,7 +222,8 @@ void WriteCache(const fs::path& path, const std::vector<std::vector<Eigen::Vecto
 }
 
 // Runs HACD on `part` with vertices welded by position.
-std::vector<std::vector<Eigen::Vector3d>> Decompose(const TriangleMesh& part, const Eigen::AlignedBox3d& bounds,
+std::vector<std::vector<Eigen::Vector3d>> Decompose(const TriangleMesh& part,
+                                                    const Eigen::AlignedBox3d& bounds,
                                                     const DecompositionSettings& settings) {
   // weld: HACD walks triangle adjacency, so shared edges need shared vertices
   const Eigen::Vector3d centre = bounds.center();

@@ -1,10 +1,10 @@
 #include "gen/physics/hull_faces.h"
 
+#include <LinearMath/btConvexHullComputer.h>
+
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
-
-#include <LinearMath/btConvexHullComputer.h>
 
 namespace stackgen {
 namespace {
@@ -27,8 +27,8 @@ struct Triangle {
 std::vector<HullFace> HullFaces(const std::vector<Eigen::Vector3d>& points_mm) {
   if (points_mm.size() < 4) throw std::runtime_error("HullFaces: fewer than 4 points");
   btConvexHullComputer computer;
-  computer.compute(points_mm[0].data(), sizeof(Eigen::Vector3d),
-                   static_cast<int>(points_mm.size()), 0, 0);
+  computer.compute(points_mm[0].data(), sizeof(Eigen::Vector3d), static_cast<int>(points_mm.size()),
+                   0, 0);
 
   // the hull's polygons as fans of triangles
   std::vector<Triangle> triangles;
@@ -72,8 +72,8 @@ std::vector<HullFace> HullFaces(const std::vector<Eigen::Vector3d>& points_mm) {
       weighted_normals.push_back(Eigen::Vector3d::Zero());
     }
     HullFace& face = faces[f];
-    face.centroid_mm = (face.centroid_mm * face.area_mm2 + t.centroid * t.area) /
-                       (face.area_mm2 + t.area);
+    face.centroid_mm =
+        (face.centroid_mm * face.area_mm2 + t.centroid * t.area) / (face.area_mm2 + t.area);
     face.area_mm2 += t.area;
     weighted_normals[f] += t.normal * t.area;
     face.normal = weighted_normals[f].normalized();

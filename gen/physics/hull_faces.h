@@ -1,8 +1,7 @@
 #pragma once
 
-#include <vector>
-
 #include <Eigen/Geometry>
+#include <vector>
 
 namespace stackgen {
 

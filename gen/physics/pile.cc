@@ -1,14 +1,14 @@
 #include "gen/physics/pile.h"
 
+#include <LinearMath/btConvexHullComputer.h>
+#include <btBulletDynamicsCommon.h>
+
 #include <algorithm>
 #include <cmath>
 #include <random>
 #include <sstream>
 #include <stdexcept>
 #include <utility>
-
-#include <LinearMath/btConvexHullComputer.h>
-#include <btBulletDynamicsCommon.h>
 
 #include "gen/physics/convex_pieces.h"
 #include "gen/physics/mass_properties.h"
@@ -345,8 +345,8 @@ TypeModel MakeTypeModel(const PartType& type, const std::string& what,
   CheckRange((what + "PartPhysics").c_str(), "density_kg_m3", physics.density_kg_m3, 1e-3, 1e6);
   CheckRange((what + "PartPhysics").c_str(), "friction", physics.friction, 0, 10);
   CheckRange((what + "PartPhysics").c_str(), "restitution", physics.restitution, 0, 1);
-  CheckRange((what + "PartPhysics").c_str(), "rolling_friction_mm", physics.rolling_friction_mm,
-             0, 100);
+  CheckRange((what + "PartPhysics").c_str(), "rolling_friction_mm", physics.rolling_friction_mm, 0,
+             100);
   if (type.mesh.triangles.empty()) {
     throw std::runtime_error("PileSimulator: " + what + "the part mesh is empty");
   }
@@ -444,8 +444,8 @@ namespace {
 template <typename Types>
 const auto& TypeAt(const Types& types, int type) {
   if (type < 0 || type >= static_cast<int>(types.size())) {
-    throw std::runtime_error("PileSimulator: no part type " + std::to_string(type) + " (there are " +
-                             std::to_string(types.size()) + ")");
+    throw std::runtime_error("PileSimulator: no part type " + std::to_string(type) +
+                             " (there are " + std::to_string(types.size()) + ")");
   }
   return types[type];
 }
@@ -605,8 +605,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
     }
     releases.push_back(release);
   }
-  ReleaseQueue queue(std::move(releases), bin.inner_height_mm + params.drop_height_mm,
-                     sequential);
+  ReleaseQueue queue(std::move(releases), bin.inner_height_mm + params.drop_height_mm, sequential);
 
   // releases what the queue lets go; returns whether any part was released
   std::vector<btRigidBody*> body_of_part(count, nullptr);
@@ -626,8 +625,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
         if (it->first > time_s - kLandedWindowS + 1e-9) continue;
         const double moved_mm = (now.translation() - it->second.translation()).norm();
         const double turned_deg =
-            Eigen::AngleAxisd(now.linear() * it->second.linear().transpose()).angle() * 180 /
-            M_PI;
+            Eigen::AngleAxisd(now.linear() * it->second.linear().transpose()).angle() * 180 / M_PI;
         landed = moved_mm < kLandedMm && turned_deg < kLandedDeg;
         break;
       }
@@ -650,9 +648,8 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
     for (const auto& [part, z] : parts) {
       const int type = queue.release(part).type;
       const TypeModel& tm = m.types[type];
-      btRigidBody::btRigidBodyConstructionInfo info(static_cast<btScalar>(tm.mass.mass_kg),
-                                                    nullptr, type_shape[type],
-                                                    type_inertia[type]);
+      btRigidBody::btRigidBodyConstructionInfo info(static_cast<btScalar>(tm.mass.mass_kg), nullptr,
+                                                    type_shape[type], type_inertia[type]);
       info.m_startWorldTransform =
           ToSim(queue.release(part).WorldFromObjectAt(z) * tm.object_from_body);
       info.m_friction = root(tm.physics.friction);

@@ -3,12 +3,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <random>
 #include <sstream>
 #include <vector>
-
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include "gen/annotate/labels.h"
 #include "gen/annotate/pose.h"
@@ -115,8 +114,8 @@ struct SceneGenerator::Impl {
   }
 };
 
-SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
-                               uint64_t base_seed, const std::string& cache_dir)
+SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id, uint64_t base_seed,
+                               const std::string& cache_dir)
     : impl_(std::make_unique<Impl>()) {
   impl_->loaded = config;
   impl_->generator_id = generator_id;
@@ -171,8 +170,9 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   }
 
   // the bin: a tote mesh from the config, or a box bin from its sizes.
-  BinSpec bin_spec{bin.inner_length_mm(), bin.inner_width_mm(), bin.inner_height_mm(),
-                   bin.wall_thickness_mm(), bin.friction(), bin.restitution(), TriangleMesh{}};
+  BinSpec bin_spec{bin.inner_length_mm(),   bin.inner_width_mm(), bin.inner_height_mm(),
+                   bin.wall_thickness_mm(), bin.friction(),       bin.restitution(),
+                   TriangleMesh{}};
   if (!bin.mesh().empty()) {
     bin_spec.mesh = LoadMesh(config.Resolve(bin.mesh()), bin.mesh_scale_to_mm());
     const Eigen::AlignedBox3d box = Bounds(bin_spec.mesh);
@@ -203,7 +203,7 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   params.settle_window_s = p.settle_window_s();
   params.drop_height_mm = p.drop_height_mm();
   params.drop_mode = p.drop_mode() == config::PhysicsConfig::SEQUENTIAL ? DropMode::kSequential
-                                                                         : DropMode::kRandomVolume;
+                                                                        : DropMode::kRandomVolume;
   params.drop_point_mm = Eigen::Vector2d(p.drop_point_x_mm(), p.drop_point_y_mm());
   // the box bin collides as boxes (exact, fast); only a tote mesh collides as triangles
   const TriangleMesh bin_render_mesh = bin_spec.mesh;
@@ -250,8 +250,7 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
   std::vector<int> object_types;
   for (int redraw = 0;; ++redraw) {
     if (redraw > config.physics().max_redraws()) {
-      throw std::runtime_error("scene " + std::to_string(seq) + ": " +
-                               std::to_string(redraw) +
+      throw std::runtime_error("scene " + std::to_string(seq) + ": " + std::to_string(redraw) +
                                " drops in a row failed to settle inside the bin; check the "
                                "physics and bin settings");
     }
@@ -296,7 +295,8 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
   light.specular = static_cast<float>(uniform(lighting.specular_min(), lighting.specular_max()));
   Eigen::Vector3f background;
   for (int i = 0; i < 3; ++i) {
-    background[i] = static_cast<float>(uniform(config.background().min(), config.background().max()));
+    background[i] =
+        static_cast<float>(uniform(config.background().min(), config.background().max()));
   }
 
   // render the bin and the parts (instance ids 1..N), then each part alone.
@@ -321,9 +321,9 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
     DrawItem part_item;
     part_item.mesh_id = type.mesh_id;
     part_item.world_from_object = pile.world_from_object[i];
-    part_item.material.color = Eigen::Vector3f(static_cast<float>(part.color_r()),
-                                               static_cast<float>(part.color_g()),
-                                               static_cast<float>(part.color_b()));
+    part_item.material.color =
+        Eigen::Vector3f(static_cast<float>(part.color_r()), static_cast<float>(part.color_g()),
+                        static_cast<float>(part.color_b()));
     part_item.material.specular = 0.6f;
     part_item.material.shininess = 40;
     if (type.class_id > 0) {

@@ -2,6 +2,7 @@
 // poses they publish on STACKGEN_LABELS: a scene is a pure function of (config, seed, generator,
 // scene number), bit for bit, across processes.
 
+#include <gtest/gtest.h>
 #include <sys/stat.h>
 
 #include <algorithm>
@@ -10,11 +11,9 @@
 #include <filesystem>
 #include <iostream>
 #include <map>
+#include <stackgen/labels.hpp>
 #include <string>
 #include <vector>
-
-#include <gtest/gtest.h>
-#include <stackgen/labels.hpp>
 
 #include "bus/bus.h"
 #include "bus/channels.h"

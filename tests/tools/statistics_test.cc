@@ -25,11 +25,11 @@
 
 #include "tools/stats/statistics.h"
 
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <stdexcept>
 #include <vector>
-
-#include <gtest/gtest.h>
 
 namespace stackgen::stats {
 namespace {

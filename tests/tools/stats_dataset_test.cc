@@ -1,24 +1,23 @@
 // Reading datasets for stackgen-stats (tools/stats/dataset.h): postures in a reference frame,
 // the angle about the vertical, a real COCO file, and LCM logs through bus/log.
 
-#include "tools/stats/dataset.h"
+#include <gtest/gtest.h>
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <nlohmann/json.hpp>
+#include <stackgen/labels.hpp>
 #include <stdexcept>
 #include <string>
 #include <vector>
-
-#include <gtest/gtest.h>
-#include <Eigen/Geometry>
-#include <nlohmann/json.hpp>
-#include <stackgen/labels.hpp>
 
 #include "bus/channels.h"
 #include "bus/log.h"
 #include "gen/annotate/pose.h"
 #include "tests/support/process.h"
+#include "tools/stats/dataset.h"
 
 namespace stackgen::stats {
 namespace {

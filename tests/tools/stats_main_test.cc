@@ -2,19 +2,19 @@
 // command line, the four test lines, the plots, and a log read the same as the COCO file of the
 // same scenes.
 
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <regex>
-#include <string>
-#include <vector>
-
-#include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <regex>
 #include <stackgen/labels.hpp>
 #include <stackgen/scene.hpp>
+#include <string>
+#include <vector>
 
 #include "bus/channels.h"
 #include "bus/log.h"

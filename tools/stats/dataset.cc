@@ -1,18 +1,17 @@
 #include "tools/stats/dataset.h"
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
-#include <stdexcept>
-#include <utility>
-
-#include <Eigen/Geometry>
-#include <nlohmann/json.hpp>
 #include <stackgen/labels.hpp>
 #include <stackgen/scene.hpp>
+#include <stdexcept>
+#include <utility>
 
 #include "bus/channels.h"
 #include "bus/log.h"

@@ -3,12 +3,11 @@
 // The postures of the instances in a dataset: a COCO file written by stackgen-coco, or an LCM
 // log (lcm-logger) of STACKGEN_LABELS or STACKGEN_SCENE messages.
 
+#include <Eigen/Core>
 #include <cstdint>
 #include <map>
 #include <string>
 #include <vector>
-
-#include <Eigen/Core>
 
 namespace stackgen::stats {
 

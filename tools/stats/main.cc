@@ -471,8 +471,7 @@ int Run(const Flags& flags) {
     if (std::none_of(datasets.begin(), datasets.end(), [&](const Dataset& dataset) {
           return dataset.class_counts.count(class_name) != 0;
         })) {
-      std::printf("note: --frame names class %s, which no instance used has\n",
-                  class_name.c_str());
+      std::printf("note: --frame names class %s, which no instance used has\n", class_name.c_str());
     }
   }
   PrintFaceTable(pointers);

@@ -6,11 +6,10 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
-#include <stdexcept>
-
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <stdexcept>
 
 namespace stackgen::stats {
 namespace {

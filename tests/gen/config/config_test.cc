@@ -1,8 +1,8 @@
 #include "gen/config/config.h"
 
-#include <string>
-
 #include <gtest/gtest.h>
+
+#include <string>
 
 namespace stackgen {
 namespace {
@@ -55,9 +55,8 @@ TEST(ConfigTest, SeveralPartsNameTheBlock) {
   const std::string error =
       ErrorOf("part { count: 3 }\npart {\n  mesh: \"b.obj\"\n  friction: 7\n}\n");
   EXPECT_NE(error.find("test.pbtxt:4: part[1].friction"), std::string::npos) << error;
-  const LoadedConfig loaded =
-      ParseConfig("part { count: 3 }\npart { count_min: 0 count_max: 4 role: DISTRACTOR }",
-                  "test.pbtxt", ".");
+  const LoadedConfig loaded = ParseConfig(
+      "part { count: 3 }\npart { count_min: 0 count_max: 4 role: DISTRACTOR }", "test.pbtxt", ".");
   ASSERT_EQ(loaded.config.part_size(), 2);
   EXPECT_EQ(loaded.config.part(1).role(), config::PartConfig::DISTRACTOR);
   // no part block at all: one default part, the built-in connector
@@ -71,8 +70,7 @@ TEST(ConfigTest, CountRangeRoleAndDropChecks) {
   EXPECT_NE(ErrorOf("part { count_min: 2 }").find("part[0].count_min"), std::string::npos);
   EXPECT_NE(ErrorOf("part { count_min: 5 count_max: 4 }").find("part[0].count_min"),
             std::string::npos);
-  EXPECT_NE(ErrorOf("part { role: DISTRACTOR }").find("no part has role PART"),
-            std::string::npos);
+  EXPECT_NE(ErrorOf("part { role: DISTRACTOR }").find("no part has role PART"), std::string::npos);
   EXPECT_NE(ErrorOf("part { count: 600 }\npart { count: 600 }").find("at most 999"),
             std::string::npos);
   EXPECT_NE(ErrorOf("physics { drop_point_x_mm: 150 }").find("physics.drop_point_x_mm"),

@@ -1,9 +1,9 @@
 #include "gen/physics/hull_faces.h"
 
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <vector>
-
-#include <gtest/gtest.h>
 
 #include "gen/mesh/mesh.h"
 

@@ -1,42 +1,26 @@
 // Tests of the drop modes, several part types, rolling friction and tote meshes of PileSimulator.
+#include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <string>
 #include <vector>
 
-#include <gtest/gtest.h>
-#include <Eigen/Geometry>
-
 #include "gen/mesh/mesh.h"
 #include "gen/physics/pile.h"
+#include "tests/support/meshes.h"
 
 namespace stackgen {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::BoxMesh;
+using testing::ModelPath;
 
 const BinSpec kBin{200, 150, 100, 8, 0.6, 0.1, {}};
-
-std::string ModelPath(const std::string& name) {
-  return std::string(STACKGEN_SOURCE_DIR) + "/config/models/" + name;
-}
-
-// A closed, outward-wound axis-aligned box of the given size centred at the origin, mm.
-TriangleMesh Box(const Eigen::Vector3f& size) {
-  TriangleMesh mesh;
-  const Eigen::Vector3f lo = -size / 2, hi = size / 2;
-  for (int i = 0; i < 8; ++i) {
-    mesh.positions_mm.emplace_back(i & 1 ? hi.x() : lo.x(), i & 2 ? hi.y() : lo.y(),
-                                   i & 4 ? hi.z() : lo.z());
-    mesh.normals.push_back(mesh.positions_mm.back().normalized());
-  }
-  mesh.triangles = {{0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6}, {0, 1, 5}, {0, 5, 4},
-                    {2, 6, 7}, {2, 7, 3}, {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};
-  return mesh;
-}
 
 class PileModesTest : public ::testing::Test {
  protected:
@@ -77,7 +61,7 @@ double MeanDistanceFrom(const PileResult& pile, const Eigen::Vector2d& point) {
 // Two part types in one pile: each object gets its own type's shape, mass and hull faces, and
 // the pile settles inside the bin.
 TEST_F(PileModesTest, SeveralPartTypesInOnePile) {
-  const PileSimulator simulator({Connector(), PartType{Box({30, 20, 10}), {}, PartPhysics{}}},
+  const PileSimulator simulator({Connector(), PartType{BoxMesh({30, 20, 10}), {}, PartPhysics{}}},
                                 kBin, SimulationParams{}, Cache());
   EXPECT_NEAR(simulator.mass_kg(0), 0.0959, 0.001);
   EXPECT_NEAR(simulator.mass_kg(1), 30 * 20 * 10 * 2700e-9, 1e-9);

@@ -1,7 +1,9 @@
 #include "gen/physics/pile.h"
 
+#include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <Eigen/Geometry>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -10,35 +12,18 @@
 #include <string>
 #include <vector>
 
-#include <gtest/gtest.h>
-#include <Eigen/Geometry>
-
 #include "gen/mesh/mesh.h"
+#include "tests/support/meshes.h"
 
 namespace stackgen {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::BoxMesh;
+using testing::ModelPath;
 
 // the default bin of config/default.pbtxt: 12 connectors lie two to three deep
 const BinSpec kBin{200, 150, 100, 8, 0.6, 0.1, {}};
-
-std::string ModelPath(const std::string& name) {
-  return std::string(STACKGEN_SOURCE_DIR) + "/config/models/" + name;
-}
-
-// A closed, outward-wound axis-aligned box from lo to hi, mm.
-TriangleMesh Box(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) {
-  TriangleMesh mesh;
-  for (int i = 0; i < 8; ++i) {
-    mesh.positions_mm.emplace_back(i & 1 ? hi.x() : lo.x(), i & 2 ? hi.y() : lo.y(),
-                                   i & 4 ? hi.z() : lo.z());
-    mesh.normals.push_back((mesh.positions_mm.back() - (lo + hi) / 2).normalized());
-  }
-  mesh.triangles = {{0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6}, {0, 1, 5}, {0, 5, 4},
-                    {2, 6, 7}, {2, 7, 3}, {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};
-  return mesh;
-}
 
 // An L-shaped prism (two 30 x 10 mm legs, 10 mm thick) as one closed mesh: not convex.
 constexpr char kLObj[] = R"(v 0 0 0
@@ -138,7 +123,7 @@ TEST_F(PileTest, SameSeedIsBitIdentical) {
 
 // A 20 mm cube comes to rest flat on a face, on the floor.
 TEST_F(PileTest, CubeRestsOnFace) {
-  const TriangleMesh cube = Box({-10, -10, -10}, {10, 10, 10});
+  const TriangleMesh cube = BoxMesh({-10, -10, -10}, {10, 10, 10});
   const PileSimulator simulator(cube, {}, PartPhysics{}, kBin, SimulationParams{},
                                 (dir_ / "cache").string());
   EXPECT_NE(simulator.CollisionDescription().find("convex hull"), std::string::npos)
@@ -160,7 +145,8 @@ TEST_F(PileTest, CubeRestsOnFace) {
 TEST_F(PileTest, MassFromVolume) {
   PartPhysics water;
   water.density_kg_m3 = 1000;
-  const PileSimulator cube(Box({0, 0, 0}, {10, 10, 10}), {}, water, kBin, SimulationParams{}, "");
+  const PileSimulator cube(BoxMesh({0, 0, 0}, {10, 10, 10}), {}, water, kBin, SimulationParams{},
+                           "");
   EXPECT_NEAR(cube.mass_kg(), 1e-3, 1e-9);
   // the connector: about 35.5 cm^3 of aluminium
   EXPECT_NEAR(ConnectorSimulator().mass_kg(), 35518.4e-9 * 2700, 1e-4);
@@ -210,7 +196,7 @@ TEST_F(PileTest, RefusesBadInput) {
     }
     return "no exception";
   };
-  const TriangleMesh cube = Box({0, 0, 0}, {10, 10, 10});
+  const TriangleMesh cube = BoxMesh({0, 0, 0}, {10, 10, 10});
   PartPhysics no_density;
   no_density.density_kg_m3 = 0;
   EXPECT_NE(
@@ -225,7 +211,7 @@ TEST_F(PileTest, RefusesBadInput) {
   EXPECT_NE(message([&] { PileSimulator(cube, {}, {}, no_wall, {}, ""); }).find("wall_mm"),
             std::string::npos);
   // collision pieces in metres for a part in millimetres
-  std::vector<TriangleMesh> metres = {Box({0, 0, 0}, {0.01f, 0.01f, 0.01f})};
+  std::vector<TriangleMesh> metres = {BoxMesh({0, 0, 0}, {0.01f, 0.01f, 0.01f})};
   EXPECT_NE(message([&] { PileSimulator(cube, metres, {}, kBin, {}, ""); }).find("units"),
             std::string::npos);
   // an inside-out part has no positive volume

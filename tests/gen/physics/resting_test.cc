@@ -1,6 +1,9 @@
 // How dropped parts come to rest: which face they lie on, how often, and that piles of small and
 // large parts settle without sinking. Statistical tests with fixed seeds: exact, never flaky.
 
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -8,16 +11,17 @@
 #include <string>
 #include <vector>
 
-#include <gtest/gtest.h>
-#include <Eigen/Geometry>
-
 #include "gen/mesh/mesh.h"
 #include "gen/physics/hull_faces.h"
 #include "gen/physics/pile.h"
+#include "tests/support/meshes.h"
 #include "tools/stats/statistics.h"
 
 namespace stackgen {
 namespace {
+
+using testing::BoxMesh;
+using testing::ModelPath;
 
 // An open box bin, mm, with the default bin material.
 BinSpec Bin(double length_mm, double width_mm, double height_mm, double wall_mm) {
@@ -44,25 +48,6 @@ constexpr double kWallContactMm = 1;
 
 // the deepest penetration the issue allows, mm
 constexpr double kMaxPenetrationMm = 0.5;
-
-std::string ModelPath(const std::string& name) {
-  return std::string(STACKGEN_SOURCE_DIR) + "/config/models/" + name;
-}
-
-// A closed, outward-wound axis-aligned box of `size` centred at the origin, mm.
-TriangleMesh Box(const Eigen::Vector3f& size) {
-  const Eigen::Vector3f lo = -size / 2;
-  const Eigen::Vector3f hi = size / 2;
-  TriangleMesh mesh;
-  for (int i = 0; i < 8; ++i) {
-    mesh.positions_mm.emplace_back(i & 1 ? hi.x() : lo.x(), i & 2 ? hi.y() : lo.y(),
-                                   i & 4 ? hi.z() : lo.z());
-    mesh.normals.push_back(mesh.positions_mm.back().normalized());
-  }
-  mesh.triangles = {{0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6}, {0, 1, 5}, {0, 5, 4},
-                    {2, 6, 7}, {2, 7, 3}, {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};
-  return mesh;
-}
 
 std::vector<Eigen::Vector3d> Vertices(const TriangleMesh& mesh) {
   std::vector<Eigen::Vector3d> points;
@@ -188,7 +173,7 @@ int ExpectInsideBin(const PileResult& pile, const std::vector<Eigen::Vector3d>& 
 // A 30 mm cube dropped until 600 lie flat lands on each of its six faces equally often: a
 // chi-square test does not reject uniformity at 1 %; none ends on an edge or corner.
 TEST(RestingTest, CubeLandsOnEveryFaceEquallyOften) {
-  const TriangleMesh cube = Box({30, 30, 30});
+  const TriangleMesh cube = BoxMesh({30, 30, 30});
   const std::vector<HullFace> faces = HullFaces(Vertices(cube));
   ASSERT_EQ(faces.size(), 6u);
   int leaning = 0;
@@ -207,7 +192,7 @@ TEST(RestingTest, CubeLandsOnEveryFaceEquallyOften) {
 // A flat 60 x 40 x 10 mm box lands on its 60 x 40 faces far more often than on its 40 x 10
 // faces (10x; the quasi-static solid-angle estimate is 14x) and always ends flat.
 TEST(RestingTest, FlatBoxRestsMostlyOnItsLargestFaces) {
-  const TriangleMesh box = Box({60, 40, 10});
+  const TriangleMesh box = BoxMesh({60, 40, 10});
   const std::vector<HullFace> faces = HullFaces(Vertices(box));
   ASSERT_EQ(faces.size(), 6u);
   // faces 0, 1: 60 x 40; 2, 3: 60 x 10; 4, 5: 40 x 10
@@ -321,7 +306,7 @@ TEST(RestingTest, TwentyMillimetrePilesSettleWithoutSinking) {
   const double k = 20.0 / 55;
   const BinSpec cube_bin = Bin(120, 100, 60, 5);
   const BinSpec connector_bin = Bin(200 * k, 150 * k, 100 * k, 8 * k);
-  const TriangleMesh cube = Box({20, 20, 20});
+  const TriangleMesh cube = BoxMesh({20, 20, 20});
   const TriangleMesh connector = Connector(k);
   const PileSimulator cubes(cube, {}, PartPhysics{}, cube_bin, SimulationParams{}, "");
   const PileSimulator connectors(connector, ConnectorPieces(k), PartPhysics{}, connector_bin,
@@ -354,7 +339,7 @@ TEST(RestingTest, ThreeHundredMillimetrePilesSettleWithoutSinking) {
   const double k = 300.0 / 55;
   const BinSpec box_bin = Bin(1000, 800, 500, 20);
   const BinSpec connector_bin = Bin(200 * k, 150 * k, 100 * k, 8 * k);
-  const TriangleMesh box = Box({300, 200, 100});
+  const TriangleMesh box = BoxMesh({300, 200, 100});
   const TriangleMesh connector = Connector(k);
   const PileSimulator boxes(box, {}, PartPhysics{}, box_bin, SimulationParams{}, "");
   const PileSimulator connectors(connector, ConnectorPieces(k), PartPhysics{}, connector_bin,
@@ -408,9 +393,9 @@ TEST(RestingTest, RestingPartsDoNotJitter) {
   const double k20 = 20.0 / 55;
   const double k300 = 300.0 / 55;
   const std::vector<Case> cases = {
-      {"20 mm cube", Box({20, 20, 20}), {}, kRoomyBin},
+      {"20 mm cube", BoxMesh({20, 20, 20}), {}, kRoomyBin},
       {"20 mm connector", Connector(k20), ConnectorPieces(k20), kRoomyBin},
-      {"300 mm box", Box({300, 200, 100}), {}, Bin(1000, 800, 500, 20)},
+      {"300 mm box", BoxMesh({300, 200, 100}), {}, Bin(1000, 800, 500, 20)},
       {"300 mm connector", Connector(k300), ConnectorPieces(k300), Bin(1500, 1500, 500, 20)},
   };
   for (const Case& c : cases) {

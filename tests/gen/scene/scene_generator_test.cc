@@ -1,10 +1,10 @@
 #include "gen/scene/scene_generator.h"
 
+#include <gtest/gtest.h>
+
+#include <opencv2/imgcodecs.hpp>
 #include <set>
 #include <string>
-
-#include <gtest/gtest.h>
-#include <opencv2/imgcodecs.hpp>
 
 #include "gen/annotate/rle.h"
 #include "tests/support/process.h"

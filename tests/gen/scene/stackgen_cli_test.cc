@@ -1,9 +1,9 @@
 // The stackgen program refuses bad input with one clear line and a non-zero exit, and answers
 // --help.
 
-#include <string>
-
 #include <gtest/gtest.h>
+
+#include <string>
 
 #include "tests/support/process.h"
 
@@ -42,8 +42,8 @@ void ExpectOneLine(const std::string& err) {
 TEST(StackgenCliTest, Help) {
   const Outcome outcome = RunStackgen({"--help"}, testing::MakeTempDir("stackgen-cli"));
   EXPECT_EQ(outcome.code, 0);
-  for (const char* flag : {"--config", "--count", "--seed", "--generator-id", "--lcm-url",
-                           "--cache-dir", "default"}) {
+  for (const char* flag :
+       {"--config", "--count", "--seed", "--generator-id", "--lcm-url", "--cache-dir", "default"}) {
     EXPECT_NE(outcome.out.find(flag), std::string::npos) << flag;
   }
 }
@@ -72,9 +72,9 @@ TEST(StackgenCliTest, ToteMeshTooSmall) {
   const std::string dir = testing::MakeTempDir("stackgen-cli");
   std::ofstream(dir + "/tote.obj") << "v -10 -10 0\nv 10 -10 0\nv 0 10 0\nv 0 0 10\n"
                                       "f 1 3 2\nf 1 2 4\nf 2 3 4\nf 3 1 4\n";
-  const std::string config = WriteConfig(
-      dir, "part { mesh: \"" + std::string(STACKGEN_SOURCE_DIR) +
-               "/config/models/corner_connector.obj\" }\nbin { mesh: \"tote.obj\" }\n");
+  const std::string config =
+      WriteConfig(dir, "part { mesh: \"" + std::string(STACKGEN_SOURCE_DIR) +
+                           "/config/models/corner_connector.obj\" }\nbin { mesh: \"tote.obj\" }\n");
   const Outcome outcome =
       RunStackgen({"--config", config, "--count", "1", "--lcm-url", "memq://"}, dir);
   EXPECT_EQ(outcome.code, 1);
@@ -108,9 +108,9 @@ TEST(StackgenCliTest, UnknownField) {
 // a bin too small for the parts is refused, naming the config file.
 TEST(StackgenCliTest, BinTooSmall) {
   const std::string dir = testing::MakeTempDir("stackgen-cli");
-  const std::string config = WriteConfig(
-      dir, "part { mesh: \"" STACKGEN_SOURCE_DIR "/config/models/corner_connector.obj\" }\n"
-           "bin { inner_length_mm: 30 inner_width_mm: 30 }\n");
+  const std::string config = WriteConfig(dir, "part { mesh: \"" STACKGEN_SOURCE_DIR
+                                              "/config/models/corner_connector.obj\" }\n"
+                                              "bin { inner_length_mm: 30 inner_width_mm: 30 }\n");
   const Outcome outcome =
       RunStackgen({"--config", config, "--count", "1", "--lcm-url", "memq://"}, dir);
   EXPECT_EQ(outcome.code, 1);

@@ -1,17 +1,18 @@
 // Tests of the drop modes, several part types, rolling friction and tote meshes of PileSimulator.
-#include <gtest/gtest.h>
-#include <unistd.h>
 
-#include <Eigen/Geometry>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <string>
 #include <vector>
 
+#include <gtest/gtest.h>
+#include <Eigen/Geometry>
+
 #include "gen/mesh/mesh.h"
 #include "gen/physics/pile.h"
 #include "tests/support/meshes.h"
+#include "tests/support/process.h"
 
 namespace stackgen {
 namespace {
@@ -24,12 +25,7 @@ const BinSpec kBin{200, 150, 100, 8, 0.6, 0.1, {}};
 
 class PileModesTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("stackgen_pile_modes_test_" + std::to_string(::getpid()) + "_" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(dir_);
-  }
+  void SetUp() override { dir_ = testing::MakeTempDir("stackgen-pile-modes"); }
   void TearDown() override { fs::remove_all(dir_); }
 
   static PartType Connector() {
@@ -44,9 +40,9 @@ class PileModesTest : public ::testing::Test {
     type.physics.rolling_friction_mm = rolling_friction_mm;
     return type;
   }
-  std::string Cache() const { return (dir_ / "cache").string(); }
+  std::string Cache() const { return dir_ + "/cache"; }
 
-  fs::path dir_;
+  std::string dir_;
 };
 
 // mean horizontal distance of the parts' mesh origins from (x, y), mm

@@ -187,7 +187,6 @@ struct World {
   btCollisionDispatcher dispatcher{&configuration};
   btDbvtBroadphase broadphase;
   btSequentialImpulseConstraintSolver solver;
-  std::vector<std::unique_ptr<btTriangleMesh>> meshes;  // triangles of mesh shapes
   std::vector<std::unique_ptr<btCollisionShape>> shapes;
   std::vector<std::unique_ptr<btRigidBody>> bodies;
   std::unique_ptr<btDiscreteDynamicsWorld> world;
@@ -393,6 +392,11 @@ struct PileSimulator::Model {
   BinSpec bin;
   SimulationParams params;
   std::vector<TypeModel> types;
+  // a tote mesh's collision shape, built once: static and only read while simulating, so every
+  // world shares it (the triangles must outlive the shape)
+  std::unique_ptr<btTriangleMesh> tote_triangles;
+  std::unique_ptr<btBvhTriangleMeshShape> tote_shape;
+  double table_z_mm = 0;  // the table under a tote mesh: its lowest point
 };
 
 PileSimulator::PileSimulator(const TriangleMesh& part,
@@ -430,6 +434,20 @@ PileSimulator::PileSimulator(const std::vector<PartType>& types, const BinSpec& 
   for (size_t t = 0; t < types.size(); ++t) {
     const std::string what = types.size() > 1 ? "part type " + std::to_string(t) + ": " : "";
     model->types.push_back(MakeTypeModel(types[t], what, cache_dir));
+  }
+
+  // a tote mesh collides as a static triangle mesh (BVH), built here once
+  if (!bin.mesh.triangles.empty()) {
+    model->tote_triangles = std::make_unique<btTriangleMesh>();
+    for (const auto& t : bin.mesh.triangles) {
+      const auto corner = [&](int k) {
+        return ToSim(Eigen::Vector3d(bin.mesh.positions_mm[t[k]].cast<double>()));
+      };
+      model->tote_triangles->addTriangle(corner(0), corner(1), corner(2), false);
+    }
+    model->tote_shape = std::make_unique<btBvhTriangleMeshShape>(model->tote_triangles.get(), true);
+    model->tote_shape->setMargin(ToSim(kMarginMm));
+    model->table_z_mm = Bounds(bin.mesh).min().z();
   }
   model_ = std::move(model);
 }
@@ -496,20 +514,9 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
   const auto root = [](double value) { return static_cast<btScalar>(std::sqrt(value)); };
 
   // the bin: a tote mesh, or floor and four walls as a static compound of boxes; on a table
-  if (!bin.mesh.triangles.empty()) {
-    auto triangles = std::make_unique<btTriangleMesh>();
-    for (const auto& t : bin.mesh.triangles) {
-      const auto corner = [&](int k) {
-        return ToSim(Eigen::Vector3d(bin.mesh.positions_mm[t[k]].cast<double>()));
-      };
-      triangles->addTriangle(corner(0), corner(1), corner(2), false);
-    }
-    auto* tote = w.AddShape<btBvhTriangleMeshShape>(triangles.get(), true);
-    tote->setMargin(ToSim(kMarginMm));
-    w.meshes.push_back(std::move(triangles));
-    const double table_z = Bounds(bin.mesh).min().z();
-    auto* table = w.AddShape<btStaticPlaneShape>(btVector3(0, 0, 1), ToSim(table_z));
-    for (btCollisionShape* shape : std::vector<btCollisionShape*>{tote, table}) {
+  if (m.tote_shape != nullptr) {
+    auto* table = w.AddShape<btStaticPlaneShape>(btVector3(0, 0, 1), ToSim(m.table_z_mm));
+    for (btCollisionShape* shape : std::vector<btCollisionShape*>{m.tote_shape.get(), table}) {
       btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, shape);
       info.m_friction = root(bin.friction);
       info.m_restitution = root(bin.restitution);

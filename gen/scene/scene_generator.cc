@@ -188,9 +188,6 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
            << "); the mesh's origin must be the centre of its inner floor, z up";
       throw ConfigError(text.str());
     }
-  } else {
-    bin_spec.mesh = MakeOpenBinMesh(bin.inner_length_mm(), bin.inner_width_mm(),
-                                    bin.inner_height_mm(), bin.wall_thickness_mm());
   }
 
   // physics.
@@ -205,9 +202,6 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   params.drop_mode = p.drop_mode() == config::PhysicsConfig::SEQUENTIAL ? DropMode::kSequential
                                                                         : DropMode::kRandomVolume;
   params.drop_point_mm = Eigen::Vector2d(p.drop_point_x_mm(), p.drop_point_y_mm());
-  // the box bin collides as boxes (exact, fast); only a tote mesh collides as triangles
-  const TriangleMesh bin_render_mesh = bin_spec.mesh;
-  if (bin.mesh().empty()) bin_spec.mesh = TriangleMesh{};
   impl_->simulator = std::make_unique<PileSimulator>(types, bin_spec, params, cache_dir);
 
   // rendering, and the class ids of the labelled types.
@@ -230,7 +224,11 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
                 << " triangles, " << impl_->simulator->CollisionDescription(static_cast<int>(t))
                 << "\n";
   }
-  impl_->bin_mesh_id = impl_->renderer->AddMesh(bin_render_mesh);
+  // a box bin collides as boxes (exact, fast) and is drawn from the same sizes
+  impl_->bin_mesh_id = impl_->renderer->AddMesh(
+      bin.mesh().empty() ? MakeOpenBinMesh(bin.inner_length_mm(), bin.inner_width_mm(),
+                                           bin.inner_height_mm(), bin.wall_thickness_mm())
+                         : bin_spec.mesh);
   description << "renderer: " << impl_->renderer->Description();
   impl_->description = description.str();
 }

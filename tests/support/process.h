@@ -11,10 +11,12 @@
 
 #include <chrono>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <system_error>
 #include <thread>
 #include <vector>
 
@@ -45,6 +47,22 @@ inline std::string MakeTempDir(const std::string& prefix) {
   if (mkdtemp(pattern.data()) == nullptr) throw std::runtime_error("mkdtemp failed");
   return pattern;
 }
+
+/// A fresh temp folder (see MakeTempDir), removed with everything in it when destroyed.
+class ScratchDir {
+ public:
+  explicit ScratchDir(const std::string& prefix = "stackgen-test") : path_(MakeTempDir(prefix)) {}
+  ~ScratchDir() {
+    std::error_code error;
+    std::filesystem::remove_all(path_, error);
+  }
+  ScratchDir(const ScratchDir&) = delete;
+  ScratchDir& operator=(const ScratchDir&) = delete;
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
 
 inline std::string ReadFile(const std::string& path) {
   std::ifstream file(path);
@@ -85,7 +103,8 @@ class Process {
   /// Waits up to `timeout_s` for the process to exit; returns its exit code, or -1 if it is
   /// still running (it is then sent SIGKILL).
   int Wait(double timeout_s) {
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    const auto deadline =
+        std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
     while (std::chrono::steady_clock::now() < deadline) {
       int status = 0;
       if (waitpid(pid_, &status, WNOHANG) == pid_) {
@@ -102,7 +121,8 @@ class Process {
 
   /// Waits up to `timeout_s` until stdout contains `text`; false if it did not appear.
   bool WaitForOutput(const std::string& text, double timeout_s) const {
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    const auto deadline =
+        std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
     while (std::chrono::steady_clock::now() < deadline) {
       if (ReadFile(out_path_).find(text) != std::string::npos) return true;
       std::this_thread::sleep_for(std::chrono::milliseconds(20));

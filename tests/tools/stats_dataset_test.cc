@@ -23,6 +23,7 @@ namespace stackgen::stats {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::ScratchDir;
 
 const std::string kRealCoco =
     std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/stats/coco_4_scenes.json";
@@ -33,20 +34,6 @@ Eigen::Matrix3d Rz(double deg) {
 Eigen::Matrix3d AboutAxis(double deg, const Eigen::Vector3d& axis) {
   return Eigen::AngleAxisd(deg * M_PI / 180.0, axis.normalized()).toRotationMatrix();
 }
-
-// a temp folder removed with everything in it
-class ScratchDir {
- public:
-  ScratchDir() : path_(testing::MakeTempDir("stats-dataset")) {}
-  ~ScratchDir() {
-    std::error_code error;
-    fs::remove_all(path_, error);
-  }
-  const std::string& path() const { return path_; }
-
- private:
-  std::string path_;
-};
 
 // The heading is the turn about the vertical left after any tilt about a horizontal axis, and
 // undefined for a half-turn tilt.

@@ -27,24 +27,11 @@ namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 using testing::Process;
+using testing::ScratchDir;
 
 const std::string kProgram = std::string(STACKGEN_BIN_DIR) + "/stackgen-stats";
 const char* kPlots[] = {"scatter_beta_alpha.png", "scatter_beta_gamma.png", "histograms.png",
                         "cumulative.png", "faces.png"};
-
-// a temp folder removed with everything in it
-class ScratchDir {
- public:
-  ScratchDir() : path_(testing::MakeTempDir("stats-main")) {}
-  ~ScratchDir() {
-    std::error_code error;
-    fs::remove_all(path_, error);
-  }
-  const std::string& path() const { return path_; }
-
- private:
-  std::string path_;
-};
 
 // one object of a hand-made scene
 struct Object {

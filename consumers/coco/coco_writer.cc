@@ -90,6 +90,33 @@ void CheckPose(const stackgen::pose& pose, const std::string& scene_name,
   }
 }
 
+// `counts` (a COCO compressed RLE string, the field `field`) must cover `image_area` pixels
+// and hold `expected` of them (the value of `count_field`)
+void CheckMask(const std::string& counts, int32_t expected, uint64_t image_area,
+               const std::string& scene_name, const std::string& field,
+               const std::string& count_field) {
+  if (counts.empty()) Fail(scene_name, field + " is empty");
+  std::vector<uint32_t> runs;
+  try {
+    runs = ParseRleCounts(counts);
+  } catch (const std::runtime_error& error) {
+    Fail(scene_name, field + " is not a COCO RLE string: " + error.what());
+  }
+  uint64_t total = 0, area = 0;
+  for (size_t k = 0; k < runs.size(); ++k) {
+    total += runs[k];
+    if (k % 2 == 1) area += runs[k];
+  }
+  if (total != image_area) {
+    Fail(scene_name, field + " covers " + std::to_string(total) + " pixels, the image has " +
+                         std::to_string(image_area));
+  }
+  if (area != static_cast<uint64_t>(expected)) {
+    Fail(scene_name, field + " holds " + std::to_string(area) + " pixels, " + count_field + " is " +
+                         std::to_string(expected));
+  }
+}
+
 uint32_t BigEndian32(const uint8_t* bytes) {
   return (uint32_t{bytes[0]} << 24) | (uint32_t{bytes[1]} << 16) | (uint32_t{bytes[2]} << 8) |
          uint32_t{bytes[3]};
@@ -192,8 +219,9 @@ void CopyRange(std::ifstream& in, std::ofstream& out, uint64_t offset, uint64_t 
 
 CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
     : dir_(dir), options_(options) {
-  if (!(options_.min_visib_fract >= 0.0 && options_.min_visib_fract <= 1.0)) {
-    throw std::runtime_error("min_visib_fract " + std::to_string(options_.min_visib_fract) +
+  if (options_.min_visib_fract &&
+      !(*options_.min_visib_fract >= 0.0 && *options_.min_visib_fract <= 1.0)) {
+    throw std::runtime_error("min_visib_fract " + std::to_string(*options_.min_visib_fract) +
                              " outside [0, 1]");
   }
   // never overwrite a dataset
@@ -354,25 +382,18 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
     if (instance.px_count_all < 0 || instance.px_count_visib < 0) {
       Fail(name, field + ".px_count_all / px_count_visib is negative");
     }
-    // the mask must cover the image and hold px_count_visib pixels
-    std::vector<uint32_t> runs;
-    try {
-      runs = ParseRleCounts(instance.mask_visib_rle);
-    } catch (const std::runtime_error& error) {
-      Fail(name, field + ".mask_visib_rle is not a COCO RLE string: " + error.what());
+    // the visible and the full mask must cover the image and hold their pixel counts
+    CheckMask(instance.mask_visib_rle, instance.px_count_visib, image_area, name,
+              field + ".mask_visib_rle", "px_count_visib");
+    CheckMask(instance.mask_obj_rle, instance.px_count_all, image_area, name,
+              field + ".mask_obj_rle", "px_count_all");
+    // the generator's label: annotated, ignored or neither; both need visible pixels
+    if (instance.annotated && instance.ignored) {
+      Fail(name, field + ".ignored and " + field + ".annotated are both true");
     }
-    uint64_t total = 0, area = 0;
-    for (size_t k = 0; k < runs.size(); ++k) {
-      total += runs[k];
-      if (k % 2 == 1) area += runs[k];
-    }
-    if (total != image_area) {
-      Fail(name, field + ".mask_visib_rle covers " + std::to_string(total) +
-                     " pixels, the image has " + std::to_string(image_area));
-    }
-    if (area != static_cast<uint64_t>(instance.px_count_visib)) {
-      Fail(name, field + ".mask_visib_rle holds " + std::to_string(area) +
-                     " pixels, px_count_visib is " + std::to_string(instance.px_count_visib));
+    if ((instance.annotated || instance.ignored) && instance.px_count_visib == 0) {
+      Fail(name, field + (instance.annotated ? ".annotated" : ".ignored") +
+                     " is true but px_count_visib is 0");
     }
   }
 }
@@ -445,10 +466,16 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
               return a->instance_id < b->instance_id;
             });
   std::string annotations;
-  int64_t scene_annotations = 0, scene_ignored = 0;
+  int64_t scene_annotations = 0, scene_crowd = 0, scene_dropped = 0;
   for (const stackgen::instance* instance : instances) {
-    if (instance->visib_fract < options_.min_visib_fract || instance->px_count_visib == 0) {
-      ++scene_ignored;
+    // the generator's label decides: annotated -> iscrowd 0, ignored -> iscrowd 1, else nothing;
+    // a min_visib_fract of our own only drops more
+    const bool below_own_threshold =
+        options_.min_visib_fract && instance->visib_fract < *options_.min_visib_fract;
+    const bool crowd = instance->ignored;
+    const bool annotation_kept = instance->annotated && !below_own_threshold;
+    if (!annotation_kept && !crowd) {
+      ++scene_dropped;
       continue;
     }
     const stackgen::pose& camera_from_object = instance->camera_from_object;
@@ -461,7 +488,10 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
          {{"size", {camera.height, camera.width}}, {"counts", instance->mask_visib_rle}}},
         {"area", instance->px_count_visib},
         {"bbox", std::vector<int32_t>(instance->bbox_visib, instance->bbox_visib + 4)},
-        {"iscrowd", 0},
+        {"iscrowd", crowd ? 1 : 0},
+        {"amodal_segmentation",
+         {{"size", {camera.height, camera.width}}, {"counts", instance->mask_obj_rle}}},
+        {"amodal_bbox", std::vector<int32_t>(instance->bbox_obj, instance->bbox_obj + 4)},
         {"instance_id", instance->instance_id},
         {"visib_fract", instance->visib_fract},
         {"px_count_all", instance->px_count_all},
@@ -479,7 +509,11 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
                                             world_from_object.translation_mm + 3)}};
     if (!annotations.empty()) annotations += ",\n";
     annotations += annotation.dump();
-    ++scene_annotations;
+    if (crowd) {
+      ++scene_crowd;
+    } else {
+      ++scene_annotations;
+    }
   }
 
   // journal both, then index them
@@ -498,7 +532,8 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
     categories_.emplace(instance.class_id, instance.class_name);
   }
   num_annotations_ += scene_annotations;
-  num_ignored_ += scene_ignored;
+  num_crowd_ += scene_crowd;
+  num_dropped_ += scene_dropped;
   finished_ = false;
   return true;
 }

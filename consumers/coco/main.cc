@@ -11,6 +11,7 @@
 #include <exception>
 #include <iostream>
 #include <map>
+#include <optional>
 #include <string>
 
 #include <stackgen/scene.hpp>
@@ -35,7 +36,7 @@ struct Flags {
   std::string out;
   int64_t count = 0;
   std::string lcm_url;
-  double min_visib_fract = 0.3;
+  std::optional<double> min_visib_fract;  // unset: follow the generator's labels
 };
 
 void PrintHelp() {
@@ -48,6 +49,11 @@ void PrintHelp() {
       "scenes received. Scenes repeated (same generator_id and seq) are stored once; seq gaps are\n"
       "reported as lost.\n"
       "\n"
+      "The generator's labels decide what is written: an instance it marks annotated becomes an\n"
+      "annotation (iscrowd 0), one it marks ignored (its occlusion rule IGNORE) an ignore region\n"
+      "(iscrowd 1), any other is dropped. Every annotation holds the visible mask (segmentation,\n"
+      "area, bbox) and the full one (amodal_segmentation, px_count_all, amodal_bbox).\n"
+      "\n"
       "Options:\n"
       "  --out DIR             dataset folder (required). Created if missing; refused if it\n"
       "                        already holds a non-empty annotations.json (never overwritten).\n"
@@ -55,8 +61,11 @@ void PrintHelp() {
       "                        SIGTERM).\n"
       "  --lcm-url URL         LCM URL to listen on (default: $STACKGEN_LCM_URL when set, else\n"
       "                        %s).\n"
-      "  --min-visib-fract F   objects whose visible fraction (visib_fract) is below F, 0..1, are\n"
-      "                        not written as annotations (default 0.3).\n"
+      "  --min-visib-fract F   also drop annotated objects whose visible fraction (visib_fract)\n"
+      "                        is below F, 0..1: a stricter filter than the generator's\n"
+      "                        annotation.min_visib_fract; it never adds objects the generator\n"
+      "                        did not annotate and leaves ignore regions alone (default: none,\n"
+      "                        follow the generator).\n"
       "  --help                print this help and exit.\n"
       "\n"
       "Exit status: 0 done, 1 error, 2 bad command line.\n",
@@ -138,6 +147,13 @@ Flags ParseFlags(int argc, char** argv) {
   }
   if (!have_out) UsageError("--out DIR is required");
   return flags;
+}
+
+// a fraction as %g prints it
+std::string FormatFraction(double value) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%g", value);
+  return text;
 }
 
 std::string FormatDuration(double seconds) {
@@ -244,13 +260,17 @@ int main(int argc, char** argv) {
                    kProgram, static_cast<long long>(decode_errors),
                    static_cast<long long>(invalid_scenes), static_cast<long long>(duplicates));
     }
+    const std::string dropped_reason =
+        flags.min_visib_fract
+            ? "not annotated, or visib_fract < " + FormatFraction(*flags.min_visib_fract)
+            : std::string("not annotated");
     std::printf(
-        "%s: wrote %s/annotations.json: %lld images, %lld annotations, %lld ignored "
-        "(visib_fract < %g), %lld lost\n",
+        "%s: wrote %s/annotations.json: %lld images, %lld annotations, %lld ignore regions "
+        "(iscrowd 1), %lld dropped (%s), %lld lost\n",
         kProgram, flags.out.c_str(), static_cast<long long>(writer.num_images()),
         static_cast<long long>(writer.num_annotations()),
-        static_cast<long long>(writer.num_ignored()), flags.min_visib_fract,
-        static_cast<long long>(writer.num_lost()));
+        static_cast<long long>(writer.num_crowd()), static_cast<long long>(writer.num_dropped()),
+        dropped_reason.c_str(), static_cast<long long>(writer.num_lost()));
     std::fflush(stdout);
     return 0;
   } catch (const std::exception& error) {

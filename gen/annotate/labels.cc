@@ -32,7 +32,7 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
                                                const std::vector<cv::Mat>& silhouettes,
                                                const std::vector<ObjectTruth>& objects,
                                                const Eigen::Isometry3d& world_from_camera,
-                                               double min_visib_fract) {
+                                               double min_visib_fract, bool ignore_occluded) {
   // check the inputs agree
   if (instance_map.type() != CV_16UC1) {
     throw std::runtime_error("LabelInstances: instance_map must be CV_16UC1, got type " +
@@ -86,6 +86,7 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
     // the whole object from its silhouette
     label.px_count_all = cv::countNonZero(silhouettes[i]);
     BoxOfMask(silhouettes[i], label.bbox_obj);
+    label.mask_obj_rle = EncodeRle(silhouettes[i]);
 
     // the visible part from the instance map
     cv::compare(instance_map, cv::Scalar(object.instance_id), visible, cv::CMP_EQ);
@@ -99,6 +100,7 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
             ? std::min(1.0, static_cast<double>(label.px_count_visib) / label.px_count_all)
             : 0.0;
     label.annotated = label.visib_fract >= min_visib_fract && label.px_count_visib > 0;
+    label.ignored = !label.annotated && label.px_count_visib > 0 && ignore_occluded;
     instances.push_back(std::move(label));
   }
   return instances;

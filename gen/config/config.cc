@@ -51,7 +51,8 @@ class FieldNamer {
                                            : nullptr;
     int line = -1;
     if (nested != nullptr && inner != nullptr) {
-      line = nested->GetLocation(inner, -1).line;
+      // a repeated scalar (background.kind) is located by its first element
+      line = nested->GetLocation(inner, inner->is_repeated() ? 0 : -1).line;
     } else if (outer_set && field.empty()) {
       line = tree_->GetLocation(outer, outer_index).line;
     }
@@ -65,6 +66,21 @@ class FieldNamer {
  private:
   std::string name_;
   const pb::TextFormat::ParseInfoTree* tree_;
+};
+
+// a real camera's sensor: resolution and pixel pitch from the maker's data sheet.
+struct CameraPreset {
+  const char* name;
+  int width;
+  int height;
+  double pixel_pitch_um;
+};
+
+constexpr CameraPreset kCameraPresets[] = {
+    {"basler_scA1600-20gc", 1626, 1236, 4.4},   // Sony ICX274 1/1.8" CCD, the paper's camera
+    {"basler_acA1300-60gc", 1280, 1024, 5.3},   // e2v EV76C560 1/1.8" CMOS
+    {"basler_acA2440-20gc", 2448, 2048, 3.45},  // Sony IMX264 2/3" CMOS
+    {"basler_acA1920-40gc", 1920, 1200, 5.86},  // Sony IMX249 1/1.2" CMOS
 };
 
 std::string Number(double value) {
@@ -91,6 +107,27 @@ void CheckOrdered(const FieldNamer& namer, const std::string& message_field,
     throw ConfigError(namer.Where(message_field, max_field) + ": " + Number(max) + " is below " +
                       message_field + "." + min_field + " = " + Number(min));
   }
+}
+
+// fills the camera's size and intrinsics from its preset, keeping fields the file sets.
+void ApplyCameraPreset(config::CameraConfig* camera, const FieldNamer& n) {
+  if (camera->preset().empty()) return;
+  const CameraPreset* preset = nullptr;
+  std::string known;
+  for (const CameraPreset& candidate : kCameraPresets) {
+    if (camera->preset() == candidate.name) preset = &candidate;
+    known += std::string(known.empty() ? "" : ", ") + candidate.name;
+  }
+  if (preset == nullptr) {
+    throw ConfigError(n.Where("camera", "preset") + ": unknown camera '" + camera->preset() +
+                      "'; known: " + known);
+  }
+  CheckRange(n, "camera", "lens_focal_length_mm", camera->lens_focal_length_mm(), 1, 200);
+  const double focal_px = camera->lens_focal_length_mm() * 1000.0 / preset->pixel_pitch_um;
+  if (!camera->has_width()) camera->set_width(preset->width);
+  if (!camera->has_height()) camera->set_height(preset->height);
+  if (!camera->has_fx()) camera->set_fx(focal_px);
+  if (!camera->has_fy()) camera->set_fy(focal_px);
 }
 
 void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
@@ -131,6 +168,8 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
     range("color_r", part.color_r(), 0, 1);
     range("color_g", part.color_g(), 0, 1);
     range("color_b", part.color_b(), 0, 1);
+    range("specular", part.specular(), 0, 2);
+    range("shininess", part.shininess(), 1, 1000);
     if (part.role() == config::PartConfig::ROLE_UNSPECIFIED) {
       throw ConfigError(n.Where("part", "role", i) +
                         ": must be PART, DISTRACTOR or LABELLED_DISTRACTOR");
@@ -153,6 +192,8 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "bin", "color_r", bin.color_r(), 0, 1);
   CheckRange(n, "bin", "color_g", bin.color_g(), 0, 1);
   CheckRange(n, "bin", "color_b", bin.color_b(), 0, 1);
+  CheckRange(n, "bin", "specular", bin.specular(), 0, 2);
+  CheckRange(n, "bin", "shininess", bin.shininess(), 1, 1000);
   CheckRange(n, "bin", "mesh_scale_to_mm", bin.mesh_scale_to_mm(), 0, kHuge, true);
   CheckRange(n, "bin", "friction", bin.friction(), 0, 2);
   CheckRange(n, "bin", "restitution", bin.restitution(), 0, 1);
@@ -167,6 +208,9 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   if (camera.cy() >= 0) CheckRange(n, "camera", "cy", camera.cy(), 0, camera.height() - 1);
   CheckRange(n, "camera", "height_mm", camera.height_mm(), 0, 100000, true);
   CheckRange(n, "camera", "depth_scale_mm", camera.depth_scale_mm(), 0, 100, true);
+  CheckRange(n, "camera", "distance_jitter_mm", camera.distance_jitter_mm(), 0, 100000);
+  CheckRange(n, "camera", "tilt_max_deg", camera.tilt_max_deg(), 0, 60);
+  CheckRange(n, "camera", "roll_max_deg", camera.roll_max_deg(), 0, 180);
 
   // lighting and background
   const config::LightingConfig& light = c.lighting();
@@ -183,9 +227,67 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckOrdered(n, "lighting", "specular_min", light.specular_min(), "specular_max",
                light.specular_max());
   CheckRange(n, "lighting", "max_tilt_deg", light.max_tilt_deg(), 0, 80);
-  CheckRange(n, "background", "min", c.background().min(), 0, 1);
-  CheckRange(n, "background", "max", c.background().max(), 0, 1);
-  CheckOrdered(n, "background", "min", c.background().min(), "max", c.background().max());
+  CheckRange(n, "lighting", "count_min", light.count_min(), 1, 3);
+  CheckRange(n, "lighting", "count_max", light.count_max(), 1, 3);
+  CheckOrdered(n, "lighting", "count_min", light.count_min(), "count_max", light.count_max());
+  CheckRange(n, "lighting", "point_fraction", light.point_fraction(), 0, 1);
+  CheckRange(n, "lighting", "distance_min_mm", light.distance_min_mm(), 0, 100000, true);
+  CheckRange(n, "lighting", "distance_max_mm", light.distance_max_mm(), 0, 100000, true);
+  CheckOrdered(n, "lighting", "distance_min_mm", light.distance_min_mm(), "distance_max_mm",
+               light.distance_max_mm());
+  CheckRange(n, "lighting", "shadow_map_size", light.shadow_map_size(), 256, 8192);
+  // a lamp inside the bin or the pile would light it from within
+  const double bin_reach =
+      std::sqrt(std::pow(bin.inner_length_mm() / 2 + bin.wall_thickness_mm(), 2) +
+                std::pow(bin.inner_width_mm() / 2 + bin.wall_thickness_mm(), 2) +
+                std::pow(bin.inner_height_mm(), 2));
+  if (light.point_fraction() > 0 && light.distance_min_mm() <= bin_reach) {
+    throw ConfigError(n.Where("lighting", "distance_min_mm") + ": " +
+                      Number(light.distance_min_mm()) +
+                      " mm could put a point light inside the bin; it must exceed " +
+                      Number(std::ceil(bin_reach)) + " mm (the farthest bin corner)");
+  }
+
+  // appearance
+  const config::AppearanceConfig& look = c.appearance();
+  CheckRange(n, "appearance", "value_gain_min", look.value_gain_min(), 0, 4);
+  CheckRange(n, "appearance", "value_gain_max", look.value_gain_max(), 0, 4);
+  CheckOrdered(n, "appearance", "value_gain_min", look.value_gain_min(), "value_gain_max",
+               look.value_gain_max());
+  CheckRange(n, "appearance", "tint_max", look.tint_max(), 0, 1);
+  CheckRange(n, "appearance", "specular_gain_min", look.specular_gain_min(), 0, 10);
+  CheckRange(n, "appearance", "specular_gain_max", look.specular_gain_max(), 0, 10);
+  CheckOrdered(n, "appearance", "specular_gain_min", look.specular_gain_min(), "specular_gain_max",
+               look.specular_gain_max());
+  CheckRange(n, "appearance", "shininess_gain_min", look.shininess_gain_min(), 0, 10, true);
+  CheckRange(n, "appearance", "shininess_gain_max", look.shininess_gain_max(), 0, 10, true);
+  CheckOrdered(n, "appearance", "shininess_gain_min", look.shininess_gain_min(),
+               "shininess_gain_max", look.shininess_gain_max());
+
+  // background
+  const config::BackgroundConfig& background = c.background();
+  CheckRange(n, "background", "min", background.min(), 0, 1);
+  CheckRange(n, "background", "max", background.max(), 0, 1);
+  CheckOrdered(n, "background", "min", background.min(), "max", background.max());
+  for (int i = 0; i < background.kind_size(); ++i) {
+    if (background.kind(i) == config::BackgroundConfig::KIND_UNSPECIFIED) {
+      throw ConfigError(n.Where("background", "kind") +
+                        ": must be PLAIN, NOISE, STRIPES, CHECKER or IMAGE");
+    }
+    if (background.kind(i) == config::BackgroundConfig::IMAGE && background.image_dir().empty()) {
+      throw ConfigError(n.Where("background", "kind") +
+                        ": IMAGE needs background.image_dir, a folder of images");
+    }
+  }
+
+  // sensor
+  const config::SensorConfig& sensor = c.sensor();
+  CheckRange(n, "sensor", "gaussian_sigma_max", sensor.gaussian_sigma_max(), 0, 64);
+  CheckRange(n, "sensor", "salt_pepper_max", sensor.salt_pepper_max(), 0, 0.2);
+  CheckRange(n, "sensor", "blur_sigma_max_px", sensor.blur_sigma_max_px(), 0, 10);
+  CheckRange(n, "sensor", "brightness_max", sensor.brightness_max(), 0, 1);
+  CheckRange(n, "sensor", "contrast_max", sensor.contrast_max(), 0, 0.9);
+  CheckRange(n, "sensor", "gamma_max", sensor.gamma_max(), 0, 2);
 
   // physics
   const config::PhysicsConfig& physics = c.physics();
@@ -209,15 +311,23 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
 
   // annotation and output
   CheckRange(n, "annotation", "min_visib_fract", c.annotation().min_visib_fract(), 0, 1);
+  if (c.annotation().occlusion_rule() == config::AnnotationConfig::OCCLUSION_RULE_UNSPECIFIED) {
+    throw ConfigError(n.Where("annotation", "occlusion_rule") + ": must be DROP or IGNORE");
+  }
   if (c.output().image_encoding() == config::OutputConfig::ENCODING_UNSPECIFIED) {
     throw ConfigError(n.Where("output", "image_encoding") + ": must be RAW or PNG");
   }
 
-  // the camera must be above the rim and see the whole bin interior.
-  if (camera.height_mm() <= bin.inner_height_mm()) {
+  // the camera must stay above the rim in every drawn pose, and its nominal pose see the whole
+  // bin interior.
+  const double lowest_mm = (camera.height_mm() - camera.distance_jitter_mm()) *
+                           std::cos(camera.tilt_max_deg() * M_PI / 180);
+  if (lowest_mm <= bin.inner_height_mm()) {
     throw ConfigError(n.Where("camera", "height_mm") + ": " + Number(camera.height_mm()) +
-                      " mm puts the camera below the bin rim at " + Number(bin.inner_height_mm()) +
-                      " mm");
+                      " mm (less distance_jitter_mm " + Number(camera.distance_jitter_mm()) +
+                      ", tilted by up to tilt_max_deg " + Number(camera.tilt_max_deg()) +
+                      ") can put the camera at " + Number(lowest_mm) +
+                      " mm, not above the bin rim at " + Number(bin.inner_height_mm()) + " mm");
   }
   const Eigen::Isometry3d camera_from_world = WorldFromCamera(camera).inverse();
   const Eigen::Vector2d principal = PrincipalPoint(camera);
@@ -235,7 +345,8 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
                             ", fx " + Number(camera.fx()) + ", " + Number(camera.height_mm()) +
                             " mm above the floor) cannot see the whole bin: corner (" +
                             Number(sx * half_l) + ", " + Number(sy * half_w) + ", " + Number(z) +
-                            ") mm falls outside the image; raise height_mm or lower fx/fy");
+                            ") mm falls outside the image; raise height_mm or lower fx/fy" +
+                            (camera.preset().empty() ? "" : " (lens_focal_length_mm)"));
         }
       }
     }
@@ -266,7 +377,9 @@ LoadedConfig ParseConfig(const std::string& text, const std::string& name,
   }
   // no part block: one default part, the built-in connector
   if (loaded.config.part_size() == 0) loaded.config.add_part();
-  Validate(loaded.config, FieldNamer(name, &tree));
+  const FieldNamer namer(name, &tree);
+  ApplyCameraPreset(loaded.config.mutable_camera(), namer);
+  Validate(loaded.config, namer);
   return loaded;
 }
 

@@ -3,16 +3,20 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <map>
 #include <sstream>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
 #include <assimp/config.h>
+#include <assimp/material.h>
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 #include <Eigen/Geometry>
 #include <assimp/Importer.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 namespace stackgen {
 namespace {
@@ -25,7 +29,8 @@ constexpr double kMinRelativeVolume = 1e-6;
 
 std::string Quoted(const std::string& path) { return "'" + path + "'"; }
 
-// Reads `path` with assimp: triangulated, normals regenerated with hard edges kept flat.
+// Reads `path` with assimp: triangulated, normals regenerated with hard edges kept flat, texture
+// coordinates and materials kept.
 const aiScene* ReadScene(Assimp::Importer& importer, const std::string& path, double scale_to_mm) {
   if (!std::isfinite(scale_to_mm) || scale_to_mm <= 0) {
     std::ostringstream message;
@@ -37,12 +42,13 @@ const aiScene* ReadScene(Assimp::Importer& importer, const std::string& path, do
     throw std::runtime_error("mesh file " + Quoted(path) + " does not exist or is not a file");
   }
 
-  // drop everything but positions and faces; normals are regenerated below
+  // drop everything but positions, faces, texture coordinates and materials; normals are
+  // regenerated below
   importer.SetPropertyInteger(AI_CONFIG_PP_RVC_FLAGS,
                               aiComponent_NORMALS | aiComponent_TANGENTS_AND_BITANGENTS |
-                                  aiComponent_COLORS | aiComponent_TEXCOORDS |
-                                  aiComponent_BONEWEIGHTS | aiComponent_ANIMATIONS |
-                                  aiComponent_TEXTURES | aiComponent_LIGHTS | aiComponent_CAMERAS);
+                                  aiComponent_COLORS | aiComponent_BONEWEIGHTS |
+                                  aiComponent_ANIMATIONS | aiComponent_TEXTURES |
+                                  aiComponent_LIGHTS | aiComponent_CAMERAS);
   importer.SetPropertyFloat(AI_CONFIG_PP_GSN_MAX_SMOOTHING_ANGLE, kMaxSmoothingAngleDeg);
   importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE,
                               aiPrimitiveType_POINT | aiPrimitiveType_LINE);
@@ -59,9 +65,10 @@ const aiScene* ReadScene(Assimp::Importer& importer, const std::string& path, do
   return scene;
 }
 
-// Appends one assimp mesh, transformed by `world_from_mesh` and scaled, to `out`.
+// Appends one assimp mesh, transformed by `world_from_mesh` and scaled, to `out`; its triangles
+// get material `material` (an index into out->materials), or none when it is negative.
 void AppendMesh(const aiMesh& mesh, const aiMatrix4x4& world_from_mesh, double scale_to_mm,
-                TriangleMesh* out) {
+                int material, TriangleMesh* out) {
   Eigen::Matrix4d transform;
   for (int r = 0; r < 4; ++r) {
     for (int c = 0; c < 4; ++c) transform(r, c) = world_from_mesh[r][c];
@@ -89,6 +96,17 @@ void AppendMesh(const aiMesh& mesh, const aiMatrix4x4& world_from_mesh, double s
     out->normals.push_back(normal.cast<float>());
   }
 
+  // texture coordinates (channel 0); once any mesh has them, the others get (0, 0)
+  const bool has_uvs = mesh.HasTextureCoords(0);
+  if (has_uvs || !out->uvs.empty()) {
+    out->uvs.resize(first, Eigen::Vector2f::Zero());
+    for (unsigned int i = 0; i < mesh.mNumVertices; ++i) {
+      out->uvs.push_back(
+          has_uvs ? Eigen::Vector2f(mesh.mTextureCoords[0][i].x, mesh.mTextureCoords[0][i].y)
+                  : Eigen::Vector2f::Zero());
+    }
+  }
+
   // triangles (points and lines were removed by SortByPType)
   for (unsigned int f = 0; f < mesh.mNumFaces; ++f) {
     const aiFace& face = mesh.mFaces[f];
@@ -97,7 +115,83 @@ void AppendMesh(const aiMesh& mesh, const aiMatrix4x4& world_from_mesh, double s
                                         first + face.mIndices[2]};
     if (mirrored) std::swap(triangle[1], triangle[2]);
     out->triangles.push_back(triangle);
+    if (material >= 0) out->triangle_material.push_back(material);
   }
+}
+
+// `value` clamped to [lo, hi], or `fallback` when it is not finite.
+float ClampOr(float value, float lo, float hi, float fallback) {
+  return std::isfinite(value) ? std::clamp(value, lo, hi) : fallback;
+}
+
+// Reads the diffuse texture `texture_path` of `model_path` (relative to the model's folder) as
+// RGB; `cache` holds the textures already read, by resolved path.
+cv::Mat ReadTexture(const std::string& model_path, const std::string& texture_path,
+                    std::string* resolved_path, std::map<std::string, cv::Mat>* cache) {
+  if (!texture_path.empty() && texture_path[0] == '*') {
+    throw std::runtime_error("mesh file " + Quoted(model_path) + ": texture " +
+                             Quoted(texture_path) +
+                             " is embedded in the model file, which is not supported; save it "
+                             "as an image file next to the model");
+  }
+  // paths written on Windows use backslashes
+  std::string relative = texture_path;
+  std::replace(relative.begin(), relative.end(), '\\', '/');
+  const std::filesystem::path resolved =
+      (std::filesystem::path(model_path).parent_path() / relative).lexically_normal();
+  *resolved_path = resolved.string();
+  const auto cached = cache->find(*resolved_path);
+  if (cached != cache->end()) return cached->second;
+
+  std::error_code error;
+  if (!std::filesystem::is_regular_file(resolved, error)) {
+    throw std::runtime_error("mesh file " + Quoted(model_path) + ": texture " +
+                             Quoted(texture_path) + " (" + Quoted(*resolved_path) +
+                             ") does not exist or is not a file");
+  }
+  const cv::Mat bgr = cv::imread(*resolved_path, cv::IMREAD_COLOR);
+  if (bgr.empty()) {
+    throw std::runtime_error("mesh file " + Quoted(model_path) + ": cannot read texture " +
+                             Quoted(*resolved_path) + " as an image");
+  }
+  cv::Mat rgb;
+  cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
+  cache->emplace(*resolved_path, rgb);
+  return rgb;
+}
+
+// The scene material `material` of `model_path` as a MeshMaterial, its texture read.
+MeshMaterial ReadMaterial(const std::string& model_path, const aiMaterial& material,
+                          std::map<std::string, cv::Mat>* texture_cache) {
+  MeshMaterial out;
+  aiString name;
+  if (material.Get(AI_MATKEY_NAME, name) == aiReturn_SUCCESS) out.name = name.C_Str();
+
+  // colours and highlight
+  aiColor3D diffuse;
+  if (material.Get(AI_MATKEY_COLOR_DIFFUSE, diffuse) == aiReturn_SUCCESS) {
+    out.color = Eigen::Vector3f(ClampOr(diffuse.r, 0, 1, out.color.x()),
+                                ClampOr(diffuse.g, 0, 1, out.color.y()),
+                                ClampOr(diffuse.b, 0, 1, out.color.z()));
+  }
+  aiColor3D specular;
+  if (material.Get(AI_MATKEY_COLOR_SPECULAR, specular) == aiReturn_SUCCESS) {
+    out.specular = ClampOr((specular.r + specular.g + specular.b) / 3, 0, 2, out.specular);
+  }
+  float shininess = 0;
+  if (material.Get(AI_MATKEY_SHININESS, shininess) == aiReturn_SUCCESS) {
+    out.shininess = ClampOr(shininess, 1, 1000, out.shininess);
+  }
+
+  // the diffuse texture (glTF: the base colour texture)
+  aiString texture;
+  if (material.GetTexture(aiTextureType_DIFFUSE, 0, &texture) == aiReturn_SUCCESS ||
+      material.GetTexture(aiTextureType_BASE_COLOR, 0, &texture) == aiReturn_SUCCESS) {
+    if (texture.length > 0) {
+      out.texture = ReadTexture(model_path, texture.C_Str(), &out.texture_path, texture_cache);
+    }
+  }
+  return out;
 }
 
 // Calls `visit(mesh, world_from_mesh)` for every mesh reference in the node tree.
@@ -140,6 +234,7 @@ void CheckAndOrient(const std::string& what, TriangleMesh* mesh) {
     throw std::runtime_error(message.str());
   }
   if (volume < 0) {
+    // flipped in place, so triangle_material stays aligned with triangles
     for (auto& t : mesh->triangles) std::swap(t[1], t[2]);
     for (auto& n : mesh->normals) n = -n;
   }
@@ -198,12 +293,43 @@ TriangleMesh LoadMesh(const std::string& path, double scale_to_mm) {
   Assimp::Importer importer;
   const aiScene* scene = ReadScene(importer, path, scale_to_mm);
 
-  // every mesh of the node tree, in the file's frame
+  // the materials the node tree's meshes use, in the file's order; only assimp's default
+  // material (an OBJ without an MTL file) counts as none
+  std::vector<bool> used(scene->mNumMaterials, false);
+  VisitNodes(*scene, *scene->mRootNode, aiMatrix4x4(), [&](const aiMesh& part, const aiMatrix4x4&) {
+    if (part.mMaterialIndex < scene->mNumMaterials) used[part.mMaterialIndex] = true;
+  });
+  bool only_default = true;
+  for (unsigned int m = 0; m < scene->mNumMaterials; ++m) {
+    if (!used[m]) continue;
+    aiString name;
+    scene->mMaterials[m]->Get(AI_MATKEY_NAME, name);
+    if (std::string(name.C_Str()) != AI_DEFAULT_MATERIAL_NAME) only_default = false;
+  }
   TriangleMesh mesh;
-  VisitNodes(*scene, *scene->mRootNode, aiMatrix4x4(),
-             [&](const aiMesh& part, const aiMatrix4x4& world_from_mesh) {
-               AppendMesh(part, world_from_mesh, scale_to_mm, &mesh);
-             });
+  std::vector<int> material_index(scene->mNumMaterials, -1);  // scene material -> mesh.materials
+  std::map<std::string, cv::Mat> texture_cache;
+  for (unsigned int m = 0; m < scene->mNumMaterials && !only_default; ++m) {
+    if (!used[m]) continue;
+    material_index[m] = static_cast<int>(mesh.materials.size());
+    mesh.materials.push_back(ReadMaterial(path, *scene->mMaterials[m], &texture_cache));
+  }
+
+  // every mesh of the node tree, in the file's frame; a textured material needs coordinates
+  VisitNodes(
+      *scene, *scene->mRootNode, aiMatrix4x4(),
+      [&](const aiMesh& part, const aiMatrix4x4& world_from_mesh) {
+        const int material =
+            part.mMaterialIndex < scene->mNumMaterials ? material_index[part.mMaterialIndex] : -1;
+        if (material >= 0 && !mesh.materials[material].texture.empty() &&
+            !part.HasTextureCoords(0)) {
+          throw std::runtime_error("mesh file " + Quoted(path) + ": material " +
+                                   Quoted(mesh.materials[material].name) + " has texture " +
+                                   Quoted(mesh.materials[material].texture_path) + " but mesh " +
+                                   Quoted(part.mName.C_Str()) + " has no texture coordinates");
+        }
+        AppendMesh(part, world_from_mesh, scale_to_mm, material, &mesh);
+      });
   CheckAndOrient(Quoted(path), &mesh);
   return mesh;
 }
@@ -217,7 +343,7 @@ std::vector<TriangleMesh> LoadMeshPieces(const std::string& path, double scale_t
   VisitNodes(*scene, *scene->mRootNode, aiMatrix4x4(),
              [&](const aiMesh& part, const aiMatrix4x4& world_from_mesh) {
                TriangleMesh piece;
-               AppendMesh(part, world_from_mesh, scale_to_mm, &piece);
+               AppendMesh(part, world_from_mesh, scale_to_mm, -1, &piece);
                if (!piece.triangles.empty()) pieces.push_back(std::move(piece));
              });
   if (pieces.empty()) {

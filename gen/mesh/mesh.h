@@ -7,26 +7,51 @@
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
+#include <opencv2/core.hpp>
 
 namespace stackgen {
 
-/// A triangle mesh in millimetres, in its own (object) frame. Vertices at hard edges are
-/// duplicated so every vertex has one normal (flat-shaded CAD parts look right).
+/// A surface material read from the model file (assimp), display colours in [0, 1].
+struct MeshMaterial {
+  std::string name;
+  Eigen::Vector3f color{0.7f, 0.7f, 0.7f};  // diffuse colour (OBJ/MTL Kd; glTF base colour)
+  float specular = 0.5f;     // highlight strength: mean of Ks (OBJ), clamped to [0, 2]
+  float shininess = 32.f;    // Blinn-Phong exponent (MTL Ns), clamped to [1, 1000]
+  std::string texture_path;  // the diffuse texture file (map_Kd), resolved; empty = none
+  cv::Mat texture;  // CV_8UC3 RGB (not BGR), row 0 = top row of the image file; empty = none
+};
+
+/// A triangle mesh in millimetres, in its own (object) frame. Vertices at hard edges (and at
+/// texture seams) are duplicated so every vertex has one normal and one texture coordinate
+/// (flat-shaded CAD parts look right).
 struct TriangleMesh {
   std::vector<Eigen::Vector3f> positions_mm;
   /// Unit normal per vertex, same size as positions_mm.
   std::vector<Eigen::Vector3f> normals;
   /// Indices into positions_mm, counter-clockwise seen from outside.
   std::vector<std::array<uint32_t, 3>> triangles;
+  /// Texture coordinates per vertex (u right, v up: v = 0 is the bottom row of the texture image,
+  /// as in OBJ), same size as positions_mm, or empty when the file has none.
+  std::vector<Eigen::Vector2f> uvs;
+  /// Materials of the file; empty when it has none worth using (only assimp's default material,
+  /// which every OBJ without an MTL file gets, so the caller's colour applies).
+  std::vector<MeshMaterial> materials;
+  /// Per triangle, an index into materials; empty when materials is empty.
+  std::vector<int> triangle_material;
 };
 
 /// Loads every mesh of a model file (any format assimp reads) into one TriangleMesh, scaled by
-/// `scale_to_mm`. Throws std::runtime_error naming the file if it is missing or unreadable, holds
-/// no triangles, or is degenerate (zero extent or volume).
+/// `scale_to_mm`, with texture coordinates (channel 0) and the materials its triangles use (each
+/// material's diffuse texture read with OpenCV, relative to the model file's folder). Throws
+/// std::runtime_error naming the file if it is missing or unreadable, holds no triangles, or is
+/// degenerate (zero extent or volume); naming the model file and the texture path when a texture
+/// is missing, unreadable or embedded in the model file (not supported), or when a textured
+/// material is used by faces without texture coordinates.
 TriangleMesh LoadMesh(const std::string& path, double scale_to_mm);
 
 /// Loads each mesh of a model file as a separate piece (e.g. the convex pieces of a
-/// `*_collision.obj`), scaled by `scale_to_mm`. Throws as LoadMesh.
+/// `*_collision.obj`), scaled by `scale_to_mm`; materials are not read (left empty). Throws as
+/// LoadMesh does for the geometry.
 std::vector<TriangleMesh> LoadMeshPieces(const std::string& path, double scale_to_mm);
 
 /// Signed volume enclosed by the triangles, mm^3 (positive when wound outward).
@@ -37,7 +62,7 @@ Eigen::AlignedBox3d Bounds(const TriangleMesh& mesh);
 
 /// An open box standing on z = 0 with its inner floor centred at the origin: floor and four walls
 /// of thickness `wall_mm` around an inner space of length (x) x width (y) x height (z), mm.
-TriangleMesh MakeOpenBinMesh(double inner_length_mm, double inner_width_mm,
-                             double inner_height_mm, double wall_mm);
+TriangleMesh MakeOpenBinMesh(double inner_length_mm, double inner_width_mm, double inner_height_mm,
+                             double wall_mm);
 
 }  // namespace stackgen

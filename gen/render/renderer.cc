@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstring>
+#include <map>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -35,22 +36,49 @@ vec4 ClipFromCamera(vec3 p) {
 }
 )glsl";
 
+// LIGHT_COUNT, SHADOWS and TEXTURED are defined per program: a loop with a constant count
+// unrolls (a uniform count makes llvmpipe about twice as slow), and scenes without shadows or
+// textures pay nothing for them. A light is a vec4: (unit direction towards the light, 0) for a
+// directional light, (position, 1) for a point light, both in the camera frame, mm.
 constexpr char kSceneVertexGlsl[] = R"glsl(
 layout(location = 0) in vec3 position_object;
 layout(location = 1) in vec3 normal_object;
+layout(location = 2) in vec2 uv_object;  // v = 0 at the bottom of the texture image
 out vec3 position_camera;
 out vec3 normal_camera;
+#if TEXTURED
+out vec2 texture_coordinates;  // t = 0 at row 0 of the uploaded image, its top: t = 1 - v
+#endif
+#if SHADOWS
+uniform vec4 light_vector_camera[LIGHT_COUNT];
+uniform mat4 shadow_from_camera[LIGHT_COUNT];      // to (s, t, depth) of each map, homogeneous
+uniform float shadow_normal_offset_mm[LIGHT_COUNT];
+out vec4 shadow_coordinates[LIGHT_COUNT];
+#endif
 
 void main() {
   vec4 p = camera_from_object * vec4(position_object, 1.0);
   position_camera = p.xyz;
   normal_camera = mat3(camera_from_object) * normal_object;
+#if TEXTURED
+  texture_coordinates = vec2(uv_object.x, 1.0 - uv_object.y);
+#endif
+#if SHADOWS
+  // look the surface up in each map a little off it, along the normal on the light's side and
+  // more at grazing light, so it does not shadow itself
+  vec3 n = normalize(normal_camera);
+  for (int i = 0; i < LIGHT_COUNT; ++i) {
+    vec3 l = normalize(light_vector_camera[i].xyz - p.xyz * light_vector_camera[i].w);
+    float n_dot_l = dot(n, l);
+    float sine = sqrt(max(1.0 - n_dot_l * n_dot_l, 0.0));
+    vec3 offset = (n_dot_l >= 0.0 ? n : -n) * (shadow_normal_offset_mm[i] * sine);
+    shadow_coordinates[i] = shadow_from_camera[i] * vec4(p.xyz + offset, 1.0);
+  }
+#endif
   gl_Position = ClipFromCamera(p.xyz);
 }
 )glsl";
 
-// LIGHT_COUNT is defined per program: a loop with a constant count unrolls, a uniform count
-// makes llvmpipe about twice as slow
 constexpr char kSceneFragmentGlsl[] = R"glsl(
 in vec3 position_camera;
 in vec3 normal_camera;
@@ -62,24 +90,60 @@ uniform vec3 material_color_linear;
 uniform float material_specular;
 uniform float material_shininess;
 #if LIGHT_COUNT > 0
-uniform vec3 light_to_light_camera[LIGHT_COUNT];  // unit, towards the light
-uniform vec3 light_terms[LIGHT_COUNT];            // (ambient, diffuse, specular)
+uniform vec4 light_vector_camera[LIGHT_COUNT];
+uniform vec3 light_terms[LIGHT_COUNT];  // (ambient, diffuse, specular)
+#endif
+#if TEXTURED
+in vec2 texture_coordinates;
+uniform sampler2D material_texture;
+#endif
+#if SHADOWS
+in vec4 shadow_coordinates[LIGHT_COUNT];
+uniform sampler2DArrayShadow shadow_maps;  // layer i: light i
+uniform float shadow_texel;                // 1 / map size
+uniform float shadow_depth_bias[LIGHT_COUNT];
+
+// fraction of the 3 x 3 texels around the surface's point in map i that see light i, tent
+// weighted: four 2 x 2 filtered taps half a texel off the point
+float LitFraction(int i) {
+  vec4 c = shadow_coordinates[i];
+  vec3 p = c.xyz / c.w;
+  // outside the map (behind a point light, beyond its cone): lit
+  if (c.w <= 0.0 || any(lessThan(p, vec3(0.0))) || any(greaterThan(p, vec3(1.0)))) return 1.0;
+  float reference = p.z - shadow_depth_bias[i];
+  float layer = float(i);
+  float h = 0.5 * shadow_texel;
+  return 0.25 * (texture(shadow_maps, vec4(p.x - h, p.y - h, layer, reference)) +
+                 texture(shadow_maps, vec4(p.x + h, p.y - h, layer, reference)) +
+                 texture(shadow_maps, vec4(p.x - h, p.y + h, layer, reference)) +
+                 texture(shadow_maps, vec4(p.x + h, p.y + h, layer, reference)));
+}
 #endif
 
 void main() {
   // shade both sides: the back of a two-sided (open) mesh uses the flipped normal
   vec3 n = normalize(gl_FrontFacing ? normal_camera : -normal_camera);
   vec3 v = normalize(-position_camera);
+  vec3 albedo_linear = material_color_linear;
+#if TEXTURED
+  vec3 texel = texture(material_texture, texture_coordinates).rgb;
+  albedo_linear *= texel * texel;
+#endif
 
-  // blinn-phong per light, in linear colour
+  // blinn-phong per light, in linear colour; a shadowed light keeps its ambient term only
   vec3 linear = vec3(0.0);
   for (int i = 0; i < LIGHT_COUNT; ++i) {
-    vec3 l = light_to_light_camera[i];
+    vec3 l = normalize(light_vector_camera[i].xyz - position_camera * light_vector_camera[i].w);
+#if SHADOWS
+    float lit = LitFraction(i);
+#else
+    const float lit = 1.0;
+#endif
     float n_dot_l = max(dot(n, l), 0.0);
     float highlight = 0.0;
     if (n_dot_l > 0.0) highlight = pow(max(dot(n, normalize(l + v)), 0.0), material_shininess);
-    linear += (light_terms[i].x + light_terms[i].y * n_dot_l) * material_color_linear +
-              vec3(light_terms[i].z * material_specular * highlight);
+    linear += (light_terms[i].x + light_terms[i].y * (n_dot_l * lit)) * albedo_linear +
+              vec3(light_terms[i].z * material_specular * (highlight * lit));
   }
 
   // gamma 2 to display values (sqrt is far cheaper than pow on llvmpipe); id and camera z of
@@ -88,6 +152,18 @@ void main() {
   instance_out = instance_id;
   depth_out = position_camera.z;
 }
+)glsl";
+
+// depth only, from a light: the fragment shader does nothing
+constexpr char kShadowVertexGlsl[] = R"glsl(#version 330 core
+layout(location = 0) in vec3 position_object;
+uniform mat4 light_clip_from_object;
+
+void main() { gl_Position = light_clip_from_object * vec4(position_object, 1.0); }
+)glsl";
+
+constexpr char kShadowFragmentGlsl[] = R"glsl(#version 330 core
+void main() {}
 )glsl";
 
 constexpr char kSilhouetteVertexGlsl[] = R"glsl(
@@ -107,6 +183,22 @@ void main() { bits_out = object_bit; }
 )glsl";
 
 constexpr int kObjectsPerSilhouettePass = 32;  // one bit each in an R32UI target
+
+// texture units: a material's texture, the shadow maps
+constexpr int kMaterialTextureUnit = 0;
+constexpr int kShadowMapUnit = 1;
+
+// shadow bias against acne, small enough for no visible gap between a shadow and its caster
+// (tests: a 1 mm plate 1 mm above a floor): the depth pass pushes each triangle back by
+// kShadowSlopeBias times its depth slope per texel (the filtered taps reach 1.5 texels) plus
+// kShadowUnitsBias units; the scene pass looks up kShadowNormalOffsetTexels texels off the
+// surface (scaled by the sine of the light's incidence) and kShadowDepthBiasMm nearer
+constexpr float kShadowSlopeBias = 2.5f;
+constexpr float kShadowUnitsBias = 4.f;
+constexpr double kShadowNormalOffsetTexels = 1.0;
+constexpr double kShadowDepthBiasMm = 0.05;
+// a point light's map covers at most this half angle; surfaces outside it are lit
+constexpr double kMaxShadowHalfAngleRad = 80 * M_PI / 180;
 
 GLuint CompileShader(GLenum type, const std::string& source, const char* name) {
   const GLuint shader = glCreateShader(type);
@@ -255,15 +347,119 @@ bool IsClosedAndOutward(const TriangleMesh& mesh) {
   return true;
 }
 
+// A right-handed rotation light_from_world whose z axis (third row) is `forward`, unit.
+Eigen::Matrix3d LightFromWorldRotation(const Eigen::Vector3d& forward) {
+  const Eigen::Vector3d helper =
+      std::abs(forward.z()) < 0.9 ? Eigen::Vector3d::UnitZ() : Eigen::Vector3d::UnitX();
+  const Eigen::Vector3d x = helper.cross(forward).normalized();
+  const Eigen::Vector3d y = forward.cross(x);
+  Eigen::Matrix3d light_from_world;
+  light_from_world.row(0) = x;
+  light_from_world.row(1) = y;
+  light_from_world.row(2) = forward;
+  return light_from_world;
+}
+
+// How one light sees the scene for its shadow map.
+struct ShadowView {
+  Eigen::Matrix4d clip_from_world;  // GL clip coordinates of the light's depth pass
+  double depth_bias = 0;            // kShadowDepthBiasMm in map depth units (at the box centre)
+  double normal_offset_mm = 0;      // kShadowNormalOffsetTexels in mm (at the far side)
+};
+
+// The view of `light` covering `box` (world, mm) with a map of `size` texels per side:
+// orthographic along a directional light, a perspective from a point light aimed at the box
+// centre. The light frame is right-handed with z forward and clip x, y growing with light x, y,
+// like the camera's, so triangles keep their winding (front faces stay front faces).
+ShadowView MakeShadowView(const Light& light, const Eigen::AlignedBox3d& box, int size) {
+  // a margin of 2 texels keeps the filter taps of the box's edges on the map
+  const double margin = 1 + 4.0 / size;
+  ShadowView view;
+  Eigen::Matrix4d clip_from_light = Eigen::Matrix4d::Zero();
+  Eigen::Isometry3d light_from_world = Eigen::Isometry3d::Identity();
+  if (light.type == Light::Type::kDirectional) {
+    // the box in a frame looking along the light, around its centre
+    light_from_world.linear() =
+        LightFromWorldRotation(light.direction_world.cast<double>().normalized());
+    light_from_world.translation() = -(light_from_world.linear() * box.center());
+    Eigen::AlignedBox3d bounds;
+    for (int k = 0; k < 8; ++k) {
+      bounds.extend(light_from_world * box.corner(static_cast<Eigen::AlignedBox3d::CornerType>(k)));
+    }
+    const Eigen::Vector3d half = (bounds.sizes() / 2).cwiseMax(1e-3);
+    const double half_x = half.x() * margin;
+    const double half_y = half.y() * margin;
+    const double near = bounds.min().z() - 0.01 * half.z() - 1;
+    const double far = bounds.max().z() + 0.01 * half.z() + 1;
+    const Eigen::Vector3d center = bounds.center();
+    clip_from_light(0, 0) = 1 / half_x;
+    clip_from_light(0, 3) = -center.x() / half_x;
+    clip_from_light(1, 1) = 1 / half_y;
+    clip_from_light(1, 3) = -center.y() / half_y;
+    clip_from_light(2, 2) = 2 / (far - near);
+    clip_from_light(2, 3) = -(far + near) / (far - near);
+    clip_from_light(3, 3) = 1;
+    view.depth_bias = kShadowDepthBiasMm / (far - near);
+    view.normal_offset_mm = kShadowNormalOffsetTexels * 2 * std::max(half_x, half_y) / size;
+  } else {
+    // the box seen from the light, aimed at its centre
+    const Eigen::Vector3d position = light.position_world.cast<double>();
+    Eigen::Vector3d aim = box.center() - position;
+    const double distance = aim.norm();
+    aim = distance > 1e-9 ? Eigen::Vector3d(aim / distance) : Eigen::Vector3d(0, 0, -1);
+    light_from_world.linear() = LightFromWorldRotation(aim);
+    light_from_world.translation() = -(light_from_world.linear() * position);
+    Eigen::AlignedBox3d bounds;
+    for (int k = 0; k < 8; ++k) {
+      bounds.extend(light_from_world * box.corner(static_cast<Eigen::AlignedBox3d::CornerType>(k)));
+    }
+    // near and far planes; a light inside the box gets a small near plane
+    const double far = bounds.max().z() * 1.01 + 1;
+    const double near = std::max(bounds.min().z() * 0.99, far * 1e-3);
+    // the cone: every corner in front of the near plane, up to the largest half angle
+    const double max_tan = std::tan(kMaxShadowHalfAngleRad);
+    double tan_x = 1e-6;
+    double tan_y = 1e-6;
+    for (int k = 0; k < 8; ++k) {
+      const Eigen::Vector3d q =
+          light_from_world * box.corner(static_cast<Eigen::AlignedBox3d::CornerType>(k));
+      const double z = std::max(q.z(), near);
+      tan_x = std::max(tan_x, std::abs(q.x()) / z);
+      tan_y = std::max(tan_y, std::abs(q.y()) / z);
+    }
+    tan_x = std::min(tan_x * margin, max_tan);
+    tan_y = std::min(tan_y * margin, max_tan);
+    clip_from_light(0, 0) = 1 / tan_x;
+    clip_from_light(1, 1) = 1 / tan_y;
+    clip_from_light(2, 2) = (far + near) / (far - near);
+    clip_from_light(2, 3) = -2 * far * near / (far - near);
+    clip_from_light(3, 2) = 1;
+    // map depth 0.5 (a + b / z) + 0.5 changes by far near / ((far - near) z^2) per mm
+    const double z_center = std::clamp(distance, near, far);
+    view.depth_bias = kShadowDepthBiasMm * far * near / ((far - near) * z_center * z_center);
+    view.normal_offset_mm = kShadowNormalOffsetTexels * 2 * far * std::max(tan_x, tan_y) / size;
+  }
+  view.clip_from_world = clip_from_light * light_from_world.matrix();
+  return view;
+}
+
 }  // namespace
 
 // one uploaded mesh
 struct MeshBuffers {
   GLuint vertex_array = 0;
-  GLuint vertex_buffer = 0;  // interleaved position (mm) and normal, 6 floats per vertex
+  GLuint vertex_buffer = 0;  // interleaved position (mm), normal, uv: 8 floats per vertex
   GLuint index_buffer = 0;
   GLsizei index_count = 0;
   bool cull_back_faces = false;  // closed and wound outwards (IsClosedAndOutward)
+  bool has_uvs = false;          // texture coordinates uploaded (otherwise zeros)
+  Eigen::AlignedBox3d bounds;    // object frame, mm
+  // the mesh's own materials, and its triangles grouped by material: range k draws
+  // range_counts[k] indices from range_firsts[k] with materials[range_materials[k]]
+  std::vector<Material> materials;
+  std::vector<GLsizei> range_firsts;
+  std::vector<GLsizei> range_counts;
+  std::vector<int> range_materials;
 };
 
 // uniform locations shared by both kinds of program
@@ -279,7 +475,7 @@ struct ProjectionUniforms {
   }
 };
 
-// the scene program for one number of lights
+// the scene program for one number of lights, with or without shadows and texture
 struct ShadingProgram {
   GLuint program = 0;  // 0 until first used
   ProjectionUniforms projection;
@@ -287,18 +483,40 @@ struct ShadingProgram {
   GLint material_color_linear = -1;
   GLint material_specular = -1;
   GLint material_shininess = -1;
-  GLint light_to_light_camera = -1;
+  GLint light_vector_camera = -1;
   GLint light_terms = -1;
+  GLint shadow_from_camera = -1;
+  GLint shadow_normal_offset_mm = -1;
+  GLint shadow_depth_bias = -1;
+  GLint shadow_texel = -1;
+  uint64_t frame = 0;              // the Render call its per-frame uniforms were set for
+  const DrawItem* item = nullptr;  // the item its per-item uniforms were set for, this frame
+};
+
+// what every scene program of one Render gets
+struct FrameUniforms {
+  int light_count = 0;
+  bool shadows = false;
+  float light_vectors[Renderer::kMaxLights][4] = {};  // see kSceneVertexGlsl
+  float light_terms[Renderer::kMaxLights][3] = {};
+  float shadow_from_camera[Renderer::kMaxLights][16] = {};  // column-major
+  float shadow_normal_offset_mm[Renderer::kMaxLights] = {};
+  float shadow_depth_bias[Renderer::kMaxLights] = {};
+  float shadow_texel = 0;
 };
 
 struct Renderer::Impl {
   EglContext context;  // first member: destroyed last, taking every GL object with it
   std::vector<MeshBuffers> meshes;
+  std::vector<GLuint> textures;  // by texture_id
 
-  std::array<ShadingProgram, kMaxLights + 1> shading;  // by number of lights
+  // by light count, shadows, texture (ProgramIndex)
+  std::array<ShadingProgram, (kMaxLights + 1) * 4> shading;
   GLuint silhouette_program = 0;
   ProjectionUniforms silhouette_projection;
   GLint object_bit = -1;
+  GLuint shadow_program = 0;  // built when first used
+  GLint light_clip_from_object = -1;
 
   // scene framebuffer: colour RGBA8, instance R16UI, camera z R32F, depth buffer
   GLuint scene_framebuffer = 0;
@@ -312,6 +530,18 @@ struct Renderer::Impl {
   int width = 0;
   int height = 0;
   bool culling = false;  // GL_CULL_FACE state
+  // shadow maps: one depth layer per light, allocated when first needed
+  GLuint shadow_framebuffer = 0;
+  GLuint shadow_maps = 0;
+  int shadow_map_size = 0;
+  int shadow_map_layers = 0;
+
+  // per Render call
+  uint64_t frame = 0;
+  const CameraModel* frame_camera = nullptr;
+  FrameUniforms frame_uniforms;
+  GLuint bound_texture = 0;  // on kMaterialTextureUnit
+  std::array<ShadowView, kMaxLights> shadow_views;
 
   // reused between calls
   std::vector<std::pair<double, size_t>> draw_order;  // (camera z, item index), near first
@@ -320,13 +550,26 @@ struct Renderer::Impl {
   std::vector<uint8_t*> mask_data;
 
   Impl(int width, int height);
-  const ShadingProgram& Shading(int light_count);
+  static int ProgramIndex(int light_count, bool shadows, bool textured) {
+    return light_count * 4 + (shadows ? 2 : 0) + (textured ? 1 : 0);
+  }
+  ShadingProgram& Shading(int light_count, bool shadows, bool textured);
+  ShadingProgram& UseShading(bool textured);
   void Resize(int new_width, int new_height);
   void Validate(const CameraModel& camera, const std::vector<DrawItem>& items) const;
+  void ValidateMaterial(const Material& material, const MeshBuffers& mesh,
+                        const std::string& what) const;
   void SetProjection(const ProjectionUniforms& uniforms, const CameraModel& camera) const;
   void SetCameraFromObject(const ProjectionUniforms& uniforms,
                            const Eigen::Isometry3d& camera_from_world, const DrawItem& item) const;
   void Draw(const MeshBuffers& mesh);
+  void Draw(const MeshBuffers& mesh, GLsizei first, GLsizei count);
+  void DrawSurface(const DrawItem& item, const Eigen::Isometry3d& camera_from_world,
+                   const MeshBuffers& mesh, const Material& material, GLsizei first, GLsizei count);
+  Eigen::AlignedBox3d WorldBounds(const std::vector<DrawItem>& items) const;
+  void EnsureShadowMaps(int size, int layers);
+  void RenderShadowMaps(const std::vector<Light>& lights, int size,
+                        const std::vector<DrawItem>& items);
 };
 
 Renderer::Impl::Impl(int width, int height) {
@@ -334,7 +577,7 @@ Renderer::Impl::Impl(int width, int height) {
     throw std::runtime_error("Renderer: size " + std::to_string(width) + "x" +
                              std::to_string(height) + " is not positive");
   }
-  // the silhouette program; scene programs are built per number of lights when first used
+  // the silhouette program; scene and shadow programs are built when first used
   silhouette_program =
       LinkProgram(std::string("#version 330 core\n") + kProjectionGlsl + kSilhouetteVertexGlsl,
                   kSilhouetteFragmentGlsl, "silhouette program");
@@ -366,9 +609,11 @@ Renderer::Impl::Impl(int width, int height) {
   glReadBuffer(GL_COLOR_ATTACHMENT0);
   CheckFramebuffer("silhouette framebuffer");
 
-  // fixed state: tight rows on read-back, no blending; image rows run down the framebuffer, so a
-  // triangle counter-clockwise seen from outside is clockwise in window coordinates
+  // fixed state: tight rows on read-back and upload, no blending; image rows run down the
+  // framebuffer, so a triangle counter-clockwise seen from outside is clockwise in window
+  // coordinates
   glPixelStorei(GL_PACK_ALIGNMENT, 1);
+  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
   glDisable(GL_BLEND);
   glDisable(GL_CULL_FACE);
   glFrontFace(GL_CW);
@@ -376,15 +621,19 @@ Renderer::Impl::Impl(int width, int height) {
   glDisable(GL_DITHER);
   glDepthFunc(GL_LESS);
   glLogicOp(GL_OR);
+  glPolygonOffset(kShadowSlopeBias, kShadowUnitsBias);
   CheckGlError("Renderer: set-up");
 }
 
-const ShadingProgram& Renderer::Impl::Shading(int light_count) {
-  ShadingProgram& shading_program = shading[light_count];
+ShadingProgram& Renderer::Impl::Shading(int light_count, bool shadows, bool textured) {
+  ShadingProgram& shading_program = shading[ProgramIndex(light_count, shadows, textured)];
   if (shading_program.program != 0) return shading_program;
-  const std::string header =
-      "#version 330 core\n#define LIGHT_COUNT " + std::to_string(light_count) + "\n";
-  const std::string name = "scene program, " + std::to_string(light_count) + " lights";
+  const std::string header = "#version 330 core\n#define LIGHT_COUNT " +
+                             std::to_string(light_count) + "\n#define SHADOWS " +
+                             (shadows ? "1" : "0") + "\n#define TEXTURED " +
+                             (textured ? "1" : "0") + "\n";
+  const std::string name = "scene program, " + std::to_string(light_count) + " lights" +
+                           (shadows ? ", shadows" : "") + (textured ? ", texture" : "");
   const GLuint program = LinkProgram(header + kProjectionGlsl + kSceneVertexGlsl,
                                      header + kSceneFragmentGlsl, name.c_str());
   shading_program.projection.Find(program);
@@ -392,10 +641,44 @@ const ShadingProgram& Renderer::Impl::Shading(int light_count) {
   shading_program.material_color_linear = glGetUniformLocation(program, "material_color_linear");
   shading_program.material_specular = glGetUniformLocation(program, "material_specular");
   shading_program.material_shininess = glGetUniformLocation(program, "material_shininess");
-  shading_program.light_to_light_camera = glGetUniformLocation(program, "light_to_light_camera");
+  shading_program.light_vector_camera = glGetUniformLocation(program, "light_vector_camera");
   shading_program.light_terms = glGetUniformLocation(program, "light_terms");
+  shading_program.shadow_from_camera = glGetUniformLocation(program, "shadow_from_camera");
+  shading_program.shadow_normal_offset_mm =
+      glGetUniformLocation(program, "shadow_normal_offset_mm");
+  shading_program.shadow_depth_bias = glGetUniformLocation(program, "shadow_depth_bias");
+  shading_program.shadow_texel = glGetUniformLocation(program, "shadow_texel");
+  // samplers on their fixed units
+  glUseProgram(program);
+  glUniform1i(glGetUniformLocation(program, "material_texture"), kMaterialTextureUnit);
+  glUniform1i(glGetUniformLocation(program, "shadow_maps"), kShadowMapUnit);
+  CheckGlError(name.c_str());
   shading_program.program = program;
   return shading_program;
+}
+
+ShadingProgram& Renderer::Impl::UseShading(bool textured) {
+  const FrameUniforms& f = frame_uniforms;
+  ShadingProgram& s = Shading(f.light_count, f.shadows, textured);
+  glUseProgram(s.program);
+  if (s.frame == frame) return s;
+
+  // first use this frame: camera, lights and shadow maps
+  s.frame = frame;
+  s.item = nullptr;
+  SetProjection(s.projection, *frame_camera);
+  const GLsizei n = f.light_count;
+  if (n > 0) {
+    glUniform4fv(s.light_vector_camera, n, &f.light_vectors[0][0]);
+    glUniform3fv(s.light_terms, n, &f.light_terms[0][0]);
+  }
+  if (f.shadows) {
+    glUniformMatrix4fv(s.shadow_from_camera, n, GL_FALSE, &f.shadow_from_camera[0][0]);
+    glUniform1fv(s.shadow_normal_offset_mm, n, f.shadow_normal_offset_mm);
+    glUniform1fv(s.shadow_depth_bias, n, f.shadow_depth_bias);
+    glUniform1f(s.shadow_texel, f.shadow_texel);
+  }
+  return s;
 }
 
 void Renderer::Impl::Resize(int new_width, int new_height) {
@@ -434,6 +717,19 @@ void Renderer::Impl::Validate(const CameraModel& camera, const std::vector<DrawI
   }
 }
 
+void Renderer::Impl::ValidateMaterial(const Material& material, const MeshBuffers& mesh,
+                                      const std::string& what) const {
+  if (material.texture_id < -1 || material.texture_id >= static_cast<int>(textures.size())) {
+    throw std::runtime_error(what + " has unknown texture_id " +
+                             std::to_string(material.texture_id) + " (" +
+                             std::to_string(textures.size()) + " textures added)");
+  }
+  if (material.texture_id >= 0 && !mesh.has_uvs) {
+    throw std::runtime_error(what + " has texture_id " + std::to_string(material.texture_id) +
+                             " but its mesh has no texture coordinates (uvs)");
+  }
+}
+
 void Renderer::Impl::SetProjection(const ProjectionUniforms& uniforms,
                                    const CameraModel& camera) const {
   const double w = camera.width;
@@ -457,7 +753,9 @@ void Renderer::Impl::SetCameraFromObject(const ProjectionUniforms& uniforms,
   glUniformMatrix4fv(uniforms.camera_from_object, 1, GL_FALSE, camera_from_object.data());
 }
 
-void Renderer::Impl::Draw(const MeshBuffers& mesh) {
+void Renderer::Impl::Draw(const MeshBuffers& mesh) { Draw(mesh, 0, mesh.index_count); }
+
+void Renderer::Impl::Draw(const MeshBuffers& mesh, GLsizei first, GLsizei count) {
   if (mesh.cull_back_faces != culling) {
     culling = mesh.cull_back_faces;
     if (culling) {
@@ -467,12 +765,153 @@ void Renderer::Impl::Draw(const MeshBuffers& mesh) {
     }
   }
   glBindVertexArray(mesh.vertex_array);
-  glDrawElements(GL_TRIANGLES, mesh.index_count, GL_UNSIGNED_INT, nullptr);
+  glDrawElements(GL_TRIANGLES, count, GL_UNSIGNED_INT,
+                 reinterpret_cast<const void*>(static_cast<size_t>(first) * sizeof(uint32_t)));
+}
+
+void Renderer::Impl::DrawSurface(const DrawItem& item, const Eigen::Isometry3d& camera_from_world,
+                                 const MeshBuffers& mesh, const Material& material, GLsizei first,
+                                 GLsizei count) {
+  // the program for this material, with the item's pose and id
+  const bool textured = material.texture_id >= 0;
+  ShadingProgram& s = UseShading(textured);
+  if (s.item != &item) {
+    SetCameraFromObject(s.projection, camera_from_world, item);
+    glUniform1ui(s.instance_id, item.instance_id);
+    s.item = &item;
+  }
+
+  // the material with the item's gain; colours are display values: gamma 2 back to linear
+  const Eigen::Vector3f color =
+      material.color.cwiseProduct(item.gain.color).cwiseMax(0.f).cwiseMin(1.f);
+  const Eigen::Vector3f color_linear = color.cwiseProduct(color);
+  glUniform3fv(s.material_color_linear, 1, color_linear.data());
+  glUniform1f(s.material_specular, material.specular * item.gain.specular);
+  glUniform1f(s.material_shininess, material.shininess * item.gain.shininess);
+  if (textured && textures[material.texture_id] != bound_texture) {
+    bound_texture = textures[material.texture_id];
+    glBindTexture(GL_TEXTURE_2D, bound_texture);
+  }
+  Draw(mesh, first, count);
+}
+
+Eigen::AlignedBox3d Renderer::Impl::WorldBounds(const std::vector<DrawItem>& items) const {
+  Eigen::AlignedBox3d box;
+  for (const DrawItem& item : items) {
+    const Eigen::AlignedBox3d& bounds = meshes[item.mesh_id].bounds;
+    for (int k = 0; k < 8; ++k) {
+      box.extend(item.world_from_object *
+                 bounds.corner(static_cast<Eigen::AlignedBox3d::CornerType>(k)));
+    }
+  }
+  return box;
+}
+
+void Renderer::Impl::EnsureShadowMaps(int size, int layers) {
+  if (shadow_program == 0) {
+    shadow_program = LinkProgram(kShadowVertexGlsl, kShadowFragmentGlsl, "shadow program");
+    light_clip_from_object = glGetUniformLocation(shadow_program, "light_clip_from_object");
+    glGenFramebuffers(1, &shadow_framebuffer);
+    glGenTextures(1, &shadow_maps);
+    glBindFramebuffer(GL_FRAMEBUFFER, shadow_framebuffer);
+    glDrawBuffer(GL_NONE);
+    glReadBuffer(GL_NONE);
+  }
+  if (size == shadow_map_size && layers <= shadow_map_layers) return;
+
+  // depth layers compared on lookup, filtered 2 x 2
+  GLint max_size = 0;
+  glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
+  if (size > max_size) {
+    throw std::runtime_error("Renderer::Render: shadow_map_size " + std::to_string(size) +
+                             " exceeds GL_MAX_TEXTURE_SIZE " + std::to_string(max_size));
+  }
+  glActiveTexture(GL_TEXTURE0 + kShadowMapUnit);
+  glBindTexture(GL_TEXTURE_2D_ARRAY, shadow_maps);
+  glTexImage3D(GL_TEXTURE_2D_ARRAY, 0, GL_DEPTH_COMPONENT32F, size, size, layers, 0,
+               GL_DEPTH_COMPONENT, GL_FLOAT, nullptr);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_COMPARE_MODE, GL_COMPARE_REF_TO_TEXTURE);
+  glTexParameteri(GL_TEXTURE_2D_ARRAY, GL_TEXTURE_COMPARE_FUNC, GL_LEQUAL);
+  glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+  CheckGlError("Renderer::Render: shadow map storage");
+  shadow_map_size = size;
+  shadow_map_layers = layers;
+  glBindFramebuffer(GL_FRAMEBUFFER, shadow_framebuffer);
+  glFramebufferTextureLayer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, shadow_maps, 0, 0);
+  CheckFramebuffer("shadow framebuffer");
+}
+
+void Renderer::Impl::RenderShadowMaps(const std::vector<Light>& lights, int size,
+                                      const std::vector<DrawItem>& items) {
+  const int light_count = static_cast<int>(lights.size());
+  EnsureShadowMaps(size, light_count);
+  const Eigen::AlignedBox3d box = WorldBounds(items);
+
+  // depth only, each light into its layer, pushed back by the slope-scaled bias
+  glBindFramebuffer(GL_FRAMEBUFFER, shadow_framebuffer);
+  glViewport(0, 0, size, size);
+  glEnable(GL_DEPTH_TEST);
+  glEnable(GL_POLYGON_OFFSET_FILL);
+  glUseProgram(shadow_program);
+  const GLfloat far_depth = 1;
+  for (int i = 0; i < light_count; ++i) {
+    shadow_views[i] = MakeShadowView(lights[i], box, size);
+    glFramebufferTextureLayer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, shadow_maps, 0, i);
+    glClearBufferfv(GL_DEPTH, 0, &far_depth);
+    for (const DrawItem& item : items) {
+      const Eigen::Matrix4f clip_from_object =
+          (shadow_views[i].clip_from_world * item.world_from_object.matrix()).cast<float>();
+      glUniformMatrix4fv(light_clip_from_object, 1, GL_FALSE, clip_from_object.data());
+      Draw(meshes[item.mesh_id]);
+    }
+  }
+  glBindVertexArray(0);
+  glDisable(GL_POLYGON_OFFSET_FILL);
+  CheckGlError("Renderer::Render: shadow pass");
 }
 
 Renderer::Renderer(int width, int height) : impl_(std::make_unique<Impl>(width, height)) {}
 
 Renderer::~Renderer() = default;
+
+int Renderer::AddTexture(const cv::Mat& rgb) {
+  if (rgb.empty() || rgb.type() != CV_8UC3) {
+    throw std::runtime_error("Renderer::AddTexture: need a non-empty CV_8UC3 RGB image, got " +
+                             std::to_string(rgb.cols) + "x" + std::to_string(rgb.rows) +
+                             " of OpenCV type " + std::to_string(rgb.type()));
+  }
+  impl_->context.MakeCurrent();
+  GLint max_size = 0;
+  glGetIntegerv(GL_MAX_TEXTURE_SIZE, &max_size);
+  if (rgb.cols > max_size || rgb.rows > max_size) {
+    throw std::runtime_error("Renderer::AddTexture: size " + std::to_string(rgb.cols) + "x" +
+                             std::to_string(rgb.rows) + " exceeds GL_MAX_TEXTURE_SIZE " +
+                             std::to_string(max_size));
+  }
+
+  // rows as they are: texture row t = 0 is image row 0, the top (the shader flips v)
+  GLuint texture = 0;
+  glGenTextures(1, &texture);
+  glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+  glBindTexture(GL_TEXTURE_2D, texture);
+  glPixelStorei(GL_UNPACK_ROW_LENGTH, static_cast<GLint>(rgb.step[0] / rgb.elemSize()));
+  glTexImage2D(GL_TEXTURE_2D, 0, GL_RGB8, rgb.cols, rgb.rows, 0, GL_RGB, GL_UNSIGNED_BYTE,
+               rgb.data);
+  glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
+  glGenerateMipmap(GL_TEXTURE_2D);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_REPEAT);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_REPEAT);
+  impl_->bound_texture = texture;
+  CheckGlError("Renderer::AddTexture");
+  impl_->textures.push_back(texture);
+  return static_cast<int>(impl_->textures.size()) - 1;
+}
 
 int Renderer::AddMesh(const TriangleMesh& mesh) {
   static_assert(sizeof(std::array<uint32_t, 3>) == 3 * sizeof(uint32_t), "packed triangles");
@@ -482,6 +921,10 @@ int Renderer::AddMesh(const TriangleMesh& mesh) {
   if (mesh.normals.size() != vertex_count) {
     throw std::runtime_error("Renderer::AddMesh: " + std::to_string(mesh.normals.size()) +
                              " normals for " + std::to_string(vertex_count) + " positions");
+  }
+  if (!mesh.uvs.empty() && mesh.uvs.size() != vertex_count) {
+    throw std::runtime_error("Renderer::AddMesh: " + std::to_string(mesh.uvs.size()) + " uvs for " +
+                             std::to_string(vertex_count) + " positions");
   }
   for (size_t t = 0; t < mesh.triangles.size(); ++t) {
     for (const uint32_t index : mesh.triangles[t]) {
@@ -493,17 +936,82 @@ int Renderer::AddMesh(const TriangleMesh& mesh) {
     }
   }
 
-  // interleave position and normal
+  // check the materials
+  const size_t material_count = mesh.materials.size();
+  const size_t expected_triangle_materials = material_count > 0 ? mesh.triangles.size() : 0;
+  if (mesh.triangle_material.size() != expected_triangle_materials) {
+    throw std::runtime_error("Renderer::AddMesh: " + std::to_string(mesh.triangle_material.size()) +
+                             " triangle materials for " + std::to_string(mesh.triangles.size()) +
+                             " triangles and " + std::to_string(material_count) + " materials");
+  }
+  for (size_t t = 0; t < mesh.triangle_material.size(); ++t) {
+    if (mesh.triangle_material[t] < 0 ||
+        mesh.triangle_material[t] >= static_cast<int>(material_count)) {
+      throw std::runtime_error("Renderer::AddMesh: triangle " + std::to_string(t) +
+                               " has material " + std::to_string(mesh.triangle_material[t]) +
+                               " of " + std::to_string(material_count));
+    }
+  }
+  for (const MeshMaterial& material : mesh.materials) {
+    if (material.texture.empty()) continue;
+    const std::string what = "Renderer::AddMesh: material '" + material.name + "' texture '" +
+                             material.texture_path + "'";
+    if (material.texture.type() != CV_8UC3) {
+      throw std::runtime_error(what + " is not CV_8UC3 (OpenCV type " +
+                               std::to_string(material.texture.type()) + ")");
+    }
+    if (mesh.uvs.empty()) throw std::runtime_error(what + ": the mesh has no texture coordinates");
+  }
+
+  // interleave position, normal and texture coordinate
   std::vector<float> vertices;
-  vertices.reserve(vertex_count * 6);
+  vertices.reserve(vertex_count * 8);
   for (size_t i = 0; i < vertex_count; ++i) {
     vertices.insert(vertices.end(), mesh.positions_mm[i].data(), mesh.positions_mm[i].data() + 3);
     vertices.insert(vertices.end(), mesh.normals[i].data(), mesh.normals[i].data() + 3);
+    const Eigen::Vector2f uv = mesh.uvs.empty() ? Eigen::Vector2f::Zero() : mesh.uvs[i];
+    vertices.insert(vertices.end(), uv.data(), uv.data() + 2);
+  }
+
+  // triangles grouped by material, in their order within each group
+  MeshBuffers buffers;
+  std::vector<std::array<uint32_t, 3>> triangles;
+  if (material_count == 0) {
+    triangles = mesh.triangles;
+  } else {
+    triangles.reserve(mesh.triangles.size());
+    for (size_t m = 0; m < material_count; ++m) {
+      const GLsizei first = static_cast<GLsizei>(triangles.size() * 3);
+      for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+        if (mesh.triangle_material[t] == static_cast<int>(m)) {
+          triangles.push_back(mesh.triangles[t]);
+        }
+      }
+      const GLsizei count = static_cast<GLsizei>(triangles.size() * 3) - first;
+      if (count == 0) continue;
+      buffers.range_firsts.push_back(first);
+      buffers.range_counts.push_back(count);
+      buffers.range_materials.push_back(static_cast<int>(m));
+    }
+  }
+
+  // the materials, each texture uploaded once
+  std::map<const uint8_t*, int> texture_ids;
+  for (const MeshMaterial& source : mesh.materials) {
+    Material material;
+    material.color = source.color;
+    material.specular = source.specular;
+    material.shininess = source.shininess;
+    if (!source.texture.empty()) {
+      const auto found = texture_ids.find(source.texture.data);
+      material.texture_id = found != texture_ids.end() ? found->second : AddTexture(source.texture);
+      texture_ids[source.texture.data] = material.texture_id;
+    }
+    buffers.materials.push_back(material);
   }
 
   // upload once into a vertex array of its own
   impl_->context.MakeCurrent();
-  MeshBuffers buffers;
   glGenVertexArrays(1, &buffers.vertex_array);
   glGenBuffers(1, &buffers.vertex_buffer);
   glGenBuffers(1, &buffers.index_buffer);
@@ -511,31 +1019,36 @@ int Renderer::AddMesh(const TriangleMesh& mesh) {
   glBindBuffer(GL_ARRAY_BUFFER, buffers.vertex_buffer);
   glBufferData(GL_ARRAY_BUFFER, vertices.size() * sizeof(float), vertices.data(), GL_STATIC_DRAW);
   glBindBuffer(GL_ELEMENT_ARRAY_BUFFER, buffers.index_buffer);
-  glBufferData(GL_ELEMENT_ARRAY_BUFFER, mesh.triangles.size() * sizeof(mesh.triangles[0]),
-               mesh.triangles.data(), GL_STATIC_DRAW);
+  glBufferData(GL_ELEMENT_ARRAY_BUFFER, triangles.size() * sizeof(triangles[0]), triangles.data(),
+               GL_STATIC_DRAW);
+  constexpr GLsizei kStride = 8 * sizeof(float);
   glEnableVertexAttribArray(0);
-  glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float), nullptr);
+  glVertexAttribPointer(0, 3, GL_FLOAT, GL_FALSE, kStride, nullptr);
   glEnableVertexAttribArray(1);
-  glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, 6 * sizeof(float),
+  glVertexAttribPointer(1, 3, GL_FLOAT, GL_FALSE, kStride,
                         reinterpret_cast<const void*>(3 * sizeof(float)));
+  glEnableVertexAttribArray(2);
+  glVertexAttribPointer(2, 2, GL_FLOAT, GL_FALSE, kStride,
+                        reinterpret_cast<const void*>(6 * sizeof(float)));
   glBindVertexArray(0);
-  buffers.index_count = static_cast<GLsizei>(mesh.triangles.size() * 3);
+  buffers.index_count = static_cast<GLsizei>(triangles.size() * 3);
   buffers.cull_back_faces = IsClosedAndOutward(mesh);
+  buffers.has_uvs = !mesh.uvs.empty();
+  for (const Eigen::Vector3f& p : mesh.positions_mm) buffers.bounds.extend(p.cast<double>());
   CheckGlError("Renderer::AddMesh");
-  impl_->meshes.push_back(buffers);
+  impl_->meshes.push_back(std::move(buffers));
   return static_cast<int>(impl_->meshes.size()) - 1;
 }
 
 RenderResult Renderer::Render(const CameraModel& camera, const std::vector<Light>& lights,
-                              const Eigen::Vector3f& background_rgb,
-                              const std::vector<DrawItem>& items) {
+                              const RenderOptions& options, const std::vector<DrawItem>& items) {
   RenderResult result;
-  Render(camera, lights, background_rgb, items, &result);
+  Render(camera, lights, options, items, &result);
   return result;
 }
 
 void Renderer::Render(const CameraModel& camera, const std::vector<Light>& lights,
-                      const Eigen::Vector3f& background_rgb, const std::vector<DrawItem>& items,
+                      const RenderOptions& options, const std::vector<DrawItem>& items,
                       RenderResult* result) {
   Impl& impl = *impl_;
   impl.context.MakeCurrent();
@@ -544,23 +1057,84 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
     throw std::runtime_error("Renderer::Render: " + std::to_string(lights.size()) +
                              " lights, at most " + std::to_string(kMaxLights));
   }
+  if (!options.background_image.empty() &&
+      (options.background_image.type() != CV_8UC3 ||
+       options.background_image.size() != cv::Size(camera.width, camera.height))) {
+    throw std::runtime_error("Renderer::Render: background_image must be CV_8UC3 of the camera's " +
+                             std::to_string(camera.width) + "x" + std::to_string(camera.height) +
+                             ", got " + std::to_string(options.background_image.cols) + "x" +
+                             std::to_string(options.background_image.rows) + " of OpenCV type " +
+                             std::to_string(options.background_image.type()));
+  }
+  if (options.shadows && (options.shadow_map_size < kMinShadowMapSize ||
+                          options.shadow_map_size > kMaxShadowMapSize)) {
+    throw std::runtime_error("Renderer::Render: shadow_map_size " +
+                             std::to_string(options.shadow_map_size) + " is outside " +
+                             std::to_string(kMinShadowMapSize) + ".." +
+                             std::to_string(kMaxShadowMapSize));
+  }
+  for (size_t i = 0; i < items.size(); ++i) {
+    const MeshBuffers& mesh = impl.meshes[items[i].mesh_id];
+    if (!items[i].use_mesh_materials || mesh.materials.empty()) {
+      impl.ValidateMaterial(items[i].material, mesh,
+                            "Renderer::Render: item " + std::to_string(i) + "'s material");
+    }
+  }
   const Eigen::Isometry3d camera_from_world = camera.world_from_camera.inverse();
 
-  // lights in the camera frame, pointing towards the light
-  float to_light[kMaxLights][3] = {};
-  float terms[kMaxLights][3] = {};
+  // lights in the camera frame: towards a directional light, the position of a point light
+  FrameUniforms& frame = impl.frame_uniforms;
+  frame.light_count = static_cast<int>(lights.size());
+  frame.shadows = options.shadows && !lights.empty() && !items.empty();
   for (size_t i = 0; i < lights.size(); ++i) {
-    const Eigen::Vector3d direction_camera =
-        camera_from_world.linear() * lights[i].direction_world.cast<double>();
-    if (!(direction_camera.norm() > 0)) {
+    const Light& light = lights[i];
+    Eigen::Vector4d vector_camera;
+    if (light.type == Light::Type::kDirectional) {
+      const Eigen::Vector3d direction_camera =
+          camera_from_world.linear() * light.direction_world.cast<double>();
+      if (!(direction_camera.norm() > 0) || !direction_camera.allFinite()) {
+        throw std::runtime_error("Renderer::Render: light " + std::to_string(i) +
+                                 " has a zero or invalid direction_world");
+      }
+      vector_camera << -direction_camera.normalized(), 0;
+    } else if (light.type == Light::Type::kPoint) {
+      if (!light.position_world.allFinite()) {
+        throw std::runtime_error("Renderer::Render: point light " + std::to_string(i) +
+                                 " has an invalid position_world");
+      }
+      vector_camera << camera_from_world * light.position_world.cast<double>(), 1;
+    } else {
       throw std::runtime_error("Renderer::Render: light " + std::to_string(i) +
-                               " has a zero or invalid direction_world");
+                               " has an unknown type");
     }
-    const Eigen::Vector3f l = (-direction_camera.normalized()).cast<float>();
-    std::memcpy(to_light[i], l.data(), sizeof(to_light[i]));
-    terms[i][0] = lights[i].ambient;
-    terms[i][1] = lights[i].diffuse;
-    terms[i][2] = lights[i].specular;
+    const Eigen::Vector4f v = vector_camera.cast<float>();
+    std::memcpy(frame.light_vectors[i], v.data(), sizeof(frame.light_vectors[i]));
+    frame.light_terms[i][0] = light.ambient;
+    frame.light_terms[i][1] = light.diffuse;
+    frame.light_terms[i][2] = light.specular;
+  }
+
+  // shadow maps, from each light over the box of all items
+  if (frame.shadows) {
+    impl.RenderShadowMaps(lights, options.shadow_map_size, items);
+    // from the camera frame to (s, t, depth) in [0, 1] of each map
+    Eigen::Matrix4d texture_from_clip = 0.5 * Eigen::Matrix4d::Identity();
+    texture_from_clip.topRightCorner<3, 1>().setConstant(0.5);
+    texture_from_clip(3, 3) = 1;
+    for (size_t i = 0; i < lights.size(); ++i) {
+      const ShadowView& view = impl.shadow_views[i];
+      const Eigen::Matrix4f shadow_from_camera =
+          (texture_from_clip * view.clip_from_world * camera.world_from_camera.matrix())
+              .cast<float>();
+      std::memcpy(frame.shadow_from_camera[i], shadow_from_camera.data(),
+                  sizeof(frame.shadow_from_camera[i]));
+      frame.shadow_normal_offset_mm[i] = static_cast<float>(view.normal_offset_mm);
+      frame.shadow_depth_bias[i] = static_cast<float>(view.depth_bias);
+    }
+    frame.shadow_texel = 1.f / static_cast<float>(options.shadow_map_size);
+    glActiveTexture(GL_TEXTURE0 + kShadowMapUnit);
+    glBindTexture(GL_TEXTURE_2D_ARRAY, impl.shadow_maps);
+    glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
   }
 
   // clear: background colour, id 0, camera z 0, far depth
@@ -569,6 +1143,7 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   glViewport(0, 0, impl.width, impl.height);
   glDisable(GL_COLOR_LOGIC_OP);
   glEnable(GL_DEPTH_TEST);
+  const Eigen::Vector3f& background_rgb = options.background_rgb;
   const GLfloat background[4] = {background_rgb.x(), background_rgb.y(), background_rgb.z(), 1};
   const GLuint zero_id[4] = {0, 0, 0, 0};
   const GLfloat zero_z[4] = {0, 0, 0, 0};
@@ -578,17 +1153,13 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   glClearBufferfv(GL_COLOR, 2, zero_z);
   glClearBufferfv(GL_DEPTH, 0, &far_depth);
 
-  // per-frame uniforms
-  const ShadingProgram& shading = impl.Shading(static_cast<int>(lights.size()));
-  glUseProgram(shading.program);
-  impl.SetProjection(shading.projection, camera);
-  if (!lights.empty()) {
-    glUniform3fv(shading.light_to_light_camera, static_cast<GLsizei>(lights.size()),
-                 &to_light[0][0]);
-    glUniform3fv(shading.light_terms, static_cast<GLsizei>(lights.size()), &terms[0][0]);
-  }
+  // a new frame: each scene program gets its per-frame uniforms on first use
+  ++impl.frame;
+  impl.frame_camera = &camera;
+  impl.bound_texture = 0;
 
-  // draw near items first so the depth test rejects hidden fragments before shading
+  // draw near items first so the depth test rejects hidden fragments before shading; each
+  // material of a mesh (or the item's material) in one draw
   impl.draw_order.clear();
   for (size_t i = 0; i < items.size(); ++i) {
     const double z = (camera_from_world * items[i].world_from_object.translation()).z();
@@ -597,15 +1168,15 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   std::sort(impl.draw_order.begin(), impl.draw_order.end());
   for (const auto& [z, index] : impl.draw_order) {
     const DrawItem& item = items[index];
-    impl.SetCameraFromObject(shading.projection, camera_from_world, item);
-    glUniform1ui(shading.instance_id, item.instance_id);
-    // colours are display values: gamma 2 back to linear
-    const Eigen::Vector3f color = item.material.color.cwiseMax(0.f).cwiseMin(1.f);
-    const Eigen::Vector3f color_linear = color.cwiseProduct(color);
-    glUniform3fv(shading.material_color_linear, 1, color_linear.data());
-    glUniform1f(shading.material_specular, item.material.specular);
-    glUniform1f(shading.material_shininess, item.material.shininess);
-    impl.Draw(impl.meshes[item.mesh_id]);
+    const MeshBuffers& mesh = impl.meshes[item.mesh_id];
+    if (!item.use_mesh_materials || mesh.materials.empty()) {
+      impl.DrawSurface(item, camera_from_world, mesh, item.material, 0, mesh.index_count);
+      continue;
+    }
+    for (size_t k = 0; k < mesh.range_firsts.size(); ++k) {
+      impl.DrawSurface(item, camera_from_world, mesh, mesh.materials[mesh.range_materials[k]],
+                       mesh.range_firsts[k], mesh.range_counts[k]);
+    }
   }
   glBindVertexArray(0);
 
@@ -621,6 +1192,18 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   glReadBuffer(GL_COLOR_ATTACHMENT2);
   glReadPixels(0, 0, impl.width, impl.height, GL_RED, GL_FLOAT, result->depth_mm.data);
   CheckGlError("Renderer::Render");
+
+  // the background image where nothing was drawn (camera z 0), copied exactly
+  if (!options.background_image.empty()) {
+    for (int v = 0; v < impl.height; ++v) {
+      const float* depth = result->depth_mm.ptr<float>(v);
+      const uint8_t* background_row = options.background_image.ptr<uint8_t>(v);
+      uint8_t* color = result->color.ptr<uint8_t>(v);
+      for (int u = 0; u < impl.width; ++u) {
+        if (depth[u] == 0.f) std::memcpy(color + 3 * u, background_row + 3 * u, 3);
+      }
+    }
+  }
 }
 
 std::vector<cv::Mat> Renderer::RenderSilhouettes(const CameraModel& camera,

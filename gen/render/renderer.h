@@ -31,11 +31,26 @@ struct Material {
   Eigen::Vector3f color{0.7f, 0.7f, 0.7f};
   float specular = 0.5f;   // strength of the white highlight, [0, 1]
   float shininess = 32.f;  // Blinn-Phong exponent
+  /// A texture from Renderer::AddTexture, or -1 for none. Its texel colour (display values)
+  /// multiplies `color`; the mesh needs texture coordinates (TriangleMesh::uvs).
+  int texture_id = -1;
 };
 
-/// A directional light with the paper's three OpenGL terms (ambient, diffuse, specular).
+/// Per-draw randomisation applied on top of whichever material a surface uses.
+struct MaterialGain {
+  /// Multiplies the colour (display values); the result is clamped to [0, 1].
+  Eigen::Vector3f color{1, 1, 1};
+  float specular = 1.f;   // multiplies the highlight strength
+  float shininess = 1.f;  // multiplies the exponent
+};
+
+/// A light with the paper's three OpenGL terms (ambient, diffuse, specular). Ambient terms of all
+/// lights add up; no light falls off with distance.
 struct Light {
-  Eigen::Vector3f direction_world{0, 0, -1};  // direction the light travels, unit, world frame
+  enum class Type { kDirectional, kPoint };
+  Type type = Type::kDirectional;
+  Eigen::Vector3f direction_world{0, 0, -1};   // directional: direction the light travels, unit
+  Eigen::Vector3f position_world{0, 0, 1000};  // point light: position, mm, world frame
   float ambient = 0.25f, diffuse = 0.7f, specular = 0.4f;
 };
 
@@ -44,7 +59,29 @@ struct DrawItem {
   int mesh_id = 0;                                                      // from Renderer::AddMesh
   Eigen::Isometry3d world_from_object = Eigen::Isometry3d::Identity();  // millimetres
   uint16_t instance_id = 0;  // 0 = not an object (bin, background props)
+  /// Used for the whole mesh when it has no materials of its own, or use_mesh_materials is false.
   Material material;
+  /// true: a mesh with materials (AddMesh kept them) draws each triangle with its own material.
+  bool use_mesh_materials = true;
+  MaterialGain gain;  // applied to the material used (the mesh's or `material`)
+};
+
+/// How a frame is drawn beyond the camera, lights and items.
+struct RenderOptions {
+  /// Display RGB in [0, 1] where nothing is drawn (unless background_image is set).
+  Eigen::Vector3f background_rgb{0, 0, 0};
+  /// Empty, or CV_8UC3 RGB of exactly camera width x height: shown unchanged (no shading) where
+  /// nothing is drawn, instead of background_rgb.
+  cv::Mat background_image;
+  /// Shadow mapping, one depth map per light covering the bounding box of all items
+  /// (orthographic along a directional light; a perspective from a point light aimed at the box
+  /// centre, at most 80 degrees off that aim: surfaces outside are lit): a surface in the shadow
+  /// of a light gets only that light's ambient term, edges filtered over 3 x 3 texels. Default
+  /// off. Costs about one depth-only pass per light plus four filtered lookups per light and
+  /// fragment.
+  bool shadows = false;
+  /// Texels per side of each shadow map, 256..8192 (default 2048).
+  int shadow_map_size = 2048;
 };
 
 /// The images of one render, all camera.width x camera.height, row 0 at the top.
@@ -56,7 +93,9 @@ struct RenderResult {
 
 /// Renders scenes of meshes headless with OpenGL 3.3 core through EGL (see EglContext): colour,
 /// depth and instance id in one pass, plus per-object silhouettes. No multisampling, so ids are
-/// exact and every pixel's colour, depth and id come from the same surface.
+/// exact and every pixel's colour, depth and id come from the same surface. Surfaces take the
+/// materials and textures of their model file or of their DrawItem; shadows (optional) come
+/// from one depth-only pass per light into its own map before the scene pass.
 ///
 /// Owns its own GL context; use a Renderer from one thread at a time (each call makes its
 /// context current on the calling thread). Not copyable.
@@ -70,26 +109,41 @@ class Renderer {
   Renderer(const Renderer&) = delete;
   Renderer& operator=(const Renderer&) = delete;
 
-  /// Uploads a mesh (millimetres, object frame) once; returns its mesh_id (0, 1, 2, ...). A mesh
-  /// made of closed surfaces wound counter-clockwise seen from outside (checked here, vertices
-  /// welded by position) is drawn with back faces culled, about twice as fast on llvmpipe; any
-  /// other mesh (open, inside out) is drawn two-sided. Throws std::runtime_error if the mesh has
-  /// no triangles, normals and positions differ in count, or an index is out of range.
+  /// Uploads an RGB8 texture (CV_8UC3, RGB, row 0 = top of the image) with mipmaps, sampled
+  /// linearly and repeated outside [0, 1]; returns its texture_id (0, 1, 2, ...). Throws
+  /// std::runtime_error for an empty image, another type, a size over GL_MAX_TEXTURE_SIZE, or a
+  /// GL error.
+  int AddTexture(const cv::Mat& rgb);
+
+  /// Uploads a mesh (millimetres, object frame) once, with its texture coordinates and, when
+  /// mesh.materials is non-empty, its materials and their textures (one texture per textured
+  /// material); returns its mesh_id (0, 1, 2, ...). A mesh made of closed surfaces wound
+  /// counter-clockwise seen from outside (checked here, vertices welded by position) is drawn
+  /// with back faces culled, about twice as fast on llvmpipe; any other mesh (open, inside out)
+  /// is drawn two-sided. Throws std::runtime_error if the mesh has no triangles, normals or uvs
+  /// (when not empty) and positions differ in count, an index is out of range, triangle_material
+  /// does not match triangles and materials, or a material has a texture that is not CV_8UC3 or
+  /// that the mesh has no texture coordinates for.
   int AddMesh(const TriangleMesh& mesh);
 
-  /// Renders the items with Blinn-Phong shading (per light: ambient + diffuse + specular) over
-  /// a plain background (display RGB in [0, 1]). The framebuffer follows camera.width and
-  /// camera.height (re-allocated only when they change). At most kMaxLights lights; the shader
-  /// for each number of lights is compiled on its first use. Throws
-  /// std::runtime_error for an unknown mesh_id, a bad camera (size, focal length, near/far),
-  /// too many lights, or a GL error (by name).
+  /// Renders the items with Blinn-Phong shading (per light: ambient + diffuse + specular; a
+  /// point light's direction is taken per fragment) over the background of `options`, with
+  /// shadows when options.shadows. A triangle's material is its mesh material when
+  /// item.use_mesh_materials and the mesh has materials, item.material otherwise, with item.gain
+  /// applied; materials and shadows change colours only, never which pixels are covered, their
+  /// depth or ids. The framebuffer follows camera.width and camera.height (re-allocated only when
+  /// they change). At most kMaxLights lights; the shader for each number of lights, with or
+  /// without shadows and texture, is compiled on its first use. Throws std::runtime_error for an
+  /// unknown mesh_id or texture_id, a texture on a mesh without texture coordinates, a bad camera
+  /// (size, focal length, near/far), too many or invalid lights, a background image of the wrong
+  /// size or type, a shadow_map_size out of range, or a GL error (by name).
   RenderResult Render(const CameraModel& camera, const std::vector<Light>& lights,
-                      const Eigen::Vector3f& background_rgb, const std::vector<DrawItem>& items);
+                      const RenderOptions& options, const std::vector<DrawItem>& items);
 
   /// As above, writing into `result`; its images are reused when they already have the right
   /// size and type, so a loop that passes the same result allocates nothing.
   void Render(const CameraModel& camera, const std::vector<Light>& lights,
-              const Eigen::Vector3f& background_rgb, const std::vector<DrawItem>& items,
+              const RenderOptions& options, const std::vector<DrawItem>& items,
               RenderResult* result);
 
   /// Pixels each item with instance_id > 0 would cover drawn alone (no occluders), same camera
@@ -109,6 +163,9 @@ class Renderer {
 
   /// Most lights one Render takes.
   static constexpr int kMaxLights = 8;
+  /// Smallest and largest RenderOptions::shadow_map_size.
+  static constexpr int kMinShadowMapSize = 256;
+  static constexpr int kMaxShadowMapSize = 8192;
 
  private:
   struct Impl;

@@ -13,6 +13,10 @@
 #include "gen/annotate/pose.h"
 #include "gen/mesh/mesh.h"
 #include "gen/physics/pile.h"
+#include "gen/randomize/background.h"
+#include "gen/randomize/camera_pose.h"
+#include "gen/randomize/lighting.h"
+#include "gen/randomize/sensor.h"
 #include "gen/render/renderer.h"
 
 namespace stackgen {
@@ -29,6 +33,14 @@ uint64_t SplitMix64(uint64_t x) {
   x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
   x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
   return x ^ (x >> 31);
+}
+
+// Each randomisation lever draws from an engine of its own, seeded from the scene seed and the
+// lever, so switching one lever on or off never shifts another's draws.
+enum class Lever : uint64_t { kCamera = 1, kLighting, kAppearance, kBackground, kSensor };
+
+std::mt19937_64 LeverEngine(uint64_t scene_seed, Lever lever) {
+  return std::mt19937_64(SplitMix64(SplitMix64(scene_seed) ^ static_cast<uint64_t>(lever)));
 }
 
 // a number drawn uniformly from [lo, hi] (the same on every platform).
@@ -82,6 +94,9 @@ uint64_t SceneSeed(uint64_t base_seed, int32_t generator_id, int64_t seq, int re
 // One part type of the config, as the scene uses it.
 struct TypeInScene {
   int mesh_id = 0;
+  // the configured material (for meshes without their own) and whether file materials are used
+  Material material;
+  bool use_file_materials = true;
   // class id among the labelled types (1, 2, ... by first class_name), 0 = not labelled
   int class_id = 0;
 };
@@ -92,24 +107,40 @@ struct SceneGenerator::Impl {
   uint64_t base_seed = 0;
   std::unique_ptr<PileSimulator> simulator;
   std::unique_ptr<Renderer> renderer;
+  std::unique_ptr<BackgroundSource> backgrounds;
   std::vector<TypeInScene> types;
   int bin_mesh_id = 0;
+  Material bin_material;
   std::string description;
 
   const config::GeneratorConfig& config() const { return loaded.config; }
 
-  // the pinhole camera of the config.
-  CameraModel Camera() const {
+  // the camera's intrinsics from the config (a preset is resolved when the config is parsed).
+  Intrinsics CameraIntrinsics() const {
     const config::CameraConfig& c = config().camera();
-    CameraModel camera;
-    camera.width = c.width();
-    camera.height = c.height();
-    camera.fx = c.fx();
-    camera.fy = c.fy();
     const Eigen::Vector2d principal = PrincipalPoint(c);
-    camera.cx = principal.x();
-    camera.cy = principal.y();
-    camera.world_from_camera = WorldFromCamera(c);
+    Intrinsics intrinsics;
+    intrinsics.width = c.width();
+    intrinsics.height = c.height();
+    intrinsics.fx = c.fx();
+    intrinsics.fy = c.fy();
+    intrinsics.cx = principal.x();
+    intrinsics.cy = principal.y();
+    return intrinsics;
+  }
+
+  // the camera of one scene: the config's intrinsics and a pose drawn around the nominal one.
+  CameraModel Camera(std::mt19937_64& engine) const {
+    const Intrinsics intrinsics = CameraIntrinsics();
+    CameraModel camera;
+    camera.width = intrinsics.width;
+    camera.height = intrinsics.height;
+    camera.fx = intrinsics.fx;
+    camera.fy = intrinsics.fy;
+    camera.cx = intrinsics.cx;
+    camera.cy = intrinsics.cy;
+    camera.world_from_camera =
+        SampleCameraPose(config().camera(), intrinsics, config().bin(), engine);
     return camera;
   }
 };
@@ -213,22 +244,47 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
     const config::PartConfig& part = config.config.part(static_cast<int>(t));
     TypeInScene type;
     type.mesh_id = impl_->renderer->AddMesh(types[t].mesh);
+    type.material.color =
+        Eigen::Vector3d(part.color_r(), part.color_g(), part.color_b()).cast<float>();
+    type.material.specular = static_cast<float>(part.specular());
+    type.material.shininess = static_cast<float>(part.shininess());
+    type.use_file_materials = part.use_file_materials();
     if (part.role() != config::PartConfig::DISTRACTOR) {
       auto it = std::find(class_names.begin(), class_names.end(), part.class_name());
       if (it == class_names.end()) it = class_names.insert(it, part.class_name());
       type.class_id = static_cast<int>(it - class_names.begin()) + 1;
     }
     impl_->types.push_back(type);
+    const TriangleMesh& mesh = types[t].mesh;
+    int textured = 0;
+    for (const MeshMaterial& material : mesh.materials)
+      textured += material.texture.empty() ? 0 : 1;
     description << (part.role() == config::PartConfig::PART ? "part " : "distractor ")
-                << config.Resolve(part.mesh()) << ": " << types[t].mesh.triangles.size()
-                << " triangles, " << impl_->simulator->CollisionDescription(static_cast<int>(t))
-                << "\n";
+                << config.Resolve(part.mesh()) << ": " << mesh.triangles.size() << " triangles, "
+                << (mesh.materials.empty() || !part.use_file_materials()
+                        ? std::string("configured material")
+                        : std::to_string(mesh.materials.size()) + " file material(s), " +
+                              std::to_string(textured) + " textured")
+                << ", " << impl_->simulator->CollisionDescription(static_cast<int>(t)) << "\n";
   }
   // a box bin collides as boxes (exact, fast) and is drawn from the same sizes
   impl_->bin_mesh_id = impl_->renderer->AddMesh(
       bin.mesh().empty() ? MakeOpenBinMesh(bin.inner_length_mm(), bin.inner_width_mm(),
                                            bin.inner_height_mm(), bin.wall_thickness_mm())
                          : bin_spec.mesh);
+  impl_->bin_material.color =
+      Eigen::Vector3d(bin.color_r(), bin.color_g(), bin.color_b()).cast<float>();
+  impl_->bin_material.specular = static_cast<float>(bin.specular());
+  impl_->bin_material.shininess = static_cast<float>(bin.shininess());
+
+  // backgrounds: the image folder is listed once, here
+  const config::BackgroundConfig& background = config.config.background();
+  impl_->backgrounds = std::make_unique<BackgroundSource>(
+      background, background.image_dir().empty() ? "" : config.Resolve(background.image_dir()));
+  if (!background.image_dir().empty()) {
+    description << "backgrounds: " << impl_->backgrounds->image_paths().size() << " images in "
+                << config.Resolve(background.image_dir()) << "\n";
+  }
   description << "renderer: " << impl_->renderer->Description();
   impl_->description = description.str();
 }
@@ -277,38 +333,32 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
   }
   local.physics_ms = MillisecondsSince(start);
 
-  // appearance drawn from the scene's own engine, after the physics seed.
-  std::mt19937_64 rng(SplitMix64(seed));
-  std::uniform_real_distribution<double> unit(0.0, 1.0);
-  const auto uniform = [&](double min, double max) { return min + (max - min) * unit(rng); };
-  const config::LightingConfig& lighting = config.lighting();
-  Light light;
-  const double tilt = uniform(0, lighting.max_tilt_deg()) * M_PI / 180;
-  const double azimuth = uniform(0, 2 * M_PI);
-  light.direction_world = Eigen::Vector3f(static_cast<float>(std::sin(tilt) * std::cos(azimuth)),
-                                          static_cast<float>(std::sin(tilt) * std::sin(azimuth)),
-                                          static_cast<float>(-std::cos(tilt)));
-  light.ambient = static_cast<float>(uniform(lighting.ambient_min(), lighting.ambient_max()));
-  light.diffuse = static_cast<float>(uniform(lighting.diffuse_min(), lighting.diffuse_max()));
-  light.specular = static_cast<float>(uniform(lighting.specular_min(), lighting.specular_max()));
-  Eigen::Vector3f background;
-  for (int i = 0; i < 3; ++i) {
-    background[i] =
-        static_cast<float>(uniform(config.background().min(), config.background().max()));
+  // the scene's look, each lever from its own engine: camera, lights, backgrounds, materials.
+  std::mt19937_64 camera_engine = LeverEngine(seed, Lever::kCamera);
+  std::mt19937_64 lighting_engine = LeverEngine(seed, Lever::kLighting);
+  std::mt19937_64 appearance_engine = LeverEngine(seed, Lever::kAppearance);
+  std::mt19937_64 background_engine = LeverEngine(seed, Lever::kBackground);
+  std::mt19937_64 sensor_engine = LeverEngine(seed, Lever::kSensor);
+  start = Clock::now();
+  const CameraModel camera = impl_->Camera(camera_engine);
+  const std::vector<Light> lights = SampleLights(config.lighting(), lighting_engine);
+  RenderOptions options;
+  options.background_image =
+      impl_->backgrounds->Draw(camera.width, camera.height, background_engine);
+  options.shadows = config.lighting().shadows();
+  options.shadow_map_size = config.lighting().shadow_map_size();
+  // one gain per part type: the copies of a type look alike, like one batch of parts
+  std::vector<MaterialGain> gains;
+  for (int t = 0; t < config.part_size(); ++t) {
+    gains.push_back(SampleMaterialGain(config.appearance(), appearance_engine));
   }
 
   // render the bin and the parts (instance ids 1..N), then each part alone.
-  start = Clock::now();
-  const CameraModel camera = impl_->Camera();
   std::vector<DrawItem> items;
   DrawItem bin_item;
   bin_item.mesh_id = impl_->bin_mesh_id;
   bin_item.instance_id = 0;
-  bin_item.material.color = Eigen::Vector3f(static_cast<float>(config.bin().color_r()),
-                                            static_cast<float>(config.bin().color_g()),
-                                            static_cast<float>(config.bin().color_b()));
-  bin_item.material.specular = 0.15f;
-  bin_item.material.shininess = 8;
+  bin_item.material = impl_->bin_material;
   items.push_back(bin_item);
   // labelled objects get instance ids 1, 2, ...; unlabelled distractors draw as 0, like the bin
   std::vector<ObjectTruth> objects;
@@ -319,11 +369,9 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
     DrawItem part_item;
     part_item.mesh_id = type.mesh_id;
     part_item.world_from_object = pile.world_from_object[i];
-    part_item.material.color =
-        Eigen::Vector3f(static_cast<float>(part.color_r()), static_cast<float>(part.color_g()),
-                        static_cast<float>(part.color_b()));
-    part_item.material.specular = 0.6f;
-    part_item.material.shininess = 40;
+    part_item.material = type.material;
+    part_item.use_mesh_materials = type.use_file_materials;
+    part_item.gain = gains[t];
     if (type.class_id > 0) {
       ObjectTruth object;
       object.instance_id = static_cast<int>(objects.size() + 1);
@@ -337,7 +385,7 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
     }
     items.push_back(part_item);
   }
-  const RenderResult rendered = impl_->renderer->Render(camera, {light}, background, items);
+  RenderResult rendered = impl_->renderer->Render(camera, lights, options, items);
   const std::vector<cv::Mat> silhouettes = impl_->renderer->RenderSilhouettes(camera, items);
   local.render_ms = MillisecondsSince(start);
 
@@ -356,21 +404,22 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
   out.camera.cy = camera.cy;
   out.camera.world_from_camera = ToPoseMessage(camera.world_from_camera);
   out.camera.depth_scale_mm = config.camera().depth_scale_mm();
-  out.instances = LabelInstances(rendered.instance, silhouettes, objects, camera.world_from_camera,
-                                 config.annotation().min_visib_fract());
+  out.instances =
+      LabelInstances(rendered.instance, silhouettes, objects, camera.world_from_camera,
+                     config.annotation().min_visib_fract(),
+                     config.annotation().occlusion_rule() == config::AnnotationConfig::IGNORE);
   out.num_instances = static_cast<int32_t>(out.instances.size());
   local.annotate_ms = MillisecondsSince(start);
 
-  // encode the images: colour or gray, depth in depth_scale units, instance ids.
+  // the camera's sensor on the final image (gray or colour), never on depth or ids; then encode
+  // the images: colour or gray, depth in depth_scale units, instance ids.
   start = Clock::now();
   const config::OutputConfig::Encoding encoding = config.output().image_encoding();
-  if (config.camera().grayscale()) {
-    cv::Mat gray;
-    cv::cvtColor(rendered.color, gray, cv::COLOR_RGB2GRAY);
-    out.color = EncodeImage(gray, image::PIXEL_GRAY8, encoding);
-  } else {
-    out.color = EncodeImage(rendered.color, image::PIXEL_RGB8, encoding);
-  }
+  cv::Mat picture = rendered.color;
+  if (config.camera().grayscale()) cv::cvtColor(rendered.color, picture, cv::COLOR_RGB2GRAY);
+  ApplySensorEffects(SampleSensorEffects(config.sensor(), sensor_engine), &picture);
+  out.color = EncodeImage(
+      picture, config.camera().grayscale() ? image::PIXEL_GRAY8 : image::PIXEL_RGB8, encoding);
   cv::Mat depth;
   rendered.depth_mm.convertTo(depth, CV_16U, 1.0 / config.camera().depth_scale_mm());
   out.depth = EncodeImage(depth, image::PIXEL_DEPTH16, encoding);

@@ -81,7 +81,21 @@ TEST(CocoPipelineTest, DatasetIsConsistentAndDeterministic) {
     const cv::Rect rect(box[0].get<int>(), box[1].get<int>(), box[2].get<int>(),
                         box[3].get<int>());
     EXPECT_EQ(cv::countNonZero(mask(rect)), area) << "mask outside its bbox";
+    // the default occlusion rule is DROP: no ignore regions (iscrowd 1)
     EXPECT_EQ(annotation["iscrowd"].get<int>(), 0);
+    // the full (amodal) mask decodes to px_count_all pixels inside amodal_bbox = bbox_obj
+    const json& amodal = annotation["amodal_segmentation"];
+    ASSERT_TRUE(amodal.is_object()) << "no amodal_segmentation";
+    ASSERT_EQ(amodal["size"], segmentation["size"]);
+    const cv::Mat full = DecodeRle(amodal["counts"].get<std::string>(), height, width);
+    const int full_area = cv::countNonZero(full);
+    EXPECT_EQ(full_area, annotation["px_count_all"].get<int>());
+    EXPECT_GE(full_area, area);
+    const json& amodal_box = annotation["amodal_bbox"];
+    EXPECT_EQ(amodal_box, annotation["bbox_obj"]);
+    const cv::Rect full_rect(amodal_box[0].get<int>(), amodal_box[1].get<int>(),
+                             amodal_box[2].get<int>(), amodal_box[3].get<int>());
+    EXPECT_EQ(cv::countNonZero(full(full_rect)), full_area) << "full mask outside amodal_bbox";
     const double visib_fract = annotation["visib_fract"].get<double>();
     EXPECT_GT(visib_fract, 0.0);
     EXPECT_LE(visib_fract, 1.0);

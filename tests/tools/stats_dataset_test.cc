@@ -83,6 +83,30 @@ TEST(StatsDatasetTest, ReadsRealCocoFile) {
   }
 }
 
+// COCO ignore regions (iscrowd 1) are left out and counted as not annotated, unless
+// all_instances asks for them.
+TEST(StatsDatasetTest, CocoIgnoreRegionsOnlyWithAllInstances) {
+  const ScratchDir scratch;
+  const std::string path = scratch.path() + "/annotations.json";
+  std::ofstream(path) << R"({"images": [{"id": 1, "file_name": "0_000000.png"}],
+    "categories": [{"id": 1, "name": "corner_connector"}],
+    "annotations": [
+      {"id": 1001, "image_id": 1, "category_id": 1, "iscrowd": 0, "posture_deg": [10, 0, 0]},
+      {"id": 1002, "image_id": 1, "category_id": 1, "iscrowd": 1, "posture_deg": [20, 0, 0]},
+      {"id": 1003, "image_id": 1, "category_id": 1, "posture_deg": [30, 0, 0]}]})";
+  const Dataset annotated = ReadDataset(path, {});
+  ASSERT_EQ(annotated.samples.size(), 2u);
+  EXPECT_NEAR(annotated.samples[0].alpha_deg, 10.0, 1e-9);
+  EXPECT_NEAR(annotated.samples[1].alpha_deg, 30.0, 1e-9);
+  EXPECT_EQ(annotated.not_annotated, 1);
+  ReadOptions all;
+  all.all_instances = true;
+  const Dataset every = ReadDataset(path, all);
+  ASSERT_EQ(every.samples.size(), 3u);
+  EXPECT_NEAR(every.samples[1].alpha_deg, 20.0, 1e-9);
+  EXPECT_EQ(every.not_annotated, 0);
+}
+
 // A log: instances of every labels message, other channels skipped, a truncated last event
 // ignored and reported; a corrupt header is an error naming the file and byte.
 TEST(StatsDatasetTest, ReadsLcmLog) {

@@ -135,12 +135,18 @@ void ReadCoco(const std::string& path, const ReadOptions& options, Dataset* data
     names[static_cast<int64_t>(NumberAt(category, "id", where))] = category["name"];
   }
 
-  // every annotation: its class, rotation and resting face
+  // every annotation: its class, rotation and resting face; ignore regions (iscrowd 1, instances
+  // the generator did not annotate) only with all_instances
   const json& annotations = root["annotations"];
   for (size_t k = 0; k < annotations.size(); ++k) {
     const json& annotation = annotations[k];
     const std::string where = path + ": annotations[" + std::to_string(k) + "]";
     if (!annotation.is_object()) throw std::runtime_error(where + " is not an object");
+    if (annotation.contains("iscrowd") && NumberAt(annotation, "iscrowd", where) != 0 &&
+        !options.all_instances) {
+      ++dataset->not_annotated;
+      continue;
+    }
     const int64_t category_id = static_cast<int64_t>(NumberAt(annotation, "category_id", where));
     const auto name = names.find(category_id);
     if (name == names.end()) {

@@ -39,7 +39,8 @@ struct Dataset {
   int64_t repeated_scenes = 0;
   /// Logs: bytes of an incomplete last event that were ignored (a logger stopped mid-write).
   int64_t truncated_bytes = 0;
-  /// Instances left out because they are not annotated (logs, without all_instances).
+  /// Instances left out because they are not annotated, without all_instances: logs' instances
+  /// with annotated false, COCO ignore regions (iscrowd 1).
   int64_t not_annotated = 0;
   /// Instances left out because they are of another class than the one asked for.
   int64_t other_class = 0;
@@ -56,8 +57,8 @@ struct ReadOptions {
   std::map<std::string, Eigen::Matrix3d> object_R_reference;
   /// Only instances of this class; empty: all.
   std::string class_name;
-  /// Logs: also instances that are not annotated (too hidden). COCO files hold annotated
-  /// instances only.
+  /// Also instances that are not annotated (too hidden): in logs every instance, in COCO files
+  /// the ignore regions (iscrowd 1) as well; a COCO file holds no other instances.
   bool all_instances = false;
 };
 

@@ -78,8 +78,9 @@ void PrintHelp() {
       "                          Only the rotation matters: where the origin is changes no\n"
       "                          angle.\n"
       "  --class NAME            only instances of class NAME (default: all classes, pooled).\n"
-      "  --all-instances         also instances that are not annotated (too hidden); logs only,\n"
-      "                          COCO files hold annotated instances only (default: annotated\n"
+      "  --all-instances         also instances that are not annotated (too hidden): from a log\n"
+      "                          every instance, from a COCO file its ignore regions (iscrowd\n"
+      "                          1); a COCO file holds no dropped instances (default: annotated\n"
       "                          only, so a log and the COCO file of one run agree).\n"
       "  --help                  print this help and exit.\n"
       "\n"
@@ -263,8 +264,8 @@ void PrintDatasetLine(const char* letter, const Dataset& dataset, const Flags& f
   }
   if (flags.read.all_instances && dataset.kind == "COCO") {
     std::printf(
-        "note: %s is a COCO file, which holds annotated instances only; "
-        "--all-instances does not apply to it\n",
+        "note: %s is a COCO file: --all-instances adds its ignore regions (iscrowd 1), but "
+        "instances the generator dropped are not in it\n",
         letter);
   }
 }

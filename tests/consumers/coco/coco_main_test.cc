@@ -45,8 +45,9 @@ TEST(CocoMainTest, HelpListsEveryFlag) {
   const std::string dir = scratch.path();
   std::string out, err;
   EXPECT_EQ(RunToEnd({"--help"}, dir + "/help", &out, &err), 0);
-  for (const char* text : {"--out", "--count", "--lcm-url", "--min-visib-fract", "--help",
-                           "default 0", "default 0.3", "STACKGEN_LCM_URL"}) {
+  for (const char* text :
+       {"--out", "--count", "--lcm-url", "--min-visib-fract", "--help", "default 0",
+        "follow the generator", "iscrowd 1", "amodal_segmentation", "STACKGEN_LCM_URL"}) {
     EXPECT_NE(out.find(text), std::string::npos) << text << " missing from\n" << out;
   }
 }
@@ -108,8 +109,8 @@ TEST(CocoMainTest, StoresScenesFromTheBus) {
 
   ASSERT_EQ(coco.Wait(30), 0) << coco.Stderr();
   EXPECT_NE(coco.Stdout().find("stackgen-coco: wrote " + dir +
-                               "/coco/annotations.json: 3 images, 3 annotations, 1 ignored "
-                               "(visib_fract < 0.3), 1 lost"),
+                               "/coco/annotations.json: 3 images, 3 annotations, 0 ignore "
+                               "regions (iscrowd 1), 1 dropped (not annotated), 1 lost"),
             std::string::npos)
       << coco.Stdout();
   EXPECT_NE(coco.Stderr().find("lost seq 2..2"), std::string::npos) << coco.Stderr();
@@ -120,26 +121,32 @@ TEST(CocoMainTest, StoresScenesFromTheBus) {
   EXPECT_FALSE(fs::exists(dir + "/coco/annotations.journal"));
 }
 
-// SIGINT and SIGTERM finish a valid dataset of what arrived.
+// SIGINT and SIGTERM finish a valid dataset of what arrived; --min-visib-fract drops annotated
+// instances below it and keeps ignore regions.
 TEST(CocoMainTest, SignalFinishesDataset) {
   for (const int signal_number : {SIGINT, SIGTERM}) {
     const testing::ScopedTempDir scratch("coco-main");
     const std::string dir = scratch.path();
     const std::string url = testing::FreeMulticastUrl();
-    Process coco({kProgram, "--out", dir + "/coco", "--lcm-url", url, "--min-visib-fract", "0"},
+    Process coco({kProgram, "--out", dir + "/coco", "--lcm-url", url, "--min-visib-fract", "0.5"},
                  dir + "/run");
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
     Bus bus(url);
     bus.Publish(kSceneChannel, testing::SceneA());
+    bus.Publish(kSceneChannel, testing::SceneD());
     std::this_thread::sleep_for(std::chrono::milliseconds(500));
     EXPECT_FALSE(fs::exists(dir + "/coco/annotations.json"));
     coco.Signal(signal_number);
     ASSERT_EQ(coco.Wait(30), 0) << coco.Stderr();
-    EXPECT_NE(coco.Stdout().find("1 images, 3 annotations, 0 ignored (visib_fract < 0), 0 lost"),
+    // A: 1 and 3 kept, 2 not annotated; D: 1 kept, 2 an ignore region, 3 not annotated
+    EXPECT_NE(coco.Stdout().find("2 images, 3 annotations, 1 ignore regions (iscrowd 1), 2 "
+                                 "dropped (not annotated, or visib_fract < 0.5), 0 lost"),
               std::string::npos)
         << coco.Stdout();
     const json dataset = json::parse(testing::ReadFile(dir + "/coco/annotations.json"));
-    EXPECT_EQ(dataset["images"].size(), 1u);
+    EXPECT_EQ(dataset["images"].size(), 2u);
+    ASSERT_EQ(dataset["annotations"].size(), 4u);
+    EXPECT_EQ(dataset["annotations"][3]["iscrowd"], 1);
   }
 }
 

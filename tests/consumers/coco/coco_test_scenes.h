@@ -1,14 +1,17 @@
 #pragma once
 
-// Hand-made stackgen::scene messages for the stackgen-coco tests: 8 x 6 pixels, a few instances
-// with rectangular visible masks.
+// Hand-made stackgen::scene messages for the stackgen-coco and stackgen-view tests: 8 x 6 pixels,
+// a few instances with rectangular visible masks.
 
+#include <cmath>
 #include <filesystem>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <stackgen/scene.hpp>
 
 #include "gen/annotate/rle.h"
@@ -35,7 +38,11 @@ class ScopedTempDir {
 constexpr int kSceneWidth = 8;
 constexpr int kSceneHeight = 6;
 
-/// An instance of class `class_id` whose visible pixels are `visible` (in an 8 x 6 image).
+/// An instance of class `class_id` whose visible pixels are `visible` (in an 8 x 6 image) and
+/// whose visible fraction is `visib_fract`: px_count_all = visible area / visib_fract rounded (0
+/// when visib_fract is 0), its full mask the visible pixels plus as many more as that needs, the
+/// first ones outside `visible` in column-major order. Annotated when visib_fract >= 0.3 and
+/// something is visible, as the generator's default; never ignored (see Ignored).
 inline stackgen::instance MakeInstance(int instance_id, int class_id, const std::string& name,
                                        const cv::Rect& visible, double visib_fract) {
   stackgen::instance instance{};
@@ -49,18 +56,43 @@ inline stackgen::instance MakeInstance(int instance_id, int class_id, const std:
   instance.camera_from_object.translation_mm[2] = 400.0 + instance_id;
   instance.world_from_object.translation_mm[0] = 0.1 * instance_id;
   instance.posture_deg[0] = 10.0 * instance_id;
+  // the visible mask
   cv::Mat mask = cv::Mat::zeros(kSceneHeight, kSceneWidth, CV_8UC1);
   mask(visible).setTo(255);
   instance.mask_visib_rle = EncodeRle(mask);
   instance.px_count_visib = visible.area();
-  instance.px_count_all = visib_fract > 0 ? static_cast<int>(visible.area() / visib_fract) : 0;
+  instance.px_count_all =
+      visib_fract > 0 ? static_cast<int>(std::lround(visible.area() / visib_fract)) : 0;
   instance.visib_fract = visib_fract;
-  instance.annotated = visib_fract >= 0.3;
+  instance.annotated = visib_fract >= 0.3 && visible.area() > 0;
+  instance.ignored = false;
+  // the full mask: the visible pixels and the first hidden ones, column by column
+  cv::Mat full = mask.clone();
+  int missing = instance.px_count_all - visible.area();
+  for (int x = 0; x < kSceneWidth && missing > 0; ++x) {
+    for (int y = 0; y < kSceneHeight && missing > 0; ++y) {
+      if (full.at<uint8_t>(y, x) == 0) {
+        full.at<uint8_t>(y, x) = 255;
+        --missing;
+      }
+    }
+  }
+  if (missing > 0) throw std::invalid_argument("MakeInstance: px_count_all exceeds the image");
+  instance.mask_obj_rle = EncodeRle(full);
   const int32_t box[4] = {visible.x, visible.y, visible.width, visible.height};
+  const cv::Rect full_box = cv::boundingRect(full);
+  const int32_t obj_box[4] = {full_box.x, full_box.y, full_box.width, full_box.height};
   for (int i = 0; i < 4; ++i) {
     instance.bbox_visib[i] = visible.area() > 0 ? box[i] : 0;
-    instance.bbox_obj[i] = instance.bbox_visib[i];
+    instance.bbox_obj[i] = full_box.area() > 0 ? obj_box[i] : 0;
   }
+  return instance;
+}
+
+/// `instance` as the generator marks it under the IGNORE occlusion rule: not annotated, ignored.
+inline stackgen::instance Ignored(stackgen::instance instance) {
+  instance.annotated = false;
+  instance.ignored = true;
   return instance;
 }
 
@@ -136,9 +168,9 @@ inline stackgen::scene SceneA() {
                     MakeInstance(2, 1, "connector", cv::Rect(0, 5, 2, 1), 0.1)});
 }
 
-/// Scene B: generator 0, seq 1, PNG; one connector.
+/// Scene B: generator 0, seq 1, PNG; one connector covering the image.
 inline stackgen::scene SceneB() {
-  return MakeScene(0, 1, {MakeInstance(1, 1, "connector", cv::Rect(0, 0, 8, 6), 0.9)},
+  return MakeScene(0, 1, {MakeInstance(1, 1, "connector", cv::Rect(0, 0, 8, 6), 1.0)},
                    stackgen::image::ENCODING_PNG);
 }
 
@@ -150,6 +182,16 @@ inline stackgen::scene SceneC() {
   color.data.assign(static_cast<size_t>(kSceneWidth * kSceneHeight), 77);
   color.size = static_cast<int32_t>(color.data.size());
   return scene;
+}
+
+/// Scene D: generator 2, seq 0, RAW RGB, as the generator writes it with the IGNORE occlusion
+/// rule: instance 1 annotated (visible fraction 0.8), instance 2 ignored (0.2, an ignore region),
+/// instance 3 neither (nothing visible).
+inline stackgen::scene SceneD() {
+  return MakeScene(2, 0,
+                   {MakeInstance(1, 1, "connector", cv::Rect(0, 0, 4, 2), 0.8),
+                    Ignored(MakeInstance(2, 1, "connector", cv::Rect(5, 3, 2, 2), 0.2)),
+                    MakeInstance(3, 2, "bolt", cv::Rect(0, 0, 0, 0), 0.0)});
 }
 
 }  // namespace stackgen::testing

@@ -1,5 +1,6 @@
 #include "consumers/coco/coco_writer.h"
 
+#include <array>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -38,6 +39,21 @@ std::string AddError(CocoWriter& writer, const stackgen::scene& scene) {
   return "";
 }
 
+// the amodal fields of `annotation` (over an 8 x 6 image) agree with each other: the full mask
+// decodes to px_count_all pixels inside amodal_bbox = bbox_obj, and holds the visible mask
+void ExpectAmodalFields(const json& annotation) {
+  const json& amodal = annotation["amodal_segmentation"];
+  ASSERT_TRUE(amodal.is_object()) << annotation.dump();
+  EXPECT_EQ(amodal["size"], json::parse("[6, 8]"));
+  const cv::Mat full = DecodeRle(amodal["counts"].get<std::string>(), 6, 8);
+  EXPECT_EQ(cv::countNonZero(full), annotation["px_count_all"].get<int>()) << annotation.dump();
+  EXPECT_EQ(annotation["amodal_bbox"], annotation["bbox_obj"]);
+  const std::array<int, 4> box = RleBbox(amodal["counts"].get<std::string>(), 6, 8);
+  EXPECT_EQ(annotation["amodal_bbox"], json(box)) << annotation.dump();
+  const cv::Mat visible = DecodeRle(annotation["segmentation"]["counts"].get<std::string>(), 6, 8);
+  EXPECT_EQ(cv::countNonZero(visible & ~full), 0) << "visible pixels outside the full mask";
+}
+
 // Three scenes (RAW RGB, PNG, RAW gray) give the expected images, categories and annotations.
 TEST(CocoWriterTest, WritesDataset) {
   const testing::ScopedTempDir scratch("coco-writer");
@@ -50,7 +66,8 @@ TEST(CocoWriterTest, WritesDataset) {
   writer->Finish();
   EXPECT_EQ(writer->num_images(), 3);
   EXPECT_EQ(writer->num_annotations(), 4);
-  EXPECT_EQ(writer->num_ignored(), 1);
+  EXPECT_EQ(writer->num_crowd(), 0);
+  EXPECT_EQ(writer->num_dropped(), 1);
   EXPECT_EQ(writer->num_lost(), 0);
 
   const json dataset = ReadDataset(dir);
@@ -98,7 +115,7 @@ TEST(CocoWriterTest, WritesDataset) {
             json::parse(R"([{"id": 1, "name": "connector", "supercategory": "part"},
                             {"id": 2, "name": "bolt", "supercategory": "part"}])"));
 
-  // annotations: ids image_id * 1000 + instance_id; instance 2 of scene A is below 0.3
+  // annotations: ids image_id * 1000 + instance_id; instance 2 of scene A is not annotated
   const json& annotations = dataset["annotations"];
   ASSERT_EQ(annotations.size(), 4u);
   std::vector<int64_t> ids;
@@ -121,6 +138,8 @@ TEST(CocoWriterTest, WritesDataset) {
   EXPECT_EQ(first["px_count_all"], 9);
   EXPECT_EQ(first["px_count_visib"], 9);
   EXPECT_EQ(first["bbox_obj"], json::parse("[1, 2, 3, 3]"));
+  EXPECT_EQ(first["amodal_bbox"], json::parse("[1, 2, 3, 3]"));
+  EXPECT_EQ(first["amodal_segmentation"]["counts"], first["segmentation"]["counts"]);
   EXPECT_EQ(first["posture_deg"], json::parse("[10.0, 0.0, 0.0]"));
   EXPECT_EQ(first["cam_R_m2c"], json::parse("[1, 0, 0, 0, 1, 0, 0, 0, 1]"));
   EXPECT_EQ(first["cam_t_m2c"], json::parse("[0, 0, 401]"));
@@ -131,11 +150,14 @@ TEST(CocoWriterTest, WritesDataset) {
   EXPECT_EQ(bolt["visib_fract"], 0.5);
   EXPECT_EQ(bolt["px_count_all"], 12);
   EXPECT_EQ(bolt["bbox"], json::parse("[5, 0, 3, 2]"));
+  EXPECT_EQ(bolt["amodal_bbox"], json::parse("[0, 0, 8, 6]"));
+  EXPECT_EQ(bolt["iscrowd"], 0);
   // exactly at the threshold is kept
   EXPECT_EQ(annotations[3]["visib_fract"], 0.3);
   for (const json& annotation : annotations) {
     const cv::Mat mask = DecodeRle(annotation["segmentation"]["counts"].get<std::string>(), 6, 8);
     EXPECT_EQ(cv::countNonZero(mask), annotation["area"].get<int>());
+    ExpectAmodalFields(annotation);
   }
 
   // nothing temporary is left once the writer is gone
@@ -203,6 +225,40 @@ TEST(CocoWriterTest, InconsistentScenesThrowNamingTheField) {
   scene.instances[0].mask_visib_rle = "1p";
   EXPECT_NE(AddError(writer, scene).find("instances[0].mask_visib_rle"), std::string::npos);
 
+  // the full mask like the visible one: its pixel count, its size, its form, present at all
+  scene = SceneA();
+  scene.instances[1].px_count_all = 10;
+  const std::string obj_error = AddError(writer, scene);
+  EXPECT_NE(obj_error.find("instances[1].mask_obj_rle holds 9 pixels, px_count_all is 10"),
+            std::string::npos)
+      << obj_error;
+
+  scene = SceneA();
+  scene.instances[0].mask_obj_rle = scene.instances[1].mask_obj_rle + "1";
+  EXPECT_NE(AddError(writer, scene).find("instances[0].mask_obj_rle covers"), std::string::npos);
+
+  scene = SceneA();
+  scene.instances[2].mask_obj_rle = "1p";
+  EXPECT_NE(AddError(writer, scene).find("instances[2].mask_obj_rle is not a COCO RLE"),
+            std::string::npos);
+
+  scene = SceneA();
+  scene.instances[0].mask_obj_rle.clear();
+  EXPECT_NE(AddError(writer, scene).find("instances[0].mask_obj_rle is empty"), std::string::npos);
+
+  // an instance is annotated, ignored or neither, and a label needs visible pixels
+  scene = SceneA();
+  scene.instances[0].ignored = true;
+  const std::string both_error = AddError(writer, scene);
+  EXPECT_NE(both_error.find("instances[0].ignored and instances[0].annotated are both true"),
+            std::string::npos)
+      << both_error;
+
+  scene = testing::SceneD();
+  scene.instances[2].ignored = true;  // nothing of it is visible
+  EXPECT_NE(AddError(writer, scene).find("instances[2].ignored is true but px_count_visib is 0"),
+            std::string::npos);
+
   scene = SceneA();
   scene.instances[0].instance_id = 1;  // same as instances[1]
   EXPECT_NE(AddError(writer, scene).find("instance_id"), std::string::npos);
@@ -231,6 +287,76 @@ TEST(CocoWriterTest, InconsistentScenesThrowNamingTheField) {
   scene = SceneB();
   scene.instances[0].class_name = "nut";
   EXPECT_NE(AddError(writer, scene).find("instances[0].class_name"), std::string::npos);
+}
+
+// The generator's labels decide: annotated -> iscrowd 0, ignored -> iscrowd 1 with the visible
+// mask, area and box, neither -> nothing; both carry the amodal fields.
+TEST(CocoWriterTest, IgnoredInstancesAreCrowdRegions) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string dir = scratch.path();
+  CocoWriter writer(dir);
+  ASSERT_TRUE(writer.Add(testing::SceneD()));
+  writer.Finish();
+  EXPECT_EQ(writer.num_annotations(), 1);
+  EXPECT_EQ(writer.num_crowd(), 1);
+  EXPECT_EQ(writer.num_dropped(), 1);
+
+  const json annotations = ReadDataset(dir)["annotations"];
+  ASSERT_EQ(annotations.size(), 2u);
+  const json& annotated = annotations[0];
+  EXPECT_EQ(annotated["id"], 2000000001001);
+  EXPECT_EQ(annotated["iscrowd"], 0);
+  EXPECT_EQ(annotated["px_count_all"], 10);
+  const json& crowd = annotations[1];
+  EXPECT_EQ(crowd["id"], 2000000001002);
+  EXPECT_EQ(crowd["iscrowd"], 1);
+  EXPECT_EQ(crowd["category_id"], 1);
+  EXPECT_EQ(crowd["area"], 4);
+  EXPECT_EQ(crowd["px_count_visib"], 4);
+  EXPECT_EQ(crowd["bbox"], json::parse("[5, 3, 2, 2]"));
+  EXPECT_EQ(crowd["visib_fract"], 0.2);
+  EXPECT_EQ(crowd["px_count_all"], 20);
+  EXPECT_EQ(crowd["segmentation"]["counts"], testing::SceneD().instances[1].mask_visib_rle);
+  EXPECT_EQ(crowd["amodal_segmentation"]["counts"], testing::SceneD().instances[1].mask_obj_rle);
+  EXPECT_EQ(crowd["world_R_m2w"].size(), 9u);
+  for (const json& annotation : annotations) ExpectAmodalFields(annotation);
+}
+
+// A min_visib_fract of the writer's own drops annotated instances below it, but brings back
+// nothing the generator did not annotate and keeps ignore regions.
+TEST(CocoWriterTest, OwnThresholdOnlyDropsMore) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const auto ids = [](const json& annotations) {
+    std::vector<int64_t> result;
+    for (const json& annotation : annotations) result.push_back(annotation["id"].get<int64_t>());
+    return result;
+  };
+  {
+    CocoWriterOptions options;
+    options.min_visib_fract = 0.5;
+    CocoWriter writer(scratch.path() + "/strict", options);
+    for (const stackgen::scene& scene : {SceneA(), SceneC(), testing::SceneD()}) {
+      writer.Add(scene);
+    }
+    writer.Finish();
+    // scene A: 1 (1.0) and 3 (0.5) kept, 2 not annotated; scene C: 7 (0.3) below 0.5;
+    // scene D: 1 (0.8) kept, 2 stays an ignore region, 3 not annotated
+    EXPECT_EQ(ids(ReadDataset(scratch.path() + "/strict")["annotations"]),
+              (std::vector<int64_t>{1001, 1003, 2000000001001, 2000000001002}));
+    EXPECT_EQ(writer.num_annotations(), 3);
+    EXPECT_EQ(writer.num_crowd(), 1);
+    EXPECT_EQ(writer.num_dropped(), 3);
+  }
+  {
+    CocoWriterOptions options;
+    options.min_visib_fract = 0.0;
+    CocoWriter writer(scratch.path() + "/zero", options);
+    writer.Add(SceneA());
+    writer.Finish();
+    EXPECT_EQ(ids(ReadDataset(scratch.path() + "/zero")["annotations"]),
+              (std::vector<int64_t>{1001, 1003}));
+    EXPECT_EQ(writer.num_dropped(), 1);
+  }
 }
 
 // A repeated (generator_id, seq) is stored once.

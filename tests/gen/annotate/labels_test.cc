@@ -65,7 +65,7 @@ struct Scene {
 TEST(LabelsTest, HalfCoveredObject) {
   const Scene scene;
   const std::vector<stackgen::instance> labels = LabelInstances(
-      scene.instance_map, scene.silhouettes, scene.objects, scene.world_from_camera, 0.3);
+      scene.instance_map, scene.silhouettes, scene.objects, scene.world_from_camera, 0.3, false);
   ASSERT_EQ(labels.size(), 5u);
 
   const stackgen::instance& one = labels[0];
@@ -93,13 +93,18 @@ TEST(LabelsTest, HalfCoveredObject) {
   EXPECT_EQ(Box(two.bbox_visib), (std::array<int32_t, 4>{5, 2, 6, 4}));
   EXPECT_EQ(RleArea(two.mask_visib_rle), 24u);
   EXPECT_EQ(RleBbox(two.mask_visib_rle, kHeight, kWidth), (std::array<int, 4>{5, 2, 6, 4}));
+
+  // the full (amodal) mask is the whole silhouette, hidden half included
+  EXPECT_EQ(RleArea(one.mask_obj_rle), 24u);
+  EXPECT_EQ(RleBbox(one.mask_obj_rle, kHeight, kWidth), (std::array<int, 4>{2, 2, 6, 4}));
+  EXPECT_FALSE(one.ignored);
 }
 
 // A fully hidden object and one outside the image have visib_fract 0 and are not annotated.
 TEST(LabelsTest, HiddenAndOutsideObjects) {
   const Scene scene;
   const std::vector<stackgen::instance> labels = LabelInstances(
-      scene.instance_map, scene.silhouettes, scene.objects, scene.world_from_camera, 0.0);
+      scene.instance_map, scene.silhouettes, scene.objects, scene.world_from_camera, 0.0, false);
   const stackgen::instance& hidden = labels[2];
   EXPECT_EQ(hidden.px_count_all, 4);
   EXPECT_EQ(hidden.px_count_visib, 0);
@@ -122,19 +127,36 @@ TEST(LabelsTest, HiddenAndOutsideObjects) {
 TEST(LabelsTest, ThresholdDecidesAnnotated) {
   const Scene scene;
   const auto labels = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
-                                     scene.world_from_camera, 0.6);
+                                     scene.world_from_camera, 0.6, false);
   EXPECT_FALSE(labels[0].annotated);
   EXPECT_TRUE(labels[1].annotated);
   const auto at_half = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
-                                      scene.world_from_camera, 0.5);
+                                      scene.world_from_camera, 0.5, false);
   EXPECT_TRUE(at_half[0].annotated);  // >=, not >
+}
+
+// The IGNORE rule keeps a too-hidden but visible object as ignored; nothing visible is neither.
+TEST(LabelsTest, IgnoreRuleMarksOccludedObjects) {
+  const Scene scene;
+  const auto dropped = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
+                                      scene.world_from_camera, 0.6, false);
+  EXPECT_FALSE(dropped[0].annotated);
+  EXPECT_FALSE(dropped[0].ignored);
+  const auto kept = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
+                                   scene.world_from_camera, 0.6, true);
+  EXPECT_FALSE(kept[0].annotated);
+  EXPECT_TRUE(kept[0].ignored);
+  EXPECT_TRUE(kept[1].annotated);
+  EXPECT_FALSE(kept[1].ignored);  // annotated objects are never ignored
+  EXPECT_FALSE(kept[2].ignored);  // hidden entirely: nothing to ignore
+  EXPECT_FALSE(kept[4].ignored);  // outside the image
 }
 
 // Both poses and the posture angles come from world_from_object and world_from_camera.
 TEST(LabelsTest, PosesAndPosture) {
   const Scene scene;
   const auto labels = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
-                                     scene.world_from_camera, 0.3);
+                                     scene.world_from_camera, 0.3, false);
   const Eigen::Isometry3d world_from_object = FromPoseMessage(labels[0].world_from_object);
   const Eigen::Isometry3d camera_from_object = FromPoseMessage(labels[0].camera_from_object);
   EXPECT_TRUE(world_from_object.isApprox(scene.objects[0].world_from_object, 1e-12));
@@ -154,7 +176,7 @@ TEST(LabelsTest, BadInputsThrow) {
   Scene scene;
   const auto label = [&](double min_visib_fract) {
     return LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
-                          scene.world_from_camera, min_visib_fract);
+                          scene.world_from_camera, min_visib_fract, false);
   };
   EXPECT_THROW(label(1.5), std::runtime_error);
   scene.silhouettes[1] = cv::Mat::zeros(kHeight + 1, kWidth, CV_8UC1);

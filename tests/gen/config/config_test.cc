@@ -19,7 +19,8 @@ std::string ErrorOf(const std::string& text) {
 
 // the shipped configs parse and validate.
 TEST(ConfigTest, ShippedConfigsAreValid) {
-  for (const char* name : {"default.pbtxt", "tote.pbtxt"}) {
+  for (const char* name : {"default.pbtxt", "tote.pbtxt", "mixed.pbtxt", "tapered_tote.pbtxt",
+                           "basler.pbtxt", "ignore_occluded.pbtxt"}) {
     const LoadedConfig loaded = LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/" + name);
     EXPECT_GT(loaded.config.part(0).count(), 0) << name;
   }
@@ -91,7 +92,58 @@ TEST(ConfigTest, MinAboveMax) {
 TEST(ConfigTest, CameraMustSeeTheBin) {
   EXPECT_NE(ErrorOf("camera { height_mm: 200 fx: 2000 fy: 2000 }").find("cannot see"),
             std::string::npos);
-  EXPECT_NE(ErrorOf("camera { height_mm: 50 }").find("below the bin rim"), std::string::npos);
+  EXPECT_NE(ErrorOf("camera { height_mm: 50 }").find("not above the bin rim"), std::string::npos)
+      << ErrorOf("camera { height_mm: 50 }");
+}
+
+// a camera preset sets the sensor size and focal length from its pixel pitch and lens; fields
+// the file sets win, and an unknown preset lists the known ones.
+TEST(ConfigTest, CameraPreset) {
+  const LoadedConfig basler = ParseConfig(
+      "camera { preset: \"basler_scA1600-20gc\" lens_focal_length_mm: 8.8 }", "test.pbtxt", ".");
+  EXPECT_EQ(basler.config.camera().width(), 1626);
+  EXPECT_EQ(basler.config.camera().height(), 1236);
+  EXPECT_DOUBLE_EQ(basler.config.camera().fx(), 2000);  // 8.8 mm / 4.4 um
+  EXPECT_DOUBLE_EQ(basler.config.camera().fy(), 2000);
+  EXPECT_DOUBLE_EQ(PrincipalPoint(basler.config.camera()).x(), 812.5);
+  const LoadedConfig overridden = ParseConfig(
+      "camera { preset: \"basler_scA1600-20gc\" width: 1600 fx: 1500 }", "test.pbtxt", ".");
+  EXPECT_EQ(overridden.config.camera().width(), 1600);
+  EXPECT_EQ(overridden.config.camera().height(), 1236);
+  EXPECT_DOUBLE_EQ(overridden.config.camera().fx(), 1500);
+  EXPECT_DOUBLE_EQ(overridden.config.camera().fy(), 8 * 1000 / 4.4);
+  const std::string error = ErrorOf("camera {\n  preset: \"acme_cam\"\n}");
+  EXPECT_NE(error.find("test.pbtxt:2: camera.preset"), std::string::npos) << error;
+  EXPECT_NE(error.find("basler_scA1600-20gc"), std::string::npos) << error;
+  // a preset camera too close to see the bin names the lens
+  EXPECT_NE(ErrorOf("camera { preset: \"basler_scA1600-20gc\" lens_focal_length_mm: 25 }")
+                .find("lens_focal_length_mm"),
+            std::string::npos);
+}
+
+// randomisation ranges that cannot work are refused, naming the field.
+TEST(ConfigTest, RandomisationChecks) {
+  EXPECT_NE(ErrorOf("lighting { count_max: 4 }").find("lighting.count_max"), std::string::npos);
+  EXPECT_NE(ErrorOf("lighting { count_min: 3 count_max: 2 }").find("lighting.count_max"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("lighting { distance_min_mm: 100 }").find("inside the bin"), std::string::npos);
+  EXPECT_NE(ErrorOf("background { kind: IMAGE }").find("background.image_dir"), std::string::npos);
+  EXPECT_NE(ErrorOf("sensor { salt_pepper_max: 0.5 }").find("sensor.salt_pepper_max"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("appearance { value_gain_min: 2 }").find("appearance.value_gain_max"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("camera { roll_max_deg: 200 }").find("camera.roll_max_deg"), std::string::npos);
+  // a tilted, closer camera could end up below the rim
+  EXPECT_NE(ErrorOf("camera { height_mm: 140 distance_jitter_mm: 40 tilt_max_deg: 30 fx: 200 "
+                    "fy: 200 }")
+                .find("not above the bin rim"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf("annotation { occlusion_rule: OCCLUSION_RULE_UNSPECIFIED }")
+                .find("annotation.occlusion_rule"),
+            std::string::npos);
+  const LoadedConfig ignore =
+      ParseConfig("annotation { occlusion_rule: IGNORE }", "test.pbtxt", ".");
+  EXPECT_EQ(ignore.config.annotation().occlusion_rule(), config::AnnotationConfig::IGNORE);
 }
 
 // a syntax error names the file and line.

@@ -11,6 +11,7 @@
 
 #include <gtest/gtest.h>
 #include <Eigen/Geometry>
+#include <opencv2/core.hpp>
 
 namespace stackgen {
 namespace {
@@ -273,6 +274,156 @@ f 8 5 1 4
   for (size_t i = 0; i < mesh.positions_mm.size(); ++i) {
     EXPECT_GT(mesh.normals[i].dot(mesh.positions_mm[i] - Eigen::Vector3f(1, 0, 0)), 0);
   }
+}
+
+// the textured box fixture: a cube whose top face shows quadrants.png (material "label")
+std::string TexturedBoxPath() {
+  return std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/models/textured_box/textured_box.obj";
+}
+
+// The index of the material named `name`, or -1.
+int MaterialIndex(const TriangleMesh& mesh, const std::string& name) {
+  for (size_t m = 0; m < mesh.materials.size(); ++m) {
+    if (mesh.materials[m].name == name) return static_cast<int>(m);
+  }
+  return -1;
+}
+
+// An OBJ with an MTL file: Kd, Ks (mean) and Ns are read, the map_Kd PNG is loaded as RGB with
+// its size, every triangle has its material and every vertex its texture coordinate.
+TEST_F(MeshTest, ReadsMaterialsAndTexture) {
+  const TriangleMesh mesh = LoadMesh(TexturedBoxPath(), 50.0);
+  ASSERT_EQ(mesh.materials.size(), 2u);
+  const int body = MaterialIndex(mesh, "body");
+  const int label = MaterialIndex(mesh, "label");
+  ASSERT_GE(body, 0);
+  ASSERT_GE(label, 0);
+  const MeshMaterial& b = mesh.materials[body];
+  EXPECT_TRUE(b.color.isApprox(Eigen::Vector3f(0.2f, 0.4f, 0.8f))) << b.color.transpose();
+  EXPECT_NEAR(b.specular, 0.1f, 1e-6f);
+  EXPECT_NEAR(b.shininess, 10.f, 1e-6f);
+  EXPECT_TRUE(b.texture.empty());
+  EXPECT_TRUE(b.texture_path.empty());
+  const MeshMaterial& l = mesh.materials[label];
+  EXPECT_TRUE(l.color.isApprox(Eigen::Vector3f(1, 1, 1)));
+  EXPECT_NEAR(l.specular, 0.4f, 1e-6f);
+  EXPECT_NEAR(l.shininess, 64.f, 1e-6f);
+
+  // the texture: 64 x 64 RGB, red at the top left, green top right, blue bottom left
+  EXPECT_EQ(fs::path(l.texture_path).filename(), "quadrants.png");
+  EXPECT_TRUE(fs::exists(l.texture_path)) << l.texture_path;
+  ASSERT_EQ(l.texture.type(), CV_8UC3);
+  EXPECT_EQ(l.texture.size(), cv::Size(64, 64));
+  EXPECT_EQ(l.texture.at<cv::Vec3b>(0, 0), cv::Vec3b(255, 0, 0));
+  EXPECT_EQ(l.texture.at<cv::Vec3b>(0, 63), cv::Vec3b(0, 255, 0));
+  EXPECT_EQ(l.texture.at<cv::Vec3b>(63, 0), cv::Vec3b(0, 0, 255));
+  EXPECT_EQ(l.texture.at<cv::Vec3b>(63, 63), cv::Vec3b(255, 255, 255));
+
+  // per-triangle materials: the top face (2 triangles) is the label, the rest the body
+  ASSERT_EQ(mesh.triangle_material.size(), mesh.triangles.size());
+  ASSERT_EQ(mesh.uvs.size(), mesh.positions_mm.size());
+  int label_triangles = 0;
+  for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+    if (mesh.triangle_material[t] != label) {
+      EXPECT_EQ(mesh.triangle_material[t], body);
+      continue;
+    }
+    ++label_triangles;
+    // label vertices lie on the top face, with u along +x and v along +y
+    for (const uint32_t v : mesh.triangles[t]) {
+      const Eigen::Vector3f& p = mesh.positions_mm[v];
+      EXPECT_NEAR(p.z(), 50.f, 1e-4f);
+      EXPECT_NEAR(mesh.uvs[v].x(), (p.x() / 50 + 1) / 2, 1e-6f) << "vertex " << v;
+      EXPECT_NEAR(mesh.uvs[v].y(), (p.y() / 50 + 1) / 2, 1e-6f) << "vertex " << v;
+    }
+  }
+  EXPECT_EQ(label_triangles, 2);
+  EXPECT_NEAR(SignedVolume(mesh), 100.0 * 100 * 100, 1e-2);
+}
+
+// An OBJ without an MTL file (assimp's default material only) and an STL have no materials and
+// no texture coordinates, so the caller's colour applies.
+TEST_F(MeshTest, NoMaterialsWithoutMtl) {
+  for (const std::string& path : {Write("cube.obj", kCubeObj), Write("tetra.stl", kTetraStl)}) {
+    const TriangleMesh mesh = LoadMesh(path, 1.0);
+    EXPECT_TRUE(mesh.materials.empty()) << path << ": " << mesh.materials.size() << " materials, "
+                                        << "first " << mesh.materials.front().name;
+    EXPECT_TRUE(mesh.triangle_material.empty()) << path;
+    EXPECT_TRUE(mesh.uvs.empty()) << path;
+  }
+}
+
+// A missing texture file is an error naming the model file and the texture.
+TEST_F(MeshTest, MissingTextureNamesIt) {
+  Write("box.mtl", "newmtl skin\nKd 1 1 1\nmap_Kd no_such_texture.png\n");
+  const std::string path =
+      Write("box.obj", std::string("mtllib box.mtl\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n") +
+                           "usemtl skin\n" + kCubeObj);
+  const std::string error = LoadError(path);
+  EXPECT_NE(error.find(path), std::string::npos) << error;
+  EXPECT_NE(error.find("no_such_texture.png"), std::string::npos) << error;
+}
+
+// A textured material on faces without texture coordinates is an error naming the texture.
+TEST_F(MeshTest, TextureWithoutCoordinatesIsError) {
+  fs::copy_file(fs::path(TexturedBoxPath()).parent_path() / "quadrants.png", dir_ / "q.png");
+  Write("box.mtl", "newmtl skin\nKd 1 1 1\nmap_Kd q.png\n");
+  const std::string path =
+      Write("box.obj", std::string("mtllib box.mtl\nusemtl skin\n") + kCubeObj);
+  const std::string error = LoadError(path);
+  EXPECT_NE(error.find(path), std::string::npos) << error;
+  EXPECT_NE(error.find("q.png"), std::string::npos) << error;
+  EXPECT_NE(error.find("texture coordinates"), std::string::npos) << error;
+}
+
+// An inside-out textured mesh is turned outward with each triangle keeping its material.
+TEST_F(MeshTest, ReorientingKeepsTriangleMaterials) {
+  const fs::path fixture = fs::path(TexturedBoxPath()).parent_path();
+  fs::copy_file(fixture / "quadrants.png", dir_ / "quadrants.png");
+  fs::copy_file(fixture / "textured_box.mtl", dir_ / "textured_box.mtl");
+  // the fixture with every face's vertex order reversed
+  const std::string inverted = R"(mtllib textured_box.mtl
+v -1 -1 -1
+v 1 -1 -1
+v 1 1 -1
+v -1 1 -1
+v -1 -1 1
+v 1 -1 1
+v 1 1 1
+v -1 1 1
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+usemtl body
+f 2 3 4 1
+f 5 6 2 1
+f 6 7 3 2
+f 7 8 4 3
+f 8 5 1 4
+usemtl label
+f 8/4 7/3 6/2 5/1
+)";
+  const TriangleMesh mesh = LoadMesh(Write("textured_box.obj", inverted), 1.0);
+  EXPECT_NEAR(SignedVolume(mesh), 8.0, 1e-5);
+  const int label = MaterialIndex(mesh, "label");
+  ASSERT_GE(label, 0);
+  ASSERT_EQ(mesh.triangle_material.size(), mesh.triangles.size());
+  int label_triangles = 0;
+  for (size_t t = 0; t < mesh.triangles.size(); ++t) {
+    const auto& tri = mesh.triangles[t];
+    const Eigen::Vector3f normal =
+        (mesh.positions_mm[tri[1]] - mesh.positions_mm[tri[0]])
+            .cross(mesh.positions_mm[tri[2]] - mesh.positions_mm[tri[0]]);
+    // the label is the top face, now wound to face +z
+    if (mesh.triangle_material[t] == label) {
+      ++label_triangles;
+      EXPECT_GT(normal.z(), 0) << "triangle " << t;
+    } else {
+      EXPECT_LE(normal.z(), 1e-6f) << "triangle " << t;
+    }
+  }
+  EXPECT_EQ(label_triangles, 2);
 }
 
 // The built-in connector is closed, outward-wound and in its documented frame.

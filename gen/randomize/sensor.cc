@@ -1,0 +1,195 @@
+#include "gen/randomize/sensor.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include <opencv2/imgproc.hpp>
+
+#include "gen/randomize/uniform.h"
+
+namespace stackgen {
+namespace {
+
+constexpr double kMinBlurSigmaPx = 0.3;
+// rows per noise stream: fixed, so the noise does not depend on how rows are split on threads.
+constexpr int kNoiseRowsPerStream = 16;
+// the Gaussian noise table: 2^12 quantiles, five draws per 64-bit value.
+constexpr int kNormalTableBits = 12;
+constexpr int kNormalTableSize = 1 << kNormalTableBits;
+// keeps the salt-and-pepper stream apart from the Gaussian ones.
+constexpr uint64_t kSaltPepperStream = 0x5a17'9e99'e7e1'0001ULL;
+
+// the SplitMix64 output function: a strong 64-bit mix.
+uint64_t Mix64(uint64_t z) {
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+  return z ^ (z >> 31);
+}
+
+// SplitMix64 (Steele, Lea, Flood 2014): fast, 64 bits per call, statistically sound for noise.
+class SplitMix64 {
+ public:
+  explicit SplitMix64(uint64_t seed) : state_(seed) {}
+  uint64_t Next() { return Mix64(state_ += 0x9e3779b97f4a7c15ULL); }
+
+ private:
+  uint64_t state_;
+};
+
+// the standard normal quantile at p in (0, 1), Acklam's rational approximation (relative error
+// below 1.2e-9).
+double NormalQuantile(double p) {
+  static constexpr double a[] = {-3.969683028665376e+01, 2.209460984245205e+02,
+                                 -2.759285104469687e+02, 1.383577518672690e+02,
+                                 -3.066479806614716e+01, 2.506628277459239e+00};
+  static constexpr double b[] = {-5.447609879822406e+01, 1.615858368580409e+02,
+                                 -1.556989798598866e+02, 6.680131188771972e+01,
+                                 -1.328068155288572e+01};
+  static constexpr double c[] = {-7.784894002430293e-03, -3.223964580411365e-01,
+                                 -2.400758277161838e+00, -2.549732539343734e+00,
+                                 4.374664141464968e+00,  2.938163982698783e+00};
+  static constexpr double d[] = {7.784695709041462e-03, 3.224671290700398e-01,
+                                 2.445134137142996e+00, 3.754408661907416e+00};
+  constexpr double kLow = 0.02425;
+  // the tails.
+  if (p < kLow || p > 1 - kLow) {
+    const double q = std::sqrt(-2 * std::log(p < kLow ? p : 1 - p));
+    const double x = (((((c[0] * q + c[1]) * q + c[2]) * q + c[3]) * q + c[4]) * q + c[5]) /
+                     ((((d[0] * q + d[1]) * q + d[2]) * q + d[3]) * q + 1);
+    return p < kLow ? x : -x;
+  }
+  // the central region.
+  const double q = p - 0.5;
+  const double r = q * q;
+  return (((((a[0] * r + a[1]) * r + a[2]) * r + a[3]) * r + a[4]) * r + a[5]) * q /
+         (((((b[0] * r + b[1]) * r + b[2]) * r + b[3]) * r + b[4]) * r + 1);
+}
+
+// equiprobable standard normal values: a uniform index into it is a (finely quantised) normal
+// draw. Scaled to unit variance, so the noise std is exactly the sigma asked for.
+const std::array<float, kNormalTableSize>& NormalTable() {
+  static const std::array<float, kNormalTableSize> table = [] {
+    std::array<double, kNormalTableSize> quantiles;
+    double sum_squares = 0;
+    for (int i = 0; i < kNormalTableSize; ++i) {
+      quantiles[i] = NormalQuantile((i + 0.5) / kNormalTableSize);
+      sum_squares += quantiles[i] * quantiles[i];
+    }
+    const double scale = 1 / std::sqrt(sum_squares / kNormalTableSize);
+    std::array<float, kNormalTableSize> scaled;
+    for (int i = 0; i < kNormalTableSize; ++i) scaled[i] = static_cast<float>(quantiles[i] * scale);
+    return scaled;
+  }();
+  return table;
+}
+
+// gamma, contrast and brightness as one table.
+cv::Mat ResponseTable(const SensorEffects& effects) {
+  cv::Mat table(1, 256, CV_8U);
+  for (int v = 0; v < 256; ++v) {
+    double out = 255 * std::pow(v / 255.0, effects.gamma);
+    out = (out - 127.5) * effects.contrast + 127.5;
+    out += 255 * effects.brightness;
+    table.at<uchar>(v) = cv::saturate_cast<uchar>(out);
+  }
+  return table;
+}
+
+void AddGaussianNoise(double sigma, uint64_t seed, cv::Mat* image) {
+  // the noise values, already scaled and rounded: v + round(sigma z) is round(v + sigma z).
+  const std::array<float, kNormalTableSize>& normal = NormalTable();
+  std::array<int16_t, kNormalTableSize> noise;
+  for (int i = 0; i < kNormalTableSize; ++i) {
+    noise[i] = cv::saturate_cast<int16_t>(std::lround(sigma * normal[i]));
+  }
+  const int values_per_row = image->cols * image->channels();
+  const int streams = (image->rows + kNoiseRowsPerStream - 1) / kNoiseRowsPerStream;
+  cv::parallel_for_(cv::Range(0, streams), [&](const cv::Range& range) {
+    for (int stream = range.start; stream < range.end; ++stream) {
+      // one stream per block of rows, its seed mixed from the scene's noise seed.
+      SplitMix64 rng(Mix64(seed + 0x632be59bd9b4e019ULL * (stream + 1)));
+      const int row_end = std::min(image->rows, (stream + 1) * kNoiseRowsPerStream);
+      for (int y = stream * kNoiseRowsPerStream; y < row_end; ++y) {
+        uchar* row = image->ptr<uchar>(y);
+        for (int i = 0; i < values_per_row;) {
+          uint64_t bits = rng.Next();
+          for (int k = 0; k < 64 / kNormalTableBits && i < values_per_row; ++k, ++i) {
+            const int value = row[i] + noise[bits & (kNormalTableSize - 1)];
+            row[i] = static_cast<uchar>(std::clamp(value, 0, 255));
+            bits >>= kNormalTableBits;
+          }
+        }
+      }
+    }
+  });
+}
+
+void AddSaltAndPepper(double fraction, uint64_t seed, cv::Mat* image) {
+  const uint64_t pixels = image->total();
+  const auto count = static_cast<uint64_t>(std::llround(fraction * static_cast<double>(pixels)));
+  const int channels = image->channels();
+  SplitMix64 rng(Mix64(seed ^ kSaltPepperStream));
+  for (uint64_t n = 0; n < count; ++n) {
+    // the high bits pick the pixel, the lowest bit black or white.
+    const uint64_t bits = rng.Next();
+    const auto index = static_cast<uint64_t>((static_cast<unsigned __int128>(bits) * pixels) >> 64);
+    const uchar value = (bits & 1) ? 255 : 0;
+    uchar* pixel =
+        image->ptr<uchar>(static_cast<int>(index / image->cols)) + (index % image->cols) * channels;
+    for (int c = 0; c < channels; ++c) pixel[c] = value;
+  }
+}
+
+}  // namespace
+
+SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt19937_64& engine) {
+  // always seven draws, in a fixed order, enabled or not.
+  SensorEffects drawn;
+  drawn.gaussian_sigma = Uniform(engine, 0.0, config.gaussian_sigma_max());
+  drawn.salt_pepper_fraction = Uniform(engine, 0.0, config.salt_pepper_max());
+  drawn.blur_sigma_px = Uniform(engine, 0.0, config.blur_sigma_max_px());
+  drawn.brightness = Uniform(engine, -config.brightness_max(), config.brightness_max());
+  drawn.contrast = Uniform(engine, 1 - config.contrast_max(), 1 + config.contrast_max());
+  const double log_gamma_max = std::log1p(config.gamma_max());
+  drawn.gamma = std::exp(Uniform(engine, -log_gamma_max, log_gamma_max));
+  drawn.noise_seed = engine();
+  return config.enabled() ? drawn : SensorEffects{};
+}
+
+void ApplySensorEffects(const SensorEffects& effects, cv::Mat* image) {
+  if (image == nullptr || image->empty() ||
+      (image->type() != CV_8UC1 && image->type() != CV_8UC3)) {
+    throw std::runtime_error(
+        "ApplySensorEffects: the image must be a non-empty CV_8UC1 or CV_8UC3 image");
+  }
+  if (!(effects.gaussian_sigma >= 0) || !(effects.salt_pepper_fraction >= 0) ||
+      !(effects.salt_pepper_fraction <= 1) || !(effects.contrast > 0) || !(effects.gamma > 0)) {
+    throw std::runtime_error("ApplySensorEffects: effects out of range (gaussian_sigma " +
+                             std::to_string(effects.gaussian_sigma) + ", salt_pepper_fraction " +
+                             std::to_string(effects.salt_pepper_fraction) + ", contrast " +
+                             std::to_string(effects.contrast) + ", gamma " +
+                             std::to_string(effects.gamma) +
+                             "); need sigma >= 0, fraction in [0, 1], contrast and gamma > 0");
+  }
+  // optics: defocus blur.
+  if (effects.blur_sigma_px >= kMinBlurSigmaPx) {
+    cv::GaussianBlur(*image, *image, cv::Size(), effects.blur_sigma_px, effects.blur_sigma_px,
+                     cv::BORDER_REFLECT_101);
+  }
+  // exposure and response: gamma, contrast, brightness in one table.
+  if (effects.gamma != 1 || effects.contrast != 1 || effects.brightness != 0) {
+    cv::LUT(*image, ResponseTable(effects), *image);
+  }
+  // read-out noise.
+  if (effects.gaussian_sigma > 0)
+    AddGaussianNoise(effects.gaussian_sigma, effects.noise_seed, image);
+  // dead and hot pixels.
+  if (effects.salt_pepper_fraction > 0) {
+    AddSaltAndPepper(effects.salt_pepper_fraction, effects.noise_seed, image);
+  }
+}
+
+}  // namespace stackgen

@@ -1,0 +1,265 @@
+#include "gen/randomize/sensor.h"
+
+#include <cmath>
+#include <random>
+#include <stdexcept>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+namespace stackgen {
+namespace {
+
+// a reproducible image of random bytes.
+cv::Mat RandomImage(int type, uint64_t seed) {
+  cv::Mat image(480, 640, type);
+  cv::RNG(seed).fill(image, cv::RNG::UNIFORM, 0, 256);
+  return image;
+}
+
+// a checkerboard of 0 and 255, `side` pixels per square.
+cv::Mat Checker(int side) {
+  cv::Mat image(480, 640, CV_8UC1);
+  for (int y = 0; y < image.rows; ++y) {
+    for (int x = 0; x < image.cols; ++x) {
+      image.at<uchar>(y, x) = ((x / side + y / side) % 2) ? 255 : 0;
+    }
+  }
+  return image;
+}
+
+// the sum of squared differences of adjacent pixels: the image's high-frequency energy.
+double HighFrequencyEnergy(const cv::Mat& image) {
+  cv::Mat as_float;
+  image.convertTo(as_float, CV_64F);
+  const cv::Mat dx = as_float.colRange(1, image.cols) - as_float.colRange(0, image.cols - 1);
+  const cv::Mat dy = as_float.rowRange(1, image.rows) - as_float.rowRange(0, image.rows - 1);
+  return dx.dot(dx) + dy.dot(dy);
+}
+
+// the mean of `gray` after applying `effects` to a uniform image of that value.
+double MeanAfter(const SensorEffects& effects, int gray) {
+  cv::Mat image(48, 64, CV_8UC1, cv::Scalar(gray));
+  ApplySensorEffects(effects, &image);
+  return cv::mean(image)[0];
+}
+
+// identity effects leave colour and gray images bit-identical, whatever the noise seed.
+TEST(SensorTest, IdentityLeavesTheImageBitIdentical) {
+  for (const int type : {CV_8UC1, CV_8UC3}) {
+    const cv::Mat original = RandomImage(type, 1);
+    cv::Mat image = original.clone();
+    SensorEffects effects;
+    effects.blur_sigma_px = 0.29;  // below the blur threshold
+    effects.noise_seed = 12345;
+    ApplySensorEffects(effects, &image);
+    EXPECT_EQ(cv::norm(image, original, cv::NORM_INF), 0);
+  }
+}
+
+// Gaussian noise of sigma s on mid-gray gives a residual with std within 10 % of s (rounding to
+// integers adds about 1/12 to the variance) and a mean within 4 standard errors of 0, per channel.
+TEST(SensorTest, GaussianNoiseHasTheAskedStd) {
+  for (const double sigma : {1.0, 5.0, 20.0}) {
+    for (const int type : {CV_8UC1, CV_8UC3}) {
+      cv::Mat image(480, 640, type, cv::Scalar::all(128));
+      SensorEffects effects;
+      effects.gaussian_sigma = sigma;
+      effects.noise_seed = 7;
+      ApplySensorEffects(effects, &image);
+      cv::Mat residual;
+      image.convertTo(residual, CV_64F, 1, -128);
+      cv::Scalar mean;
+      cv::Scalar stddev;
+      cv::meanStdDev(residual, mean, stddev);
+      for (int c = 0; c < image.channels(); ++c) {
+        EXPECT_NEAR(stddev[c], sigma, 0.1 * sigma) << sigma << " channel " << c;
+        EXPECT_NEAR(mean[c], 0, 4 * sigma / std::sqrt(image.total())) << sigma << " channel " << c;
+      }
+    }
+  }
+}
+
+// salt and pepper with fraction f sets about f x N pixels (all channels) to 0 or 255, half each.
+TEST(SensorTest, SaltAndPepperHitsTheAskedFraction) {
+  for (const double fraction : {0.001, 0.01, 0.1}) {
+    cv::Mat image(480, 640, CV_8UC3, cv::Scalar::all(128));
+    SensorEffects effects;
+    effects.salt_pepper_fraction = fraction;
+    effects.noise_seed = 8;
+    ApplySensorEffects(effects, &image);
+    cv::Mat black;
+    cv::Mat white;
+    cv::inRange(image, cv::Scalar::all(0), cv::Scalar::all(0), black);
+    cv::inRange(image, cv::Scalar::all(255), cv::Scalar::all(255), white);
+    const double expected = fraction * image.total();
+    const int hit = cv::countNonZero(black) + cv::countNonZero(white);
+    // draws with replacement: a few pixels are hit twice (expected / 2 x fraction of them).
+    EXPECT_NEAR(hit, expected * (1 - fraction / 2), 0.05 * expected) << fraction;
+    EXPECT_NEAR(cv::countNonZero(black), expected / 2, 0.1 * expected) << fraction;
+    // every other pixel is untouched.
+    cv::Mat gray;
+    cv::inRange(image, cv::Scalar::all(128), cv::Scalar::all(128), gray);
+    EXPECT_EQ(cv::countNonZero(gray) + hit, static_cast<int>(image.total()));
+  }
+}
+
+// blur lowers the high-frequency energy of a checkerboard, more with a larger sigma.
+TEST(SensorTest, BlurLowersHighFrequencyEnergy) {
+  const cv::Mat checker = Checker(4);
+  const double before = HighFrequencyEnergy(checker);
+  double previous = before;
+  for (const double sigma : {0.5, 1.0, 2.0}) {
+    cv::Mat image = checker.clone();
+    SensorEffects effects;
+    effects.blur_sigma_px = sigma;
+    ApplySensorEffects(effects, &image);
+    const double after = HighFrequencyEnergy(image);
+    EXPECT_LT(after, 0.8 * previous) << sigma;
+    previous = after;
+  }
+  EXPECT_LT(previous, 0.05 * before);
+}
+
+// brightness adds 255 x offset, contrast scales about 127.5, gamma bends as v^gamma: the mean
+// of a uniform image moves to the computed value (rounded).
+TEST(SensorTest, ResponseMovesTheMean) {
+  SensorEffects brighter;
+  brighter.brightness = 0.1;
+  EXPECT_NEAR(MeanAfter(brighter, 100), 125.5, 0.51);
+  brighter.brightness = -0.5;
+  EXPECT_EQ(MeanAfter(brighter, 100), 0);  // saturates
+  SensorEffects steeper;
+  steeper.contrast = 1.5;
+  EXPECT_NEAR(MeanAfter(steeper, 100), 86.25, 0.5);
+  EXPECT_NEAR(MeanAfter(steeper, 200), 236.25, 0.5);
+  EXPECT_EQ(MeanAfter(steeper, 127), 127);
+  SensorEffects darker;
+  darker.gamma = 2;
+  EXPECT_NEAR(MeanAfter(darker, 100), 255 * std::pow(100 / 255.0, 2), 0.5);
+  darker.gamma = 0.5;
+  EXPECT_NEAR(MeanAfter(darker, 100), 255 * std::sqrt(100 / 255.0), 0.5);
+  EXPECT_EQ(MeanAfter(darker, 0), 0);
+  EXPECT_EQ(MeanAfter(darker, 255), 255);
+}
+
+// the same effects and noise seed give the same bytes; another seed other noise.
+TEST(SensorTest, NoiseIsDeterministicBySeed) {
+  SensorEffects effects;
+  effects.gaussian_sigma = 4;
+  effects.salt_pepper_fraction = 0.01;
+  effects.blur_sigma_px = 1;
+  effects.noise_seed = 99;
+  const cv::Mat original = RandomImage(CV_8UC3, 2);
+  cv::Mat a = original.clone();
+  cv::Mat b = original.clone();
+  cv::Mat c = original.clone();
+  ApplySensorEffects(effects, &a);
+  ApplySensorEffects(effects, &b);
+  effects.noise_seed = 100;
+  ApplySensorEffects(effects, &c);
+  EXPECT_EQ(cv::norm(a, b, cv::NORM_INF), 0);
+  EXPECT_GT(cv::norm(a, c, cv::NORM_L1), 0.5 * 4 * a.total() * 3);
+}
+
+// gray and colour images both work: the response acts alike on every channel, the noise is
+// independent per channel; other types throw.
+TEST(SensorTest, WorksOnGrayAndColour) {
+  SensorEffects response;
+  response.gamma = 1.3;
+  response.contrast = 0.8;
+  response.brightness = 0.05;
+  response.blur_sigma_px = 1.5;
+  const cv::Mat gray = RandomImage(CV_8UC1, 3);
+  cv::Mat colour;
+  cv::merge(std::vector<cv::Mat>{gray, gray, gray}, colour);
+  cv::Mat gray_out = gray.clone();
+  ApplySensorEffects(response, &gray_out);
+  ApplySensorEffects(response, &colour);
+  std::vector<cv::Mat> channels;
+  cv::split(colour, channels);
+  for (const cv::Mat& channel : channels) EXPECT_EQ(cv::norm(channel, gray_out, cv::NORM_INF), 0);
+  EXPECT_GT(cv::norm(gray_out, gray, cv::NORM_INF), 0);
+
+  SensorEffects noise;
+  noise.gaussian_sigma = 5;
+  noise.noise_seed = 4;
+  cv::Mat flat(480, 640, CV_8UC3, cv::Scalar::all(128));
+  ApplySensorEffects(noise, &flat);
+  cv::split(flat, channels);
+  EXPECT_GT(cv::norm(channels[0], channels[1], cv::NORM_L1), 3 * flat.total());
+
+  cv::Mat wide(4, 4, CV_16UC1, cv::Scalar(0));
+  EXPECT_THROW(ApplySensorEffects(noise, &wide), std::runtime_error);
+  cv::Mat empty;
+  EXPECT_THROW(ApplySensorEffects(noise, &empty), std::runtime_error);
+}
+
+// an image that is a view into a larger one (rows not contiguous) gets the same result as a
+// copy of it, and the pixels around it stay untouched.
+TEST(SensorTest, WorksOnViews) {
+  SensorEffects effects;
+  effects.gaussian_sigma = 3;
+  effects.salt_pepper_fraction = 0.05;
+  effects.noise_seed = 5;
+  cv::Mat big = RandomImage(CV_8UC3, 6);
+  const cv::Mat original = big.clone();
+  const cv::Rect inner(10, 20, 300, 200);
+  cv::Mat view = big(inner);
+  cv::Mat copy = view.clone();
+  ApplySensorEffects(effects, &view);
+  ApplySensorEffects(effects, &copy);
+  EXPECT_EQ(cv::norm(view, copy, cv::NORM_INF), 0);
+  cv::Mat outside = big.clone();
+  original(inner).copyTo(outside(inner));
+  EXPECT_EQ(cv::norm(outside, original, cv::NORM_INF), 0);
+}
+
+// draws lie in the configured ranges, spread over them, and always take seven values; with
+// enabled false the result is the identity after the same seven draws.
+TEST(SensorTest, SamplingRangesAndDisabled) {
+  config::SensorConfig config;
+  std::mt19937_64 engine(10);
+  double gamma_lo = INFINITY, gamma_hi = 0;
+  for (int i = 0; i < 1000; ++i) {
+    const SensorEffects drawn = SampleSensorEffects(config, engine);
+    ASSERT_GE(drawn.gaussian_sigma, 0);
+    ASSERT_LE(drawn.gaussian_sigma, 3);
+    ASSERT_LE(drawn.salt_pepper_fraction, 0.001);
+    ASSERT_LE(drawn.blur_sigma_px, 0.8);
+    ASSERT_LE(std::abs(drawn.brightness), 0.08);
+    ASSERT_LE(std::abs(drawn.contrast - 1), 0.15);
+    ASSERT_GE(drawn.gamma, 1 / 1.2 - 1e-12);
+    ASSERT_LE(drawn.gamma, 1.2 + 1e-12);
+    gamma_lo = std::min(gamma_lo, drawn.gamma);
+    gamma_hi = std::max(gamma_hi, drawn.gamma);
+  }
+  EXPECT_LT(gamma_lo, 1 / 1.2 + 0.01);
+  EXPECT_GT(gamma_hi, 1.2 - 0.01);
+
+  config::SensorConfig disabled;
+  disabled.set_enabled(false);
+  std::mt19937_64 a(11);
+  std::mt19937_64 b(11);
+  const SensorEffects identity = SampleSensorEffects(disabled, a);
+  const SensorEffects drawn = SampleSensorEffects(config, b);
+  EXPECT_EQ(a, b);
+  std::mt19937_64 reference(11);
+  reference.discard(7);
+  EXPECT_EQ(a, reference);
+  EXPECT_GT(drawn.gaussian_sigma, 0);
+  EXPECT_EQ(identity.gaussian_sigma, 0);
+  EXPECT_EQ(identity.salt_pepper_fraction, 0);
+  EXPECT_EQ(identity.blur_sigma_px, 0);
+  EXPECT_EQ(identity.brightness, 0);
+  EXPECT_EQ(identity.contrast, 1);
+  EXPECT_EQ(identity.gamma, 1);
+  const cv::Mat original = RandomImage(CV_8UC3, 12);
+  cv::Mat image = original.clone();
+  ApplySensorEffects(identity, &image);
+  EXPECT_EQ(cv::norm(image, original, cv::NORM_INF), 0);
+}
+
+}  // namespace
+}  // namespace stackgen

@@ -1,0 +1,741 @@
+// stackgen-view: a contact sheet (one PNG) of scenes from a COCO dataset written by stackgen-coco
+// or from STACKGEN_SCENE on the bus, each image with its instances' visible masks outlined in the
+// colour of their label, for a quick look at what a dataset teaches.
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <set>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <stackgen/scene.hpp>
+
+#include "bus/bus.h"
+#include "bus/channels.h"
+#include "gen/annotate/rle.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+constexpr const char* kProgram = "stackgen-view";
+
+// the sheet: a legend on top, then rows of cells (the tile over its caption), kGap apart
+constexpr int kLegendHeight = 44;
+constexpr int kCaptionHeight = 20;
+constexpr int kGap = 4;
+// the largest sheet drawn: pixels (about 0.8 GB of BGR) and width
+constexpr int64_t kMaxSheetPixels = int64_t{1} << 28;
+constexpr int64_t kMaxSheetWidth = 32000;
+// objects whose visible pixels are under this fraction of the image also show visib_fract
+constexpr double kSmallObjectFraction = 0.015;
+
+// outline colours (BGR): annotated green, ignored orange, dropped gray; see PrintHelp
+const cv::Scalar kAnnotatedColour(0, 230, 0);
+const cv::Scalar kIgnoredColour(0, 150, 255);
+const cv::Scalar kDroppedColour(160, 160, 160);
+const cv::Scalar kBackground(40, 40, 40);
+const cv::Scalar kTextColour(235, 235, 235);
+
+// scenes LCM keeps waiting for us while a tile is drawn (a best-effort consumer: a slow sheet
+// drops scenes, it never holds up the generator)
+constexpr int kQueueCapacity = 16;
+// warnings printed one by one; later ones are only counted
+constexpr int kMaxReportedWarnings = 10;
+
+std::atomic<bool> stop_requested{false};
+
+void RequestStop(int) { stop_requested = true; }
+
+struct Flags {
+  std::string coco_dir;  // COCO mode when not empty
+  std::string lcm_url;   // bus mode when not empty ("default": ResolveLcmUrl(""))
+  std::string out;
+  int count = 12;
+  int columns = 4;
+  int tile_width = 400;
+  double timeout_s = 60.0;
+};
+
+void PrintHelp() {
+  std::printf(
+      "Usage: %s --coco DIR --out SHEET.png [--count N] [--columns C] [--tile-width W]\n"
+      "       %s --lcm-url URL --out SHEET.png [--count N] [--columns C] [--tile-width W]\n"
+      "                    [--timeout S]\n"
+      "\n"
+      "Draws a contact sheet: a grid of scenes, each scene's image with the visible mask of every\n"
+      "instance outlined and its instance id written on it, in the colour of its label:\n"
+      "  green  (#00E600, 2 px)  annotated: a COCO annotation with iscrowd 0\n"
+      "  orange (#FF9600, 2 px)  ignored: an ignore region, COCO iscrowd 1 (the generator's\n"
+      "                          occlusion rule IGNORE)\n"
+      "  gray   (#A0A0A0, 1 px)  dropped: visible but neither annotated nor ignored (bus only;\n"
+      "                          a COCO file holds no such instances)\n"
+      "Objects with less than 1.5%% of the image's pixels visible get their visible fraction\n"
+      "beside the id: \"7 .24\" is instance 7, 24%% visible. Gray images are shown gray.\n"
+      "\n"
+      "Layout: a %d px legend on top, then rows of C cells (fewer when there are fewer scenes);\n"
+      "a cell is the tile, the image scaled to W px wide keeping its aspect (all tiles as tall as\n"
+      "the tallest), over a %d px caption line (image id or generator_id/seq, then the counts:\n"
+      "ann annotated, ign ignored, drop dropped); %d px gaps between and around cells. The sheet\n"
+      "is %d + C * (W + %d) px wide and %d + %d + rows * (tile height + %d + %d) px tall.\n"
+      "\n"
+      "Options:\n"
+      "  --coco DIR       a COCO dataset folder (DIR/annotations.json, images in DIR/images/):\n"
+      "                   its first N images by id.\n"
+      "  --lcm-url URL    listen on this LCM URL instead, as a best-effort consumer of %s:\n"
+      "                   the first N distinct scenes received (repeats skipped; a scene that\n"
+      "                   does not decode or disagrees with itself is skipped with a warning).\n"
+      "                   \"default\" means $STACKGEN_LCM_URL when set, else\n"
+      "                   %s.\n"
+      "  --out SHEET.png  the sheet to write (PNG; through SHEET.png.tmp and a rename).\n"
+      "  --count N        scenes on the sheet, 1..1000 (default 12).\n"
+      "  --columns C      tiles per row, 1..100 (default 4).\n"
+      "  --tile-width W   tile width, pixels, 16..4096 (default 400).\n"
+      "  --timeout S      bus only: seconds to wait for N scenes, > 0 (default 60). When fewer\n"
+      "                   arrive the sheet shows those received; none is an error. SIGINT or\n"
+      "                   SIGTERM stops the wait the same way.\n"
+      "  --help           print this help and exit.\n"
+      "A sheet may be at most 32000 px wide and 2^28 px in all.\n"
+      "\n"
+      "Exit status: 0 sheet written, 1 error (the line names the file, flag or URL), 2 bad\n"
+      "command line.\n",
+      kProgram, kProgram, kLegendHeight, kCaptionHeight, kGap, kGap, kGap, kLegendHeight, kGap,
+      kCaptionHeight, kGap, stackgen::kSceneChannel, stackgen::kDefaultLcmUrl);
+}
+
+[[noreturn]] void UsageError(const std::string& text) {
+  std::fprintf(stderr, "%s: error: %s (see --help)\n", kProgram, text.c_str());
+  std::exit(2);
+}
+
+// a whole-string integer in [low, high]
+int ParseInt(const std::string& name, const std::string& text, int low, int high) {
+  size_t used = 0;
+  long long value = 0;
+  try {
+    value = std::stoll(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (text.empty() || used != text.size() || value < low || value > high) {
+    UsageError(name + " wants a whole number in " + std::to_string(low) + ".." +
+               std::to_string(high) + ", got \"" + text + "\"");
+  }
+  return static_cast<int>(value);
+}
+
+// a whole-string number > 0 and at most a day
+double ParseSeconds(const std::string& name, const std::string& text) {
+  size_t used = 0;
+  double value = 0.0;
+  try {
+    value = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (text.empty() || used != text.size() || !(value > 0.0 && value <= 86400.0)) {
+    UsageError(name + " wants seconds in (0, 86400], got \"" + text + "\"");
+  }
+  return value;
+}
+
+Flags ParseFlags(int argc, char** argv) {
+  Flags flags;
+  bool have_timeout = false;
+  for (int i = 1; i < argc; ++i) {
+    std::string name = argv[i];
+    std::string value;
+    bool have_value = false;
+    // --name=value or --name value
+    const size_t equals = name.find('=');
+    if (name.rfind("--", 0) == 0 && equals != std::string::npos) {
+      value = name.substr(equals + 1);
+      name = name.substr(0, equals);
+      have_value = true;
+    }
+    if (name == "--help" || name == "-h") {
+      PrintHelp();
+      std::exit(0);
+    }
+    if (name != "--coco" && name != "--lcm-url" && name != "--out" && name != "--count" &&
+        name != "--columns" && name != "--tile-width" && name != "--timeout") {
+      UsageError("unknown argument \"" + std::string(argv[i]) + "\"");
+    }
+    if (!have_value) {
+      if (i + 1 >= argc) UsageError(name + " wants a value");
+      value = argv[++i];
+    }
+    if (name == "--coco") {
+      if (value.empty()) UsageError("--coco wants a folder");
+      flags.coco_dir = value;
+    } else if (name == "--lcm-url") {
+      if (value.empty()) UsageError("--lcm-url wants a URL (or \"default\")");
+      flags.lcm_url = value;
+    } else if (name == "--out") {
+      if (value.size() < 5 || value.substr(value.size() - 4) != ".png") {
+        UsageError("--out wants a file name ending in .png, got \"" + value + "\"");
+      }
+      flags.out = value;
+    } else if (name == "--count") {
+      flags.count = ParseInt(name, value, 1, 1000);
+    } else if (name == "--columns") {
+      flags.columns = ParseInt(name, value, 1, 100);
+    } else if (name == "--tile-width") {
+      flags.tile_width = ParseInt(name, value, 16, 4096);
+    } else {
+      flags.timeout_s = ParseSeconds(name, value);
+      have_timeout = true;
+    }
+  }
+  if (flags.coco_dir.empty() == flags.lcm_url.empty()) {
+    UsageError("give either --coco DIR or --lcm-url URL");
+  }
+  if (flags.out.empty()) UsageError("--out SHEET.png is required");
+  if (have_timeout && !flags.coco_dir.empty()) UsageError("--timeout applies to --lcm-url only");
+  const int64_t sheet_width =
+      kGap + int64_t{std::min(flags.columns, flags.count)} * (flags.tile_width + kGap);
+  if (sheet_width > kMaxSheetWidth) {
+    UsageError("--columns and --tile-width give a sheet " + std::to_string(sheet_width) +
+               " px wide, more than " + std::to_string(kMaxSheetWidth));
+  }
+  return flags;
+}
+
+// how an instance is labelled, as the colour of its outline says
+enum class Label { kAnnotated, kIgnored, kDropped };
+
+// one instance to outline
+struct InstanceView {
+  cv::Mat mask;  // CV_8UC1 of the image's size, nonzero = visible
+  Label label = Label::kAnnotated;
+  int64_t instance_id = 0;
+  double visib_fract = std::numeric_limits<double>::quiet_NaN();  // NaN: unknown
+};
+
+// one scene to draw
+struct SceneView {
+  cv::Mat image;  // CV_8UC3, BGR
+  std::vector<InstanceView> instances;
+  std::string caption;
+};
+
+// a drawn tile and the caption under it
+struct Tile {
+  cv::Mat pixels;
+  std::string caption;
+};
+
+cv::Scalar ColourOf(Label label) {
+  switch (label) {
+    case Label::kAnnotated:
+      return kAnnotatedColour;
+    case Label::kIgnored:
+      return kIgnoredColour;
+    case Label::kDropped:
+      break;
+  }
+  return kDroppedColour;
+}
+
+// "ann", "ign", "drop" counts; the dropped count only where it is known
+std::string CountsText(const std::vector<InstanceView>& instances, bool dropped_known) {
+  int annotated = 0, ignored = 0, dropped = 0;
+  for (const InstanceView& instance : instances) {
+    if (instance.label == Label::kAnnotated) ++annotated;
+    if (instance.label == Label::kIgnored) ++ignored;
+    if (instance.label == Label::kDropped) ++dropped;
+  }
+  std::string text = std::to_string(annotated) + " ann, " + std::to_string(ignored) + " ign";
+  if (dropped_known) text += ", " + std::to_string(dropped) + " drop";
+  return text;
+}
+
+// ".24" for 0.24, "1.00" for 1
+std::string FractionText(double fraction) {
+  char text[16];
+  std::snprintf(text, sizeof(text), "%.2f", fraction);
+  std::string result = text;
+  if (result.rfind("0.", 0) == 0) result.erase(0, 1);
+  return result;
+}
+
+// text with a dark rim, so it reads on any image
+void PutLabel(cv::Mat& image, const std::string& text, cv::Point origin, const cv::Scalar& colour,
+              double scale) {
+  cv::putText(image, text, origin, cv::FONT_HERSHEY_SIMPLEX, scale, cv::Scalar(0, 0, 0), 3,
+              cv::LINE_AA);
+  cv::putText(image, text, origin, cv::FONT_HERSHEY_SIMPLEX, scale, colour, 1, cv::LINE_AA);
+}
+
+// the scene's image scaled to `tile_width`, its instances outlined and labelled
+cv::Mat RenderTile(const SceneView& scene, int tile_width) {
+  const double scale = static_cast<double>(tile_width) / scene.image.cols;
+  const cv::Size size(tile_width,
+                      std::max(1, static_cast<int>(std::lround(scene.image.rows * scale))));
+  const bool shrink = scale < 1.0;
+  cv::Mat tile;
+  cv::resize(scene.image, tile, size, 0, 0, shrink ? cv::INTER_AREA : cv::INTER_NEAREST);
+  const double image_area = static_cast<double>(scene.image.total());
+
+  // outlines: dropped first, annotated last (on top)
+  std::vector<const InstanceView*> order;
+  for (const InstanceView& instance : scene.instances) order.push_back(&instance);
+  std::stable_sort(order.begin(), order.end(), [](const InstanceView* a, const InstanceView* b) {
+    return static_cast<int>(a->label) > static_cast<int>(b->label);
+  });
+  struct Text {
+    std::string text;
+    cv::Point origin;
+    cv::Scalar colour;
+  };
+  std::vector<Text> texts;
+  for (const InstanceView* instance : order) {
+    // the mask at tile size: any covered pixel counts when shrinking, so small objects stay
+    cv::Mat mask;
+    cv::resize(instance->mask, mask, size, 0, 0, shrink ? cv::INTER_AREA : cv::INTER_NEAREST);
+    cv::threshold(mask, mask, 0, 255, cv::THRESH_BINARY);
+    std::vector<std::vector<cv::Point>> contours;
+    cv::findContours(mask, contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_NONE);
+    const cv::Scalar colour = ColourOf(instance->label);
+    cv::drawContours(tile, contours, -1, colour, instance->label == Label::kDropped ? 1 : 2,
+                     cv::LINE_8);
+
+    // the id at the mask's centre; small objects also get visib_fract, beside the mask
+    const cv::Rect box = cv::boundingRect(mask);
+    if (box.area() == 0) continue;
+    const int visible = cv::countNonZero(instance->mask);
+    const bool small = visible < kSmallObjectFraction * image_area;
+    std::string text = std::to_string(instance->instance_id);
+    if (small && std::isfinite(instance->visib_fract)) {
+      text += " " + FractionText(instance->visib_fract);
+    }
+    int baseline = 0;
+    const cv::Size text_size = cv::getTextSize(text, cv::FONT_HERSHEY_SIMPLEX, 0.4, 1, &baseline);
+    cv::Point origin =
+        small ? cv::Point(box.br().x + 2, box.y + box.height / 2 + text_size.height / 2)
+              : cv::Point(box.x + box.width / 2 - text_size.width / 2,
+                          box.y + box.height / 2 + text_size.height / 2);
+    origin.x = std::clamp(origin.x, 1, std::max(1, size.width - text_size.width - 1));
+    origin.y =
+        std::clamp(origin.y, text_size.height + 1, std::max(text_size.height + 1, size.height - 2));
+    texts.push_back({text, origin, colour});
+  }
+  // texts over all outlines
+  for (const Text& text : texts) PutLabel(tile, text.text, text.origin, text.colour, 0.4);
+  return tile;
+}
+
+// the legend: the three colours and what a label means
+void DrawLegend(cv::Mat& sheet) {
+  struct Item {
+    const char* text;
+    cv::Scalar colour;
+    int thickness;
+  };
+  const Item items[] = {{"ann: annotated (iscrowd 0)", kAnnotatedColour, 2},
+                        {"ign: ignored (iscrowd 1)", kIgnoredColour, 2},
+                        {"drop: dropped (bus only)", kDroppedColour, 1}};
+  int x = kGap + 2;
+  const int y = 16;
+  for (const Item& item : items) {
+    cv::line(sheet, cv::Point(x, y - 4), cv::Point(x + 16, y - 4), item.colour, item.thickness,
+             cv::LINE_8);
+    x += 20;
+    cv::putText(sheet, item.text, cv::Point(x, y), cv::FONT_HERSHEY_SIMPLEX, 0.4, kTextColour, 1,
+                cv::LINE_AA);
+    int baseline = 0;
+    x += cv::getTextSize(item.text, cv::FONT_HERSHEY_SIMPLEX, 0.4, 1, &baseline).width + 14;
+  }
+  cv::putText(sheet,
+              "label: instance id; \"7 .24\": visib_fract, shown under 1.5% of image visible",
+              cv::Point(kGap + 2, 36), cv::FONT_HERSHEY_SIMPLEX, 0.4, kTextColour, 1, cv::LINE_AA);
+}
+
+// the tiles in a grid under the legend (see PrintHelp for the layout)
+cv::Mat ComposeSheet(const std::vector<Tile>& tiles, int max_columns, int tile_width) {
+  const int columns = std::min<int>(max_columns, static_cast<int>(tiles.size()));
+  const int rows = (static_cast<int>(tiles.size()) + columns - 1) / columns;
+  int tile_height = 1;
+  for (const Tile& tile : tiles) tile_height = std::max(tile_height, tile.pixels.rows);
+  const int64_t width = kGap + int64_t{columns} * (tile_width + kGap);
+  const int64_t height =
+      kLegendHeight + kGap + int64_t{rows} * (tile_height + kCaptionHeight + kGap);
+  if (width * height > kMaxSheetPixels) {
+    throw std::runtime_error("--count, --columns and --tile-width give a sheet of " +
+                             std::to_string(width) + " x " + std::to_string(height) +
+                             " px, more than " + std::to_string(kMaxSheetPixels) + " pixels");
+  }
+  cv::Mat sheet(static_cast<int>(height), static_cast<int>(width), CV_8UC3, kBackground);
+  DrawLegend(sheet);
+  for (size_t k = 0; k < tiles.size(); ++k) {
+    const int column = static_cast<int>(k) % columns;
+    const int row = static_cast<int>(k) / columns;
+    const int x = kGap + column * (tile_width + kGap);
+    const int y = kLegendHeight + kGap + row * (tile_height + kCaptionHeight + kGap);
+    tiles[k].pixels.copyTo(sheet(cv::Rect(x, y, tile_width, tiles[k].pixels.rows)));
+    // the caption, clipped to its cell
+    cv::Mat caption = sheet(cv::Rect(x, y + tile_height, tile_width, kCaptionHeight));
+    cv::putText(caption, tiles[k].caption, cv::Point(2, 14), cv::FONT_HERSHEY_SIMPLEX, 0.4,
+                kTextColour, 1, cv::LINE_AA);
+  }
+  return sheet;
+}
+
+// encodes `sheet` as PNG into `path` through `path`.tmp and a rename
+void WritePng(const cv::Mat& sheet, const std::string& path) {
+  std::vector<uint8_t> png;
+  if (!cv::imencode(".png", sheet, png)) throw std::runtime_error(path + ": cannot encode PNG");
+  const std::string temporary = path + ".tmp";
+  {
+    std::ofstream out(temporary, std::ios::binary | std::ios::trunc);
+    out.write(reinterpret_cast<const char*>(png.data()), static_cast<std::streamsize>(png.size()));
+    out.close();
+    if (!out) {
+      std::error_code ignored;
+      fs::remove(temporary, ignored);
+      throw std::runtime_error("--out " + path + ": cannot write " + temporary);
+    }
+  }
+  std::error_code error;
+  fs::rename(temporary, path, error);
+  if (error) {
+    fs::remove(temporary, error);
+    throw std::runtime_error("--out " + path + ": cannot rename " + temporary + ": " +
+                             error.message());
+  }
+}
+
+// --- COCO mode ---
+
+// the mask of a COCO segmentation (compressed RLE, uncompressed RLE or polygons) over an image of
+// `height` x `width`; throws std::runtime_error naming `where`
+cv::Mat SegmentationMask(const json& segmentation, int height, int width,
+                         const std::string& where) {
+  try {
+    if (segmentation.is_object()) {
+      const json& size = segmentation.at("size");
+      if (size != json{height, width}) {
+        throw std::runtime_error("size is " + size.dump() + ", the image's height and width [" +
+                                 std::to_string(height) + ", " + std::to_string(width) + "]");
+      }
+      const json& counts = segmentation.at("counts");
+      if (counts.is_string()) return stackgen::DecodeRle(counts.get<std::string>(), height, width);
+      return stackgen::RunsToMask(counts.get<std::vector<uint32_t>>(), height, width);
+    }
+    if (segmentation.is_array()) {
+      cv::Mat mask = cv::Mat::zeros(height, width, CV_8UC1);
+      for (const json& polygon : segmentation) {
+        const std::vector<double> xy = polygon.get<std::vector<double>>();
+        std::vector<std::vector<cv::Point>> points(1);
+        for (size_t k = 0; k + 1 < xy.size(); k += 2) {
+          points[0].emplace_back(static_cast<int>(std::lround(xy[k])),
+                                 static_cast<int>(std::lround(xy[k + 1])));
+        }
+        if (points[0].size() >= 3) cv::fillPoly(mask, points, 255);
+      }
+      return mask;
+    }
+    throw std::runtime_error("neither RLE nor polygons");
+  } catch (const json::exception& error) {
+    throw std::runtime_error(where + ": " + error.what());
+  } catch (const std::runtime_error& error) {
+    throw std::runtime_error(where + ": " + error.what());
+  }
+}
+
+std::vector<Tile> ReadCocoTiles(const Flags& flags) {
+  // the dataset
+  std::error_code error;
+  if (!fs::is_directory(flags.coco_dir, error)) {
+    throw std::runtime_error("--coco " + flags.coco_dir + ": no such folder");
+  }
+  const std::string path = (fs::path(flags.coco_dir) / "annotations.json").string();
+  std::ifstream file(path);
+  if (!file) throw std::runtime_error(path + ": cannot read");
+  json root;
+  try {
+    root = json::parse(file);
+  } catch (const json::exception& parse_error) {
+    throw std::runtime_error(path + ": not valid JSON (" + std::string(parse_error.what()) + ")");
+  }
+  for (const char* field : {"images", "annotations"}) {
+    if (!root.is_object() || !root.contains(field) || !root[field].is_array()) {
+      throw std::runtime_error(path + ": not a COCO file (no \"" + field + "\" array)");
+    }
+  }
+
+  // the first N images by id
+  std::map<int64_t, const json*> images;
+  for (size_t k = 0; k < root["images"].size(); ++k) {
+    const json& image = root["images"][k];
+    if (!image.is_object() || !image.contains("id") || !image["id"].is_number_integer()) {
+      throw std::runtime_error(path + ": images[" + std::to_string(k) +
+                               "].id is missing or not an integer");
+    }
+    images.emplace(image["id"].get<int64_t>(), &image);
+  }
+  std::map<int64_t, std::vector<const json*>> chosen;
+  for (const auto& [id, image] : images) {
+    if (static_cast<int>(chosen.size()) >= flags.count) break;
+    chosen[id];
+  }
+  for (size_t k = 0; k < root["annotations"].size(); ++k) {
+    const json& annotation = root["annotations"][k];
+    if (!annotation.is_object() || !annotation.contains("image_id") ||
+        !annotation["image_id"].is_number_integer()) {
+      throw std::runtime_error(path + ": annotations[" + std::to_string(k) +
+                               "].image_id is missing or not an integer");
+    }
+    const auto found = chosen.find(annotation["image_id"].get<int64_t>());
+    if (found != chosen.end()) found->second.push_back(&annotation);
+  }
+
+  // one tile per image
+  std::vector<Tile> tiles;
+  for (const auto& [id, annotations] : chosen) {
+    const json& record = *images.at(id);
+    const std::string where = path + ": image " + std::to_string(id);
+    if (!record.contains("file_name") || !record["file_name"].is_string()) {
+      throw std::runtime_error(where + ": file_name is missing or not a string");
+    }
+    // stackgen-coco's file_name is relative to images/; other datasets' maybe to the folder
+    const std::string file_name = record["file_name"].get<std::string>();
+    fs::path image_path = fs::path(flags.coco_dir) / "images" / file_name;
+    if (!fs::exists(image_path, error)) image_path = fs::path(flags.coco_dir) / file_name;
+    SceneView scene;
+    scene.image = cv::imread(image_path.string(), cv::IMREAD_COLOR);
+    if (scene.image.empty()) {
+      throw std::runtime_error(where + ": cannot read its image " + image_path.string());
+    }
+    if (record.value("width", scene.image.cols) != scene.image.cols ||
+        record.value("height", scene.image.rows) != scene.image.rows) {
+      throw std::runtime_error(where + ": width x height " + record["width"].dump() + " x " +
+                               record["height"].dump() + " differs from " + image_path.string() +
+                               " (" + std::to_string(scene.image.cols) + " x " +
+                               std::to_string(scene.image.rows) + ")");
+    }
+    int index = 0;
+    for (const json* annotation : annotations) {
+      ++index;
+      const std::string annotation_where =
+          path + ": annotation " + annotation->value("id", json(nullptr)).dump();
+      if (!annotation->contains("segmentation")) {
+        throw std::runtime_error(annotation_where + ": no segmentation");
+      }
+      InstanceView instance;
+      instance.mask = SegmentationMask((*annotation)["segmentation"], scene.image.rows,
+                                       scene.image.cols, annotation_where + ": segmentation");
+      const json iscrowd = annotation->value("iscrowd", json(0));
+      instance.label =
+          iscrowd.is_number() && iscrowd.get<double>() != 0 ? Label::kIgnored : Label::kAnnotated;
+      const json instance_id = annotation->value("instance_id", json(index));
+      instance.instance_id = instance_id.is_number_integer() ? instance_id.get<int64_t>() : index;
+      const json visib_fract = annotation->value("visib_fract", json(nullptr));
+      if (visib_fract.is_number()) instance.visib_fract = visib_fract.get<double>();
+      scene.instances.push_back(std::move(instance));
+    }
+    scene.caption = "image " + std::to_string(id) + ": " + CountsText(scene.instances, false);
+    tiles.push_back({RenderTile(scene, flags.tile_width), scene.caption});
+  }
+  std::printf("%s: %s: %zu of %zu images\n", kProgram, path.c_str(), tiles.size(), images.size());
+  return tiles;
+}
+
+// --- bus mode ---
+
+// the scene as a SceneView; throws std::runtime_error naming the field if it disagrees with
+// itself (sizes, encoding, masks)
+SceneView ViewOfMessage(const stackgen::scene& message) {
+  const int width = message.camera.width;
+  const int height = message.camera.height;
+  if (width < 1 || width > 16384 || height < 1 || height > 16384) {
+    throw std::runtime_error("camera.width x camera.height " + std::to_string(width) + " x " +
+                             std::to_string(height) + " outside 1..16384");
+  }
+  // the colour image
+  const stackgen::image& color = message.color;
+  if (color.width != width || color.height != height) {
+    throw std::runtime_error("color.width x color.height " + std::to_string(color.width) + " x " +
+                             std::to_string(color.height) + " differs from the camera's");
+  }
+  if (color.pixel_format != stackgen::image::PIXEL_RGB8 &&
+      color.pixel_format != stackgen::image::PIXEL_GRAY8) {
+    throw std::runtime_error("color.pixel_format " + std::to_string(color.pixel_format) +
+                             " is not RGB8 or GRAY8");
+  }
+  if (color.size < 0 || static_cast<size_t>(color.size) != color.data.size()) {
+    throw std::runtime_error("color.size " + std::to_string(color.size) + " differs from the " +
+                             std::to_string(color.data.size()) + " bytes of color.data");
+  }
+  SceneView scene;
+  const bool rgb = color.pixel_format == stackgen::image::PIXEL_RGB8;
+  if (color.encoding == stackgen::image::ENCODING_RAW) {
+    const size_t expected = static_cast<size_t>(width) * height * (rgb ? 3 : 1);
+    if (color.data.size() != expected) {
+      throw std::runtime_error("color.size " + std::to_string(color.size) +
+                               " is not width * height * channels = " + std::to_string(expected));
+    }
+    const cv::Mat pixels(height, width, rgb ? CV_8UC3 : CV_8UC1,
+                         const_cast<uint8_t*>(color.data.data()));
+    cv::cvtColor(pixels, scene.image, rgb ? cv::COLOR_RGB2BGR : cv::COLOR_GRAY2BGR);
+  } else if (color.encoding == stackgen::image::ENCODING_PNG ||
+             color.encoding == stackgen::image::ENCODING_JPEG) {
+    scene.image = cv::imdecode(color.data, cv::IMREAD_COLOR);
+    if (scene.image.empty()) throw std::runtime_error("color.data does not decode");
+    if (scene.image.cols != width || scene.image.rows != height) {
+      throw std::runtime_error("color.data holds a " + std::to_string(scene.image.cols) + " x " +
+                               std::to_string(scene.image.rows) + " image, the camera is " +
+                               std::to_string(width) + " x " + std::to_string(height));
+    }
+  } else {
+    throw std::runtime_error("color.encoding " + std::to_string(color.encoding) +
+                             " is not RAW, PNG or JPEG");
+  }
+
+  // the instances
+  if (message.num_instances < 0 ||
+      static_cast<size_t>(message.num_instances) != message.instances.size()) {
+    throw std::runtime_error("num_instances " + std::to_string(message.num_instances) +
+                             " differs from the " + std::to_string(message.instances.size()) +
+                             " entries of instances");
+  }
+  for (size_t k = 0; k < message.instances.size(); ++k) {
+    const stackgen::instance& instance = message.instances[k];
+    const std::string field = "instances[" + std::to_string(k) + "]";
+    if (instance.annotated && instance.ignored) {
+      throw std::runtime_error(field + ".annotated and .ignored are both true");
+    }
+    InstanceView view;
+    try {
+      view.mask = stackgen::DecodeRle(instance.mask_visib_rle, height, width);
+    } catch (const std::exception& error) {
+      throw std::runtime_error(field + ".mask_visib_rle: " + error.what());
+    }
+    const int visible = cv::countNonZero(view.mask);
+    if (visible != instance.px_count_visib) {
+      throw std::runtime_error(field + ".mask_visib_rle holds " + std::to_string(visible) +
+                               " pixels, px_count_visib is " +
+                               std::to_string(instance.px_count_visib));
+    }
+    if (visible == 0) continue;  // nothing to outline
+    view.label = instance.annotated ? Label::kAnnotated
+                 : instance.ignored ? Label::kIgnored
+                                    : Label::kDropped;
+    view.instance_id = instance.instance_id;
+    view.visib_fract = instance.visib_fract;
+    scene.instances.push_back(std::move(view));
+  }
+  scene.caption = "scene " + std::to_string(message.header.generator_id) + "/" +
+                  std::to_string(message.header.seq) + ": " + CountsText(scene.instances, true);
+  return scene;
+}
+
+std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
+  // stop waiting on SIGINT and SIGTERM: the handler only sets a flag
+  struct sigaction action {};
+  action.sa_handler = RequestStop;
+  action.sa_flags = SA_RESTART;
+  sigemptyset(&action.sa_mask);
+  sigaction(SIGINT, &action, nullptr);
+  sigaction(SIGTERM, &action, nullptr);
+
+  std::vector<Tile> tiles;
+  std::set<std::pair<int32_t, int64_t>> seen;
+  int64_t undecodable = 0, invalid = 0, repeated = 0;
+  const auto warn = [](int64_t number, const std::string& text) {
+    if (number <= kMaxReportedWarnings) {
+      std::fprintf(stderr, "%s: warning: %s\n", kProgram, text.c_str());
+    }
+  };
+  stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url == "default" ? "" : flags.lcm_url));
+  bus.Subscribe<stackgen::scene>(
+      stackgen::kSceneChannel,
+      [&](const stackgen::scene& scene) {
+        if (static_cast<int>(tiles.size()) >= flags.count) return;
+        const std::pair<int32_t, int64_t> key(scene.header.generator_id, scene.header.seq);
+        if (seen.count(key) != 0) {
+          ++repeated;
+          return;
+        }
+        // a bad scene is skipped and counted, never drawn (a good copy may still come)
+        try {
+          const SceneView view = ViewOfMessage(scene);
+          tiles.push_back({RenderTile(view, flags.tile_width), view.caption});
+          seen.insert(key);
+        } catch (const std::exception& error) {
+          warn(++invalid, "skipped scene " + std::to_string(scene.header.generator_id) + "/" +
+                              std::to_string(scene.header.seq) + ": " + error.what());
+        }
+      },
+      kQueueCapacity,
+      [&](const std::string& text) { warn(++undecodable, "skipped a message: " + text); });
+  std::printf("%s: listening on %s channel %s for %d scenes\n", kProgram, bus.url().c_str(),
+              stackgen::kSceneChannel, flags.count);
+  std::fflush(stdout);
+
+  // scenes until enough, the timeout or a signal
+  const auto deadline = std::chrono::steady_clock::now() +
+                        std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                            std::chrono::duration<double>(flags.timeout_s));
+  while (!stop_requested && static_cast<int>(tiles.size()) < flags.count &&
+         std::chrono::steady_clock::now() < deadline) {
+    bus.HandleFor(100);
+  }
+  if (undecodable > 0 || invalid > 0 || repeated > 0) {
+    std::fprintf(stderr,
+                 "%s: skipped %lld undecodable messages, %lld invalid scenes, %lld repeated "
+                 "scenes\n",
+                 kProgram, static_cast<long long>(undecodable), static_cast<long long>(invalid),
+                 static_cast<long long>(repeated));
+  }
+  if (tiles.empty()) {
+    throw std::runtime_error("--lcm-url " + bus.url() + ": no valid scene on " +
+                             stackgen::kSceneChannel + " within " +
+                             std::to_string(static_cast<int>(std::ceil(flags.timeout_s))) + " s");
+  }
+  if (static_cast<int>(tiles.size()) < flags.count) {
+    std::fprintf(stderr, "%s: only %zu of %d scenes arrived %s\n", kProgram, tiles.size(),
+                 flags.count, stop_requested ? "before the signal" : "before the timeout");
+  }
+  return tiles;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const Flags flags = ParseFlags(argc, argv);
+  try {
+    const std::vector<Tile> tiles =
+        flags.coco_dir.empty() ? ReceiveBusTiles(flags) : ReadCocoTiles(flags);
+    if (tiles.empty()) throw std::runtime_error("--coco " + flags.coco_dir + ": no images");
+    const cv::Mat sheet = ComposeSheet(tiles, flags.columns, flags.tile_width);
+    WritePng(sheet, flags.out);
+    const int columns = std::min<int>(flags.columns, static_cast<int>(tiles.size()));
+    const int rows = (static_cast<int>(tiles.size()) + columns - 1) / columns;
+    std::printf("%s: wrote %s: %zu scenes in %d columns x %d rows, %d x %d px\n", kProgram,
+                flags.out.c_str(), tiles.size(), columns, rows, sheet.cols, sheet.rows);
+    return 0;
+  } catch (const std::exception& error) {
+    std::fprintf(stderr, "%s: error: %s\n", kProgram, error.what());
+    return 1;
+  }
+}

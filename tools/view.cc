@@ -46,6 +46,9 @@ constexpr int kGap = 4;
 // the largest sheet drawn: pixels (about 0.8 GB of BGR) and width
 constexpr int64_t kMaxSheetPixels = int64_t{1} << 28;
 constexpr int64_t kMaxSheetWidth = 32000;
+// bus scenes: at most this many instances, and this many bytes of decoded masks
+constexpr int kMaxInstances = 999;
+constexpr int64_t kMaxMaskBytes = int64_t{1} << 30;
 // objects whose visible pixels are under this fraction of the image also show visib_fract
 constexpr double kSmallObjectFraction = 0.015;
 
@@ -289,8 +292,15 @@ void PutLabel(cv::Mat& image, const std::string& text, cv::Point origin, const c
 // the scene's image scaled to `tile_width`, its instances outlined and labelled
 cv::Mat RenderTile(const SceneView& scene, int tile_width) {
   const double scale = static_cast<double>(tile_width) / scene.image.cols;
-  const cv::Size size(tile_width,
-                      std::max(1, static_cast<int>(std::lround(scene.image.rows * scale))));
+  const double tile_height = scene.image.rows * scale;
+  // a very tall image would make a huge tile: refuse before allocating it
+  if (tile_height * tile_width > static_cast<double>(kMaxSheetPixels)) {
+    throw std::runtime_error("a " + std::to_string(scene.image.cols) + " x " +
+                             std::to_string(scene.image.rows) + " image scaled to " +
+                             std::to_string(tile_width) + " px wide makes a tile over " +
+                             std::to_string(kMaxSheetPixels) + " pixels");
+  }
+  const cv::Size size(tile_width, std::max(1, static_cast<int>(std::lround(tile_height))));
   const bool shrink = scale < 1.0;
   cv::Mat tile;
   cv::resize(scene.image, tile, size, 0, 0, shrink ? cv::INTER_AREA : cv::INTER_NEAREST);
@@ -567,9 +577,9 @@ std::vector<Tile> ReadCocoTiles(const Flags& flags) {
 SceneView ViewOfMessage(const stackgen::scene& message) {
   const int width = message.camera.width;
   const int height = message.camera.height;
-  if (width < 1 || width > 16384 || height < 1 || height > 16384) {
+  if (width < 1 || width > 8192 || height < 1 || height > 8192) {
     throw std::runtime_error("camera.width x camera.height " + std::to_string(width) + " x " +
-                             std::to_string(height) + " outside 1..16384");
+                             std::to_string(height) + " outside 1..8192");
   }
   // the colour image
   const stackgen::image& color = message.color;
@@ -617,6 +627,15 @@ SceneView ViewOfMessage(const stackgen::scene& message) {
     throw std::runtime_error("num_instances " + std::to_string(message.num_instances) +
                              " differs from the " + std::to_string(message.instances.size()) +
                              " entries of instances");
+  }
+  // each instance's mask is decoded at full size: bound what that may take
+  if (message.num_instances > kMaxInstances ||
+      static_cast<int64_t>(message.num_instances) * width * height > kMaxMaskBytes) {
+    throw std::runtime_error("num_instances " + std::to_string(message.num_instances) + " of " +
+                             std::to_string(width) + " x " + std::to_string(height) +
+                             " masks exceeds the limit (at most " + std::to_string(kMaxInstances) +
+                             " instances and " + std::to_string(kMaxMaskBytes >> 20) +
+                             " MiB of masks)");
   }
   for (size_t k = 0; k < message.instances.size(); ++k) {
     const stackgen::instance& instance = message.instances[k];

@@ -382,6 +382,22 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
     if (instance.px_count_all < 0 || instance.px_count_visib < 0) {
       Fail(name, field + ".px_count_all / px_count_visib is negative");
     }
+    if (instance.px_count_visib > instance.px_count_all) {
+      Fail(name, field + ".px_count_visib " + std::to_string(instance.px_count_visib) +
+                     " exceeds px_count_all " + std::to_string(instance.px_count_all));
+    }
+    // boxes inside the image
+    for (const auto& [box, box_name] : {std::make_pair(instance.bbox_obj, ".bbox_obj"),
+                                        std::make_pair(instance.bbox_visib, ".bbox_visib")}) {
+      if (box[0] < 0 || box[1] < 0 || box[2] < 0 || box[3] < 0 || box[0] + box[2] > camera.width ||
+          box[1] + box[3] > camera.height) {
+        Fail(name, field + box_name + " [" + std::to_string(box[0]) + ", " +
+                       std::to_string(box[1]) + ", " + std::to_string(box[2]) + ", " +
+                       std::to_string(box[3]) + "] is not inside the " +
+                       std::to_string(camera.width) + " x " + std::to_string(camera.height) +
+                       " image");
+      }
+    }
     // the visible and the full mask must cover the image and hold their pixel counts
     CheckMask(instance.mask_visib_rle, instance.px_count_visib, image_area, name,
               field + ".mask_visib_rle", "px_count_visib");

@@ -241,7 +241,7 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
       std::sqrt(std::pow(bin.inner_length_mm() / 2 + bin.wall_thickness_mm(), 2) +
                 std::pow(bin.inner_width_mm() / 2 + bin.wall_thickness_mm(), 2) +
                 std::pow(bin.inner_height_mm(), 2));
-  if (light.point_fraction() > 0 && light.distance_min_mm() <= bin_reach) {
+  if (light.randomize() && light.point_fraction() > 0 && light.distance_min_mm() <= bin_reach) {
     throw ConfigError(n.Where("lighting", "distance_min_mm") + ": " +
                       Number(light.distance_min_mm()) +
                       " mm could put a point light inside the bin; it must exceed " +
@@ -328,6 +328,16 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
                       ", tilted by up to tilt_max_deg " + Number(camera.tilt_max_deg()) +
                       ") can put the camera at " + Number(lowest_mm) +
                       " mm, not above the bin rim at " + Number(bin.inner_height_mm()) + " mm");
+  }
+  // the farthest surface in view must fit the 16-bit depth image
+  const double farthest_mm = camera.height_mm() + camera.distance_jitter_mm() +
+                             std::hypot(bin.inner_length_mm(), bin.inner_width_mm()) +
+                             2 * bin.wall_thickness_mm();
+  if (farthest_mm > 65535 * camera.depth_scale_mm()) {
+    throw ConfigError(n.Where("camera", "depth_scale_mm") + ": " + Number(camera.depth_scale_mm()) +
+                      " mm per count reaches " + Number(65535 * camera.depth_scale_mm()) +
+                      " mm, but surfaces in view can be up to " + Number(farthest_mm) +
+                      " mm away; raise depth_scale_mm");
   }
   const Eigen::Isometry3d camera_from_world = WorldFromCamera(camera).inverse();
   const Eigen::Vector2d principal = PrincipalPoint(camera);

@@ -1,9 +1,12 @@
 #include "gen/mesh/mesh.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <map>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -270,6 +273,63 @@ void AppendBox(const Eigen::Vector3f& lo, const Eigen::Vector3f& hi, TriangleMes
   }
 }
 
+// Throws unless every material library an OBJ file names exists and defines every material it
+// uses: assimp quietly invents a gray material otherwise, which would hide the configured colour.
+// Other formats are left to assimp.
+void CheckObjMaterialFiles(const std::string& path) {
+  std::string extension = std::filesystem::path(path).extension().string();
+  std::transform(extension.begin(), extension.end(), extension.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  if (extension != ".obj") return;
+  std::ifstream obj(path);
+  const std::filesystem::path folder = std::filesystem::path(path).parent_path();
+
+  // the libraries and the materials used, with the line that names each
+  std::set<std::string> defined;
+  std::vector<std::pair<std::string, int>> used;
+  std::string line;
+  for (int number = 1; std::getline(obj, line); ++number) {
+    std::istringstream words(line);
+    std::string keyword;
+    words >> keyword;
+    if (keyword == "usemtl") {
+      std::string name;
+      std::getline(words >> std::ws, name);
+      while (!name.empty() && std::isspace(static_cast<unsigned char>(name.back())))
+        name.pop_back();
+      used.emplace_back(name, number);
+    } else if (keyword == "mtllib") {
+      for (std::string library; words >> library;) {
+        const std::filesystem::path library_path = folder / library;
+        std::ifstream mtl(library_path);
+        if (!mtl) {
+          throw std::runtime_error("mesh file " + Quoted(path) + ":" + std::to_string(number) +
+                                   ": material library " + Quoted(library_path.string()) +
+                                   " does not exist or cannot be read");
+        }
+        for (std::string mtl_line; std::getline(mtl, mtl_line);) {
+          std::istringstream mtl_words(mtl_line);
+          std::string mtl_keyword, name;
+          mtl_words >> mtl_keyword;
+          if (mtl_keyword != "newmtl") continue;
+          std::getline(mtl_words >> std::ws, name);
+          while (!name.empty() && std::isspace(static_cast<unsigned char>(name.back()))) {
+            name.pop_back();
+          }
+          defined.insert(name);
+        }
+      }
+    }
+  }
+  for (const auto& [name, number] : used) {
+    if (defined.count(name) == 0) {
+      throw std::runtime_error("mesh file " + Quoted(path) + ":" + std::to_string(number) +
+                               ": usemtl " + Quoted(name) +
+                               " names a material no mtllib file defines");
+    }
+  }
+}
+
 }  // namespace
 
 double SignedVolume(const TriangleMesh& mesh) {
@@ -292,6 +352,7 @@ Eigen::AlignedBox3d Bounds(const TriangleMesh& mesh) {
 TriangleMesh LoadMesh(const std::string& path, double scale_to_mm) {
   Assimp::Importer importer;
   const aiScene* scene = ReadScene(importer, path, scale_to_mm);
+  CheckObjMaterialFiles(path);
 
   // the materials the node tree's meshes use, in the file's order; only assimp's default
   // material (an OBJ without an MTL file) counts as none

@@ -14,6 +14,9 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kRadPerDeg = kPi / 180.0;
 constexpr int kMaxPoseDraws = 100;
+// CheckCameraPoseRanges refuses ranges whose poses see the bin less often than this: at 20 %, 100
+// failed draws in a row (SampleCameraPose gives up) happen once in 5e9 scenes
+constexpr double kMinInViewRate = 0.2;
 
 // the nominal pose at `distance_mm`, tilted by `tilt_rad` towards `azimuth_rad` about the floor
 // centre, then rolled by `roll_rad` about its optical axis.
@@ -60,6 +63,35 @@ std::vector<std::string> RangesLosingTheBin(const config::CameraConfig& camera,
     }
   }
   return culprits;
+}
+
+// why poses lose the bin: the nominal pose, or the ranges that lose it on their own; `lead`
+// says what happened.
+std::string OutOfViewMessage(const config::CameraConfig& camera, const Intrinsics& intrinsics,
+                             const config::BinConfig& bin, const std::string& lead) {
+  std::ostringstream message;
+  message << "camera: " << lead << " (camera.require_bin_in_view is true): ";
+  if (!BinInView(intrinsics, PoseAround(camera.height_mm(), 0, 0, 0), bin)) {
+    message << "even the nominal pose (camera.height_mm = " << camera.height_mm()
+            << ", looking straight down) does not see the whole bin; raise camera.height_mm, "
+               "shorten the focal length or make the bin smaller";
+    return message.str();
+  }
+  message << "camera.distance_jitter_mm = " << camera.distance_jitter_mm()
+          << ", camera.tilt_max_deg = " << camera.tilt_max_deg()
+          << ", camera.roll_max_deg = " << camera.roll_max_deg()
+          << " leave the bin out of view too often; lower ";
+  const std::vector<std::string> culprits = RangesLosingTheBin(camera, intrinsics, bin);
+  if (culprits.empty()) {
+    message << "them (together they lose the bin), or raise camera.height_mm";
+  } else {
+    for (size_t i = 0; i < culprits.size(); ++i) {
+      message << (i == 0 ? "" : i + 1 == culprits.size() ? " and " : ", ") << culprits[i];
+    }
+    message << (culprits.size() == 1 ? " (it loses" : " (each loses")
+            << " the bin on its own at its extreme), or raise camera.height_mm";
+  }
+  return message.str();
 }
 
 }  // namespace
@@ -118,32 +150,32 @@ Eigen::Isometry3d SampleCameraPose(const config::CameraConfig& camera, const Int
     const Eigen::Isometry3d world_from_camera = SampleWorldFromCamera(camera, engine);
     if (BinInView(intrinsics, world_from_camera, bin)) return world_from_camera;
   }
-  // explain: the nominal pose, or the ranges that lose the bin on their own.
-  std::ostringstream message;
-  message << "camera: " << kMaxPoseDraws
-          << " drawn poses in a row left part of the bin interior out of the image "
-             "(camera.require_bin_in_view is true): ";
-  if (!BinInView(intrinsics, NominalWorldFromCamera(camera.height_mm()), bin)) {
-    message << "even the nominal pose (camera.height_mm = " << camera.height_mm()
-            << ", looking straight down) does not see the whole bin; raise camera.height_mm, "
-               "shorten the focal length or make the bin smaller";
-    throw std::runtime_error(message.str());
+  throw std::runtime_error(
+      OutOfViewMessage(camera, intrinsics, bin,
+                       std::to_string(kMaxPoseDraws) +
+                           " drawn poses in a row left part of the bin interior out of the image"));
+}
+
+double BinInViewRate(const config::CameraConfig& camera, const Intrinsics& intrinsics,
+                     const config::BinConfig& bin, int draws) {
+  // a fixed engine: the same config always gets the same estimate
+  std::mt19937_64 engine(0x5eed);
+  int seen = 0;
+  for (int i = 0; i < draws; ++i) {
+    seen += BinInView(intrinsics, SampleWorldFromCamera(camera, engine), bin) ? 1 : 0;
   }
-  message << "camera.distance_jitter_mm = " << camera.distance_jitter_mm()
-          << ", camera.tilt_max_deg = " << camera.tilt_max_deg()
-          << ", camera.roll_max_deg = " << camera.roll_max_deg()
-          << " leave the bin out of view too often; lower ";
-  const std::vector<std::string> culprits = RangesLosingTheBin(camera, intrinsics, bin);
-  if (culprits.empty()) {
-    message << "them (together they lose the bin), or raise camera.height_mm";
-  } else {
-    for (size_t i = 0; i < culprits.size(); ++i) {
-      message << (i == 0 ? "" : i + 1 == culprits.size() ? " and " : ", ") << culprits[i];
-    }
-    message << (culprits.size() == 1 ? " (it loses" : " (each loses")
-            << " the bin on its own at its extreme), or raise camera.height_mm";
-  }
-  throw std::runtime_error(message.str());
+  return draws > 0 ? static_cast<double>(seen) / draws : 0.0;
+}
+
+void CheckCameraPoseRanges(const config::CameraConfig& camera, const Intrinsics& intrinsics,
+                           const config::BinConfig& bin) {
+  if (!camera.require_bin_in_view()) return;
+  const double rate = BinInViewRate(camera, intrinsics, bin, 2000);
+  if (rate >= kMinInViewRate) return;
+  std::ostringstream lead;
+  lead << "only " << 100 * rate << " % of the drawn poses see the whole bin interior (at least "
+       << 100 * kMinInViewRate << " % needed)";
+  throw std::runtime_error(OutOfViewMessage(camera, intrinsics, bin, lead.str()));
 }
 
 }  // namespace stackgen

@@ -58,4 +58,15 @@ bool BinInView(const Intrinsics& intrinsics, const Eigen::Isometry3d& world_from
 Eigen::Isometry3d SampleCameraPose(const config::CameraConfig& camera, const Intrinsics& intrinsics,
                                    const config::BinConfig& bin, std::mt19937_64& engine);
 
+/// The fraction of `draws` poses from SampleWorldFromCamera (with a fixed engine, so the same
+/// config always gives the same estimate) for which BinInView holds.
+double BinInViewRate(const config::CameraConfig& camera, const Intrinsics& intrinsics,
+                     const config::BinConfig& bin, int draws);
+
+/// Refuses, before a run, camera ranges that would make SampleCameraPose give up now and then:
+/// when camera.require_bin_in_view and fewer than 20 % of 2000 drawn poses see the whole bin,
+/// throws std::runtime_error with that rate and which range to lower (as SampleCameraPose).
+void CheckCameraPoseRanges(const config::CameraConfig& camera, const Intrinsics& intrinsics,
+                           const config::BinConfig& bin);
+
 }  // namespace stackgen

@@ -132,6 +132,7 @@ void main() {
 
   // blinn-phong per light, in linear colour; a shadowed light keeps its ambient term only
   vec3 linear = vec3(0.0);
+#if LIGHT_COUNT > 0
   for (int i = 0; i < LIGHT_COUNT; ++i) {
     vec3 l = normalize(light_vector_camera[i].xyz - position_camera * light_vector_camera[i].w);
 #if SHADOWS
@@ -145,6 +146,7 @@ void main() {
     linear += (light_terms[i].x + light_terms[i].y * (n_dot_l * lit)) * albedo_linear +
               vec3(light_terms[i].z * material_specular * (highlight * lit));
   }
+#endif
 
   // gamma 2 to display values (sqrt is far cheaper than pow on llvmpipe); id and camera z of
   // the same surface

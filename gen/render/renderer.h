@@ -29,7 +29,7 @@ struct CameraModel {
 /// gamma 2 (linear = display^2), so a surface lit at full strength shows `color` itself.
 struct Material {
   Eigen::Vector3f color{0.7f, 0.7f, 0.7f};
-  float specular = 0.5f;   // strength of the white highlight, [0, 1]
+  float specular = 0.5f;   // strength of the white highlight, >= 0 (configs allow 0..2)
   float shininess = 32.f;  // Blinn-Phong exponent
   /// A texture from Renderer::AddTexture, or -1 for none. Its texel colour (display values)
   /// multiplies `color`; the mesh needs texture coordinates (TriangleMesh::uvs).

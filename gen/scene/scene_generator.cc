@@ -141,6 +141,11 @@ struct SceneGenerator::Impl {
     camera.cy = intrinsics.cy;
     camera.world_from_camera =
         SampleCameraPose(config().camera(), intrinsics, config().bin(), engine);
+    // clip nothing in view: beyond the farthest camera, the bin's whole extent
+    const config::BinConfig& bin = config().bin();
+    camera.far_mm = std::max(
+        camera.far_mm, 2 * (config().camera().height_mm() + config().camera().distance_jitter_mm() +
+                            std::hypot(bin.inner_length_mm(), bin.inner_width_mm())));
     return camera;
   }
 };
@@ -277,10 +282,21 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   impl_->bin_material.specular = static_cast<float>(bin.specular());
   impl_->bin_material.shininess = static_cast<float>(bin.shininess());
 
+  // camera ranges that would lose the bin too often are refused now, not mid-run
+  try {
+    CheckCameraPoseRanges(config.config.camera(), impl_->CameraIntrinsics(), bin);
+  } catch (const std::runtime_error& error) {
+    throw ConfigError(config.path + ": " + error.what());
+  }
+
   // backgrounds: the image folder is listed once, here
   const config::BackgroundConfig& background = config.config.background();
-  impl_->backgrounds = std::make_unique<BackgroundSource>(
-      background, background.image_dir().empty() ? "" : config.Resolve(background.image_dir()));
+  try {
+    impl_->backgrounds = std::make_unique<BackgroundSource>(
+        background, background.image_dir().empty() ? "" : config.Resolve(background.image_dir()));
+  } catch (const std::runtime_error& error) {
+    throw ConfigError(config.path + ": " + error.what());
+  }
   if (!background.image_dir().empty()) {
     description << "backgrounds: " << impl_->backgrounds->image_paths().size() << " images in "
                 << config.Resolve(background.image_dir()) << "\n";

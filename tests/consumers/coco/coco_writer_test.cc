@@ -214,6 +214,12 @@ TEST(CocoWriterTest, InconsistentScenesThrowNamingTheField) {
   scene = SceneA();
   scene.num_instances = 2;
   EXPECT_NE(AddError(writer, scene).find("num_instances"), std::string::npos);
+  scene = SceneA();
+  scene.instances[0].bbox_obj[2] = scene.camera.width + 1;
+  EXPECT_NE(AddError(writer, scene).find("instances[0].bbox_obj"), std::string::npos);
+  scene = SceneA();
+  scene.instances[0].bbox_visib[1] = -1;
+  EXPECT_NE(AddError(writer, scene).find("instances[0].bbox_visib"), std::string::npos);
 
   scene = SceneA();
   scene.instances[1].px_count_visib = 8;

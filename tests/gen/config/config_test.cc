@@ -138,6 +138,9 @@ TEST(ConfigTest, RandomisationChecks) {
                     "fy: 200 }")
                 .find("not above the bin rim"),
             std::string::npos);
+  // depth beyond 16 bits of depth_scale_mm
+  EXPECT_NE(ErrorOf("camera { depth_scale_mm: 0.005 }").find("camera.depth_scale_mm"),
+            std::string::npos);
   EXPECT_NE(ErrorOf("annotation { occlusion_rule: OCCLUSION_RULE_UNSPECIFIED }")
                 .find("annotation.occlusion_rule"),
             std::string::npos);

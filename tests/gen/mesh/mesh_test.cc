@@ -364,6 +364,21 @@ TEST_F(MeshTest, MissingTextureNamesIt) {
   EXPECT_NE(error.find("no_such_texture.png"), std::string::npos) << error;
 }
 
+// A missing MTL file, or a usemtl name no MTL file defines, is an error naming the OBJ line (assimp
+// would quietly use a gray material instead of the configured colour).
+TEST_F(MeshTest, MissingMaterialLibraryOrMaterialNamesTheLine) {
+  const std::string missing =
+      Write("box.obj", std::string("mtllib missing.mtl\nusemtl shiny\n") + kCubeObj);
+  std::string error = LoadError(missing);
+  EXPECT_NE(error.find(missing + "':1: material library"), std::string::npos) << error;
+  EXPECT_NE(error.find("missing.mtl"), std::string::npos) << error;
+  Write("box.mtl", "newmtl matte\nKd 1 0 0\n");
+  const std::string undefined =
+      Write("box2.obj", std::string("mtllib box.mtl\nusemtl shiny\n") + kCubeObj);
+  error = LoadError(undefined);
+  EXPECT_NE(error.find(undefined + "':2: usemtl 'shiny'"), std::string::npos) << error;
+}
+
 // A textured material on faces without texture coordinates is an error naming the texture.
 TEST_F(MeshTest, TextureWithoutCoordinatesIsError) {
   fs::copy_file(fs::path(TexturedBoxPath()).parent_path() / "quadrants.png", dir_ / "q.png");

@@ -248,5 +248,32 @@ TEST(CameraPoseTest, DeterministicAndIndependentDraws) {
   EXPECT_EQ(plain, rolled);
 }
 
+// ranges that see the whole bin rarely are refused before a run, naming the rate and the range
+// to lower; the default ranges over the default bin pass, and without the requirement anything
+// goes.
+TEST(CameraPoseTest, CheckCameraPoseRangesRefusesRareViews) {
+  const Intrinsics intrinsics;
+  const config::CameraConfig defaults;
+  EXPECT_GT(BinInViewRate(defaults, intrinsics, config::BinConfig(), 2000), 0.9);
+  EXPECT_NO_THROW(CheckCameraPoseRanges(defaults, intrinsics, config::BinConfig()));
+  // a bin that the nominal pose just sees: rolled or tilted views mostly cut a corner off
+  config::BinConfig wide;
+  wide.set_inner_length_mm(278);
+  wide.set_inner_width_mm(203);
+  const double rate = BinInViewRate(defaults, intrinsics, wide, 2000);
+  EXPECT_LT(rate, 0.2);
+  try {
+    CheckCameraPoseRanges(defaults, intrinsics, wide);
+    ADD_FAILURE() << "no error for a view rate of " << rate;
+  } catch (const std::runtime_error& error) {
+    const std::string text = error.what();
+    EXPECT_NE(text.find("% of the drawn poses"), std::string::npos) << text;
+    EXPECT_NE(text.find("camera.roll_max_deg"), std::string::npos) << text;
+  }
+  config::CameraConfig anything = defaults;
+  anything.set_require_bin_in_view(false);
+  EXPECT_NO_THROW(CheckCameraPoseRanges(anything, intrinsics, wide));
+}
+
 }  // namespace
 }  // namespace stackgen

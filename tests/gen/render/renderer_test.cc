@@ -224,6 +224,26 @@ TEST(RendererTest, InstanceMapAgreesWithColour) {
   }
 }
 
+// with no lights (and shadows asked for) surfaces are black but still drawn, with their ids
+TEST(RendererTest, NoLightsDrawsBlackSurfaces) {
+  Renderer renderer(160, 120);
+  const int box = renderer.AddMesh(MakeBox({60, 60, 60}));
+  DrawItem item;
+  item.mesh_id = box;
+  item.instance_id = 3;
+  item.world_from_object = Translation(0, 0, 30);
+  RenderOptions options = Background({0.5f, 0.5f, 0.5f});
+  options.shadows = true;
+  const RenderResult result = renderer.Render(CameraLookingDown(1000), {}, options, {item});
+  const cv::Mat drawn = result.instance == 3;
+  ASSERT_GT(cv::countNonZero(drawn), 100);
+  cv::Mat gray;
+  cv::cvtColor(result.color, gray, cv::COLOR_RGB2GRAY);
+  double most = 0;
+  cv::minMaxLoc(gray, nullptr, &most, nullptr, nullptr, drawn);
+  EXPECT_EQ(most, 0);
+}
+
 // depth is the camera z of the surface to 0.05 mm; background depth is 0
 TEST(RendererTest, DepthIsExact) {
   Renderer renderer(640, 480);

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "gen/config/config.h"
 #include "gen/randomize/uniform.h"
 
 namespace stackgen {
@@ -97,15 +98,10 @@ std::string OutOfViewMessage(const config::CameraConfig& camera, const Intrinsic
 }  // namespace
 
 Eigen::Isometry3d NominalWorldFromCamera(double distance_mm) {
-  Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
-  Eigen::Matrix3d rotation;
-  // columns: the camera's x, y, z axes in the world frame (looking down, image up = world +y).
-  rotation << 1, 0, 0,  //
-      0, -1, 0,         //
-      0, 0, -1;
-  world_from_camera.linear() = rotation;
-  world_from_camera.translation() = Eigen::Vector3d(0, 0, distance_mm);
-  return world_from_camera;
+  // the config's nominal pose, at this distance
+  config::CameraConfig camera;
+  camera.set_height_mm(distance_mm);
+  return WorldFromCamera(camera);
 }
 
 Eigen::Isometry3d SampleWorldFromCamera(const config::CameraConfig& camera,

@@ -349,6 +349,16 @@ bool IsClosedAndOutward(const TriangleMesh& mesh) {
   return true;
 }
 
+// The axis-aligned box around `box`'s eight corners moved by `target_from_source`.
+Eigen::AlignedBox3d TransformedBox(const Eigen::Isometry3d& target_from_source,
+                                   const Eigen::AlignedBox3d& box) {
+  Eigen::AlignedBox3d out;
+  for (int k = 0; k < 8; ++k) {
+    out.extend(target_from_source * box.corner(static_cast<Eigen::AlignedBox3d::CornerType>(k)));
+  }
+  return out;
+}
+
 // A right-handed rotation light_from_world whose z axis (third row) is `forward`, unit.
 Eigen::Matrix3d LightFromWorldRotation(const Eigen::Vector3d& forward) {
   const Eigen::Vector3d helper =
@@ -384,10 +394,7 @@ ShadowView MakeShadowView(const Light& light, const Eigen::AlignedBox3d& box, in
     light_from_world.linear() =
         LightFromWorldRotation(light.direction_world.cast<double>().normalized());
     light_from_world.translation() = -(light_from_world.linear() * box.center());
-    Eigen::AlignedBox3d bounds;
-    for (int k = 0; k < 8; ++k) {
-      bounds.extend(light_from_world * box.corner(static_cast<Eigen::AlignedBox3d::CornerType>(k)));
-    }
+    const Eigen::AlignedBox3d bounds = TransformedBox(light_from_world, box);
     const Eigen::Vector3d half = (bounds.sizes() / 2).cwiseMax(1e-3);
     const double half_x = half.x() * margin;
     const double half_y = half.y() * margin;
@@ -411,10 +418,7 @@ ShadowView MakeShadowView(const Light& light, const Eigen::AlignedBox3d& box, in
     aim = distance > 1e-9 ? Eigen::Vector3d(aim / distance) : Eigen::Vector3d(0, 0, -1);
     light_from_world.linear() = LightFromWorldRotation(aim);
     light_from_world.translation() = -(light_from_world.linear() * position);
-    Eigen::AlignedBox3d bounds;
-    for (int k = 0; k < 8; ++k) {
-      bounds.extend(light_from_world * box.corner(static_cast<Eigen::AlignedBox3d::CornerType>(k)));
-    }
+    const Eigen::AlignedBox3d bounds = TransformedBox(light_from_world, box);
     // near and far planes; a light inside the box gets a small near plane
     const double far = bounds.max().z() * 1.01 + 1;
     const double near = std::max(bounds.min().z() * 0.99, far * 1e-3);
@@ -800,11 +804,7 @@ void Renderer::Impl::DrawSurface(const DrawItem& item, const Eigen::Isometry3d& 
 Eigen::AlignedBox3d Renderer::Impl::WorldBounds(const std::vector<DrawItem>& items) const {
   Eigen::AlignedBox3d box;
   for (const DrawItem& item : items) {
-    const Eigen::AlignedBox3d& bounds = meshes[item.mesh_id].bounds;
-    for (int k = 0; k < 8; ++k) {
-      box.extend(item.world_from_object *
-                 bounds.corner(static_cast<Eigen::AlignedBox3d::CornerType>(k)));
-    }
+    box.extend(TransformedBox(item.world_from_object, meshes[item.mesh_id].bounds));
   }
   return box;
 }
@@ -1036,7 +1036,7 @@ int Renderer::AddMesh(const TriangleMesh& mesh) {
   buffers.index_count = static_cast<GLsizei>(triangles.size() * 3);
   buffers.cull_back_faces = IsClosedAndOutward(mesh);
   buffers.has_uvs = !mesh.uvs.empty();
-  for (const Eigen::Vector3f& p : mesh.positions_mm) buffers.bounds.extend(p.cast<double>());
+  buffers.bounds = Bounds(mesh);
   CheckGlError("Renderer::AddMesh");
   impl_->meshes.push_back(std::move(buffers));
   return static_cast<int>(impl_->meshes.size()) - 1;

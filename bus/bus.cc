@@ -58,6 +58,20 @@ void CheckMulticastRoute(const std::string& url) {
 
 }  // namespace
 
+double ParseDropFraction(const std::string& flag, const std::string& text) {
+  size_t used = 0;
+  double value = -1.0;
+  try {
+    value = std::stod(text, &used);
+  } catch (const std::exception&) {
+    used = 0;
+  }
+  if (text.empty() || used != text.size() || !(value >= 0.0 && value < 1.0)) {
+    throw std::invalid_argument(flag + " wants a fraction in [0, 1), got \"" + text + "\"");
+  }
+  return value;
+}
+
 std::string ResolveLcmUrl(const std::string& flag_value) {
   if (!flag_value.empty()) return flag_value;
   const char* from_env = std::getenv("STACKGEN_LCM_URL");
@@ -73,16 +87,35 @@ struct Bus::Impl {
   };
 
   std::string url;
+  BusOptions options;
+  // the fault-injection engine (SplitMix64) and what it dropped
+  uint64_t fault_state = 0;
+  int64_t fault_dropped = 0;
+  // a file:// log was read to its end
+  bool log_ended = false;
   // an exception a handler threw, kept until HandleFor can rethrow it outside LCM's C code.
   std::exception_ptr pending_error;
   // subscribers live here (a list: addresses stay valid) and outlive the LCM instance below.
   std::list<Subscriber> subscribers;
   std::unique_ptr<lcm::LCM> lcm;
 
+  // true with probability `fraction`, from the seeded engine
+  bool Drop(double fraction) {
+    if (fraction <= 0) return false;
+    uint64_t z = (fault_state += 0x9E3779B97F4A7C15ull);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    z ^= z >> 31;
+    const bool drop = static_cast<double>(z >> 11) * 0x1.0p-53 < fraction;
+    if (drop) ++fault_dropped;
+    return drop;
+  }
+
   static void Dispatch(const lcm::ReceiveBuffer* buffer, const std::string& /*channel*/,
                        Subscriber* subscriber) {
     Impl* impl = subscriber->impl;
     if (impl->pending_error) return;
+    if (impl->Drop(impl->options.drop_receive_fraction)) return;
     try {
       subscriber->handler(static_cast<const uint8_t*>(buffer->data), buffer->data_size);
     } catch (...) {
@@ -91,8 +124,16 @@ struct Bus::Impl {
   }
 };
 
-Bus::Bus(const std::string& url) : impl_(std::make_unique<Impl>()) {
+Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_unique<Impl>()) {
+  for (const double fraction : {options.drop_receive_fraction, options.drop_publish_fraction}) {
+    if (!(fraction >= 0.0 && fraction < 1.0)) {
+      throw std::invalid_argument("a bus drop fraction must be in [0, 1), got " +
+                                  std::to_string(fraction));
+    }
+  }
   impl_->url = url;
+  impl_->options = options;
+  impl_->fault_state = options.fault_seed;
   CheckMulticastRoute(url);
   impl_->lcm = std::make_unique<lcm::LCM>(url);
   if (!impl_->lcm->good()) {
@@ -104,7 +145,14 @@ Bus::~Bus() = default;
 
 const std::string& Bus::url() const { return impl_->url; }
 
+int64_t Bus::fault_dropped() const { return impl_->fault_dropped; }
+
+bool Bus::log_ended() const { return impl_->log_ended; }
+
+const DecodeLimits& Bus::decode_limits() const { return impl_->options.decode_limits; }
+
 void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t size) {
+  if (impl_->Drop(impl_->options.drop_publish_fraction)) return;
   if (impl_->lcm->publish(channel, data, static_cast<unsigned int>(size)) != 0) {
     throw std::runtime_error("cannot publish " + std::to_string(size) + " bytes on channel " +
                              channel + " (" + impl_->url + ")");
@@ -114,8 +162,8 @@ void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t s
 void Bus::SubscribeBytes(const std::string& channel, BytesHandler handler, int queue_capacity) {
   impl_->subscribers.push_back(Impl::Subscriber{impl_.get(), std::move(handler)});
   // lcm treats the channel as a regular expression; ours are plain names.
-  lcm::Subscription* subscription = impl_->lcm->subscribeFunction(
-      channel, &Impl::Dispatch, &impl_->subscribers.back());
+  lcm::Subscription* subscription =
+      impl_->lcm->subscribeFunction(channel, &Impl::Dispatch, &impl_->subscribers.back());
   if (subscription == nullptr) {
     throw std::runtime_error("cannot subscribe to channel " + channel);
   }
@@ -127,11 +175,17 @@ int Bus::HandleFor(int timeout_ms) {
   const Clock::time_point deadline = Clock::now() + std::chrono::milliseconds(timeout_ms);
   int handled = 0;
   while (true) {
-    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
     const int wait_ms = static_cast<int>(std::max<int64_t>(0, left.count()));
     const int result = impl_->lcm->handleTimeout(wait_ms);
     // a signal (e.g. SIGINT for a clean stop) ends the wait like a timeout.
     if (result < 0 && errno == EINTR) break;
+    // the end of a file:// log: nothing more will come
+    if (result < 0 && impl_->url.rfind("file://", 0) == 0) {
+      impl_->log_ended = true;
+      break;
+    }
     if (result < 0) throw std::runtime_error("LCM failed while handling messages on " + impl_->url);
     if (result == 0) break;
     ++handled;

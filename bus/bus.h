@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include "bus/bounded_decode.h"
+
 namespace stackgen {
 
 /// The default bus URL: UDP multicast on this host only, with a 4 MiB receive buffer.
@@ -23,13 +25,41 @@ class DecodeError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// Fault injection, for tests and demos: the bus drops a fraction of the messages it receives
+/// (before any handler sees them) and of those it publishes, drawn from its own engine seeded with
+/// `fault_seed`, so a run is repeatable.
+struct BusOptions {
+  /// Fraction of received messages dropped, 0..1 (default 0: none).
+  double drop_receive_fraction = 0;
+  /// Fraction of published messages not sent, 0..1 (default 0: none).
+  double drop_publish_fraction = 0;
+  /// Seed of the drop engine.
+  uint64_t fault_seed = 1;
+  /// What decoding one received message may allocate (see DecodeBounded).
+  DecodeLimits decode_limits;
+};
+
+/// Parses a --fault-drop value: a number in [0, 1). Throws std::invalid_argument naming `flag`.
+double ParseDropFraction(const std::string& flag, const std::string& text);
+
+/// The LCM encoding of `message`. Throws std::runtime_error if it cannot be encoded.
+template <typename Message>
+std::vector<uint8_t> EncodeMessage(const Message& message) {
+  std::vector<uint8_t> bytes(static_cast<size_t>(message.getEncodedSize()));
+  if (message.encode(bytes.data(), 0, static_cast<int>(bytes.size())) < 0) {
+    throw std::runtime_error(std::string("cannot encode a ") + Message::getTypeName());
+  }
+  return bytes;
+}
+
 /// Typed publish/subscribe over LCM. Message types are lcm-gen C++ classes from types/.
 /// LCM itself is hidden in bus.cc. Not thread-safe: publish and handle from one thread.
 class Bus {
  public:
   /// Opens the bus at `url` (udpm://, memq://, file://). For udpm:// it first checks that
   /// multicast can be sent and throws a one-line error saying how to enable it if not.
-  explicit Bus(const std::string& url);
+  /// `options` sets fault injection (none by default).
+  explicit Bus(const std::string& url, const BusOptions& options = {});
   ~Bus();
   Bus(const Bus&) = delete;
   Bus& operator=(const Bus&) = delete;
@@ -40,16 +70,20 @@ class Bus {
   /// Encodes `message` and publishes it on `channel`. Throws std::runtime_error on failure.
   template <typename Message>
   void Publish(const std::string& channel, const Message& message) {
-    std::vector<uint8_t> bytes(static_cast<size_t>(message.getEncodedSize()));
-    if (message.encode(bytes.data(), 0, static_cast<int>(bytes.size())) < 0) {
-      throw std::runtime_error("cannot encode message for channel " + channel);
-    }
+    const std::vector<uint8_t> bytes = EncodeMessage(message);
+    PublishBytes(channel, bytes.data(), bytes.size());
+  }
+
+  /// Publishes bytes already encoded (e.g. a scene kept for resending) on `channel`.
+  void PublishEncoded(const std::string& channel, const std::vector<uint8_t>& bytes) {
     PublishBytes(channel, bytes.data(), bytes.size());
   }
 
   /// Calls `handler` for every message on `channel` (an exact name, not a regex), decoded as
-  /// `Message`. A message that does not decode is not passed on: HandleFor throws a DecodeError
-  /// naming the channel, unless `on_decode_error` is given, which then receives the text.
+  /// `Message` within the bus's DecodeLimits (DecodeBounded: a message of another type, a
+  /// corrupt one or one too large is refused before anything large is allocated). A message
+  /// that does not decode is not passed on: HandleFor throws a DecodeError naming the channel
+  /// and the reason, unless `on_decode_error` is given, which then receives the text.
   /// `queue_capacity` is how many received messages LCM keeps waiting for HandleFor.
   template <typename Message>
   void Subscribe(const std::string& channel, std::function<void(const Message&)> handler,
@@ -57,12 +91,14 @@ class Bus {
                  std::function<void(const std::string&)> on_decode_error = nullptr) {
     SubscribeBytes(
         channel,
-        [channel, handler, on_decode_error](const uint8_t* data, size_t size) {
+        [channel, handler, on_decode_error, limits = decode_limits()](const uint8_t* data,
+                                                                      size_t size) {
           Message message;
-          if (message.decode(data, 0, static_cast<int>(size)) < 0) {
+          std::string why;
+          if (!DecodeBounded(data, size, limits, &message, &why)) {
             const std::string text = "cannot decode a " + std::string(Message::getTypeName()) +
                                      " on channel " + channel + " (" + std::to_string(size) +
-                                     " bytes)";
+                                     " bytes): " + why;
             if (on_decode_error) {
               on_decode_error(text);
               return;
@@ -79,8 +115,15 @@ class Bus {
   /// LCM's C code and rethrown here.
   int HandleFor(int timeout_ms);
 
+  /// Messages dropped on purpose so far (BusOptions), received and published.
+  int64_t fault_dropped() const;
+
+  /// True once a file:// bus has handed out the last event of its log.
+  bool log_ended() const;
+
  private:
   using BytesHandler = std::function<void(const uint8_t* data, size_t size)>;
+  const DecodeLimits& decode_limits() const;
   void PublishBytes(const std::string& channel, const uint8_t* data, size_t size);
   void SubscribeBytes(const std::string& channel, BytesHandler handler, int queue_capacity);
 

@@ -11,4 +11,9 @@ inline constexpr const char* kStatusChannel = "STACKGEN_STATUS";
 /// The generator config in force, latched, about 1 Hz (stackgen::config_text).
 inline constexpr const char* kConfigChannel = "STACKGEN_CONFIG";
 
+/// Flow control from reliable consumers to generators (stackgen::credit).
+inline constexpr const char* kCreditChannel = "STACKGEN_CREDIT";
+/// Requests for missed scenes, from consumers to a generator (stackgen::resend_request).
+inline constexpr const char* kResendChannel = "STACKGEN_RESEND";
+
 }  // namespace stackgen

@@ -28,6 +28,7 @@
 #include <opencv2/imgproc.hpp>
 #include <stackgen/scene.hpp>
 
+#include "bus/bounded_decode.h"
 #include "bus/bus.h"
 #include "bus/channels.h"
 #include "gen/annotate/rle.h"
@@ -77,13 +78,14 @@ struct Flags {
   int columns = 4;
   int tile_width = 400;
   double timeout_s = 60.0;
+  double fault_drop = 0;  // bus only
 };
 
 void PrintHelp() {
   std::printf(
       "Usage: %s --coco DIR --out SHEET.png [--count N] [--columns C] [--tile-width W]\n"
       "       %s --lcm-url URL --out SHEET.png [--count N] [--columns C] [--tile-width W]\n"
-      "                    [--timeout S]\n"
+      "                    [--timeout S] [--fault-drop F]\n"
       "\n"
       "Draws a contact sheet: a grid of scenes, each scene's image with the visible mask of every\n"
       "instance outlined and its instance id written on it, in the colour of its label:\n"
@@ -116,6 +118,8 @@ void PrintHelp() {
       "  --timeout S      bus only: seconds to wait for N scenes, > 0 (default 60). When fewer\n"
       "                   arrive the sheet shows those received; none is an error. SIGINT or\n"
       "                   SIGTERM stops the wait the same way.\n"
+      "  --fault-drop F   bus only: drop the fraction F in [0, 1) of the messages received,\n"
+      "                   from a fixed seed (tests and demos; default 0).\n"
       "  --help           print this help and exit.\n"
       "A sheet may be at most 32000 px wide and 2^28 px in all.\n"
       "\n"
@@ -164,6 +168,7 @@ double ParseSeconds(const std::string& name, const std::string& text) {
 Flags ParseFlags(int argc, char** argv) {
   Flags flags;
   bool have_timeout = false;
+  bool have_fault_drop = false;
   for (int i = 1; i < argc; ++i) {
     std::string name = argv[i];
     std::string value;
@@ -180,7 +185,8 @@ Flags ParseFlags(int argc, char** argv) {
       std::exit(0);
     }
     if (name != "--coco" && name != "--lcm-url" && name != "--out" && name != "--count" &&
-        name != "--columns" && name != "--tile-width" && name != "--timeout") {
+        name != "--columns" && name != "--tile-width" && name != "--timeout" &&
+        name != "--fault-drop") {
       UsageError("unknown argument \"" + std::string(argv[i]) + "\"");
     }
     if (!have_value) {
@@ -204,6 +210,13 @@ Flags ParseFlags(int argc, char** argv) {
       flags.columns = ParseInt(name, value, 1, 100);
     } else if (name == "--tile-width") {
       flags.tile_width = ParseInt(name, value, 16, 4096);
+    } else if (name == "--fault-drop") {
+      try {
+        flags.fault_drop = stackgen::ParseDropFraction(name, value);
+      } catch (const std::invalid_argument& error) {
+        UsageError(error.what());
+      }
+      have_fault_drop = true;
     } else {
       flags.timeout_s = ParseSeconds(name, value);
       have_timeout = true;
@@ -214,6 +227,9 @@ Flags ParseFlags(int argc, char** argv) {
   }
   if (flags.out.empty()) UsageError("--out SHEET.png is required");
   if (have_timeout && !flags.coco_dir.empty()) UsageError("--timeout applies to --lcm-url only");
+  if (have_fault_drop && !flags.coco_dir.empty()) {
+    UsageError("--fault-drop applies to --lcm-url only");
+  }
   const int64_t sheet_width =
       kGap + int64_t{std::min(flags.columns, flags.count)} * (flags.tile_width + kGap);
   if (sheet_width > kMaxSheetWidth) {
@@ -609,6 +625,9 @@ SceneView ViewOfMessage(const stackgen::scene& message) {
     cv::cvtColor(pixels, scene.image, rgb ? cv::COLOR_RGB2BGR : cv::COLOR_GRAY2BGR);
   } else if (color.encoding == stackgen::image::ENCODING_PNG ||
              color.encoding == stackgen::image::ENCODING_JPEG) {
+    // the file header must declare the camera's size before OpenCV allocates for it
+    std::string why;
+    if (!stackgen::CheckEncodedImageDims(color, &why)) throw std::runtime_error("color: " + why);
     scene.image = cv::imdecode(color.data, cv::IMREAD_COLOR);
     if (scene.image.empty()) throw std::runtime_error("color.data does not decode");
     if (scene.image.cols != width || scene.image.rows != height) {
@@ -685,7 +704,11 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
       std::fprintf(stderr, "%s: warning: %s\n", kProgram, text.c_str());
     }
   };
-  stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url == "default" ? "" : flags.lcm_url));
+  stackgen::BusOptions bus_options;
+  bus_options.drop_receive_fraction = flags.fault_drop;
+  bus_options.fault_seed = 0x5EE;
+  stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url == "default" ? "" : flags.lcm_url),
+                    bus_options);
   bus.Subscribe<stackgen::scene>(
       stackgen::kSceneChannel,
       [&](const stackgen::scene& scene) {
@@ -716,7 +739,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
                         std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                             std::chrono::duration<double>(flags.timeout_s));
   while (!stop_requested && static_cast<int>(tiles.size()) < flags.count &&
-         std::chrono::steady_clock::now() < deadline) {
+         std::chrono::steady_clock::now() < deadline && !bus.log_ended()) {
     bus.HandleFor(100);
   }
   if (undecodable > 0 || invalid > 0 || repeated > 0) {

@@ -1,11 +1,12 @@
 #pragma once
 
 #include <cstdint>
-#include <fstream>
 #include <map>
 #include <optional>
+#include <set>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include <stackgen/scene.hpp>
 
@@ -28,56 +29,94 @@ struct CocoWriterOptions {
   std::optional<double> min_visib_fract;
   /// The dataset's info.description.
   std::string description = "stackgen: synthetic images of parts piled in a bin";
+  /// False (the default): start a new dataset; a folder that already holds one (a non-empty
+  /// annotations.json or annotations.journal) is refused. True: continue the dataset in the
+  /// folder from its journal (after a crash, a kill or a clean Finish alike): every scene
+  /// recorded there counts as stored, a record torn by a crash is cut off, and later Adds and
+  /// Finish extend the same dataset. A missing or empty folder starts a new dataset either way.
+  bool resume = false;
 };
 
 /// Streams stackgen::scene messages into a COCO instances dataset in a folder:
 /// `annotations.json` and `images/<generator_id>_<seq:06>.png` (`.jpg` for JPEG scenes).
-/// Each Add writes the image file and appends the scene's image and annotation records as JSON
-/// fragments to an on-disk journal (`annotations.journal`); only a small index stays in memory.
-/// Finish streams the journal, sorted by id, into annotations.json. Ids: image id =
+/// The writer's durable record is the journal `annotations.journal`: each Add writes the image
+/// file, then appends one line to the journal holding the scene's image record, its annotation
+/// records and its counts, and syncs both to disk before it returns; only a small index stays in
+/// memory. annotations.json is derived from the journal: Finish streams the journal, sorted by
+/// id, into it. The journal is kept after Finish, so a dataset (finished or cut short by a crash)
+/// can be resumed and extended (CocoWriterOptions::resume). Ids: image id =
 /// generator_id * 1000000000 + seq + 1, annotation id = image id * 1000 + instance_id, so a
 /// dataset does not depend on the order scenes arrive in. Categories come from the scenes'
-/// class_id and class_name. Not thread-safe.
+/// class_id and class_name. One writer per folder at a time (the journal is locked); not
+/// thread-safe.
+///
+/// Journal format: UTF-8, one line per scene, each a JSON object laid out as
+///   {"image":IMAGE,"annotations":[A1,A2,...],"scene":SCENE}\n
+/// IMAGE is the scene's record of annotations.json "images" and A1, A2, ... its records of
+/// "annotations", byte for byte as Finish writes them (which puts a line break after each comma
+/// between records); SCENE is
+///   {"annotations_length":n,"categories":[[class_id,"class_name"],...],"generator_id":g,
+///    "image_length":n,"journal_version":1,"min_visib_fract":x or null,"num_annotations":n,
+///    "num_crowd":n,"num_dropped":n,"seq":s}
+/// where image_length and annotations_length are the byte lengths of IMAGE and of the text
+/// between the brackets of "annotations". A line is complete once its '\n' is written; a last
+/// line without one is a torn write, cut off on resume.
 class CocoWriter {
  public:
-  /// Opens a dataset in `dir`, creating it and `dir/images` if missing. Throws
-  /// std::runtime_error if `dir` already holds a non-empty annotations.json (it is never
-  /// overwritten), if min_visib_fract is set and outside [0, 1], or if a folder or the journal
-  /// cannot be created.
+  /// Opens a dataset in `dir`, creating it and `dir/images` if missing, and removes leftover
+  /// temporary files (images/*.tmp, annotations.json.tmp). With options.resume, reloads the
+  /// journal: its scenes count as stored, a torn last line is cut off (see
+  /// truncated_journal_bytes), and image files that no journal line names (written by an Add
+  /// that never completed) are removed. Throws std::runtime_error naming the file if: without
+  /// resume, `dir` holds a non-empty annotations.json or annotations.journal; with resume, it
+  /// holds annotations.json but no journal, a journal line that is complete but not a valid
+  /// record (the message gives its line number and byte offset), a line whose image file is
+  /// missing, or lines written with another min_visib_fract; min_visib_fract is set and outside
+  /// [0, 1]; another writer has the journal open; a folder or the journal cannot be created,
+  /// read, written or synced.
   explicit CocoWriter(const std::string& dir, const CocoWriterOptions& options = {});
-  /// Removes the journal if the dataset was finished after the last Add or holds no scene;
-  /// otherwise leaves it (annotations.json is never written here).
+  /// Closes the journal; the journal stays (annotations.json is never written here).
   ~CocoWriter();
   CocoWriter(const CocoWriter&) = delete;
   CocoWriter& operator=(const CocoWriter&) = delete;
 
   /// Validates `scene` and stores it: writes its colour image to images/ (PNG and JPEG bytes as
-  /// they are, RAW encoded to PNG; through a temporary file and a rename; the image record's
-  /// file_name is relative to images/, as COCO loaders expect) and journals its records.
+  /// they are, RAW encoded to PNG; through a temporary file, synced to disk before it is renamed
+  /// into place; the image record's file_name is relative to images/, as COCO loaders expect),
+  /// then appends its journal line and syncs it. When Add returns true the scene is on disk for
+  /// good: it survives a crash or a power cut and is kept by a resumed writer.
   /// Every annotation (iscrowd 0 or 1) has the COCO fields (segmentation = the visible mask,
   /// area = px_count_visib, bbox = bbox_visib, iscrowd), the amodal ones (amodal_segmentation =
   /// mask_obj_rle, amodal_bbox = bbox_obj, px_count_all) and stackgen's (instance_id,
   /// visib_fract, px_count_visib, bbox_obj, posture_deg, resting_face, cam_R_m2c, cam_t_m2c,
   /// world_R_m2w, world_t_m2w).
-  /// Returns false, writing nothing, if a scene with the same (generator_id, seq) was stored
-  /// already. Throws InvalidSceneError naming the field if the scene is inconsistent (image size
-  /// vs camera, data size, encoding, num_instances, an instance_id outside 1..999 or repeated, a
-  /// class name that differs from an earlier scene's, mask_visib_rle or mask_obj_rle that is
-  /// empty or does not decode to width * height pixels of which px_count_visib resp.
-  /// px_count_all are set, an instance both annotated and ignored, or either with no visible
-  /// pixel, a value that is not finite, generator_id or seq out of range), and
-  /// std::runtime_error naming the file if writing fails.
+  /// Returns false, writing nothing, if a scene with the same (generator_id, seq) and seed was
+  /// stored already; one with another seed (another run with the same generator id) throws
+  /// InvalidSceneError. Throws InvalidSceneError naming the field if the scene is inconsistent
+  /// (image size vs camera, data size, encoding, num_instances, an instance_id outside 1..999 or
+  /// repeated, a class name that is not UTF-8 or differs from an earlier scene's, mask_visib_rle or
+  /// mask_obj_rle that is empty or does not decode to width * height pixels of which
+  /// px_count_visib resp. px_count_all are set, an instance both annotated and ignored, or
+  /// either with no visible pixel, a value that is not finite, generator_id or seq out of
+  /// range), and std::runtime_error naming the file and the system's reason ("cannot write
+  /// DIR/images/0_000012.png.tmp: No space left on device") if writing fails. After either
+  /// throw nothing of the scene is on disk or in the writer (its temporary file is removed, the
+  /// journal cut back to its previous length), and the writer can go on: later Adds and Finish
+  /// work when there is room again. (Should cutting the journal back fail as well, later Adds
+  /// throw until the dataset is resumed, which cuts a torn line off.)
   bool Add(const stackgen::scene& scene);
 
   /// Writes `annotations.json` with every scene stored so far: streams the journal into
-  /// `annotations.json.tmp`, then renames it, so annotations.json is never half-written. Images
-  /// and annotations are sorted by id, categories by id. May be called again after more Adds.
-  /// Throws std::runtime_error naming the file if reading or writing fails.
+  /// `annotations.json.tmp`, syncs it, then renames it, so annotations.json is never
+  /// half-written. Images and annotations are sorted by id, categories by id. May be called
+  /// again after more Adds. Throws std::runtime_error naming the file and the system's reason
+  /// if reading or writing fails; then any previous annotations.json is left as it was and the
+  /// temporary file is removed.
   void Finish();
 
   /// The dataset folder.
   const std::string& dir() const { return dir_; }
-  /// Scenes (= images) stored.
+  /// Scenes (= images) stored, those reloaded from the journal included.
   int64_t num_images() const { return static_cast<int64_t>(index_.size()); }
   /// Annotations written with iscrowd 0 (annotated instances, less those below min_visib_fract
   /// when it is set).
@@ -93,37 +132,73 @@ class CocoWriter {
   /// The sum of LostPerGenerator.
   int64_t num_lost() const;
 
+  /// The highest seq s of generator `generator_id` such that every seq 0..s is stored; -1 if
+  /// seq 0 is not (or the generator is unknown).
+  int64_t StoredThrough(int32_t generator_id) const;
+  /// Whether the scene (generator_id, seq) is stored; false for ids outside the id layout.
+  bool Has(int32_t generator_id, int64_t seq) const;
+  /// Every stored seq, ascending, per generator_id.
+  std::map<int32_t, std::vector<int64_t>> StoredSeqs() const;
+
+  /// Scenes reloaded from the journal when the writer was opened with resume (0 without).
+  int64_t resumed_scenes() const { return resumed_scenes_; }
+  /// Bytes of a torn last journal line cut off when the writer was opened with resume (0 if the
+  /// journal ended with a complete line).
+  int64_t truncated_journal_bytes() const { return truncated_journal_bytes_; }
+
   /// The image id of a scene: generator_id * 1000000000 + seq + 1.
   static int64_t ImageId(int32_t generator_id, int64_t seq);
   /// The annotation id of an instance: image_id * 1000 + instance_id.
   static int64_t AnnotationId(int64_t image_id, int32_t instance_id);
 
  private:
-  // where a scene's fragments lie in the journal
+  // where a scene's records lie in the journal (byte offsets from its start)
   struct JournalEntry {
     int32_t generator_id = 0;
     int64_t seq = 0;
+    int64_t seed = 0;  // header.seed: a repeat with another seed is another run's scene
     uint64_t image_offset = 0;
     uint64_t image_length = 0;
     uint64_t annotations_offset = 0;
     uint64_t annotations_length = 0;  // 0: the scene has no annotations
   };
+  // a scene's counts, as its journal line holds them
+  struct SceneCounts {
+    int64_t annotations = 0;
+    int64_t crowd = 0;
+    int64_t dropped = 0;
+  };
 
   void Validate(const stackgen::scene& scene) const;
-  std::string WriteImageFile(const stackgen::scene& scene) const;
-  uint64_t AppendToJournal(const std::string& text);
+  // writes the scene's colour image to `path` (see Add)
+  void WriteImageFile(const stackgen::scene& scene, const std::string& path) const;
+  // appends `line` to the journal and syncs it; on failure cuts the journal back and throws
+  void AppendToJournal(const std::string& line);
+  // indexes every complete journal line and cuts a torn last one off; returns the image file
+  // names the lines record
+  std::set<std::string> LoadJournal();
+  void LoadJournalLine(const std::string& line, uint64_t offset, int64_t line_number,
+                       std::set<std::string>* journaled_images);
+  // removes temporary files from images/ (and with resume image files no line records); throws
+  // if a journaled image is missing
+  void CleanImagesFolder(const std::set<std::string>& journaled_images) const;
+  // adds a stored scene to the index, the counts and StoredThrough
+  void Index(const JournalEntry& entry, const SceneCounts& counts);
 
   std::string dir_;
   CocoWriterOptions options_;
   std::string journal_path_;
-  std::ofstream journal_;
+  int journal_fd_ = -1;
   uint64_t journal_size_ = 0;
+  bool journal_broken_ = false;                // a failed append could not be cut back
   std::map<int64_t, JournalEntry> index_;      // by image id
   std::map<int32_t, std::string> categories_;  // class_id -> class_name
+  std::map<int32_t, int64_t> stored_through_;  // generator_id -> StoredThrough
   int64_t num_annotations_ = 0;
   int64_t num_crowd_ = 0;
   int64_t num_dropped_ = 0;
-  bool finished_ = false;
+  int64_t resumed_scenes_ = 0;
+  int64_t truncated_journal_bytes_ = 0;
 };
 
 }  // namespace stackgen

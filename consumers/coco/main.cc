@@ -9,15 +9,19 @@
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
+#include <filesystem>
 #include <iostream>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 
 #include <stackgen/scene.hpp>
+#include <stackgen/status.hpp>
 
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "bus/delivery.h"
 #include "consumers/coco/coco_writer.h"
 
 namespace {
@@ -37,17 +41,28 @@ struct Flags {
   int64_t count = 0;
   std::string lcm_url;
   std::optional<double> min_visib_fract;  // unset: follow the generator's labels
+  bool resume = false;
+  int64_t window = 8;
+  double fault_drop = 0;
 };
 
 void PrintHelp() {
   std::printf(
-      "Usage: %s --out DIR [--count N] [--lcm-url URL] [--min-visib-fract F]\n"
+      "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL] [--min-visib-fract F]\n"
+      "       [--window N] [--fault-drop F]\n"
       "\n"
       "Writes every scene published on %s into a COCO instances dataset:\n"
       "DIR/annotations.json and DIR/images/<generator_id>_<seq:06>.png (.jpg for JPEG scenes).\n"
-      "Stops after N scenes, or on SIGINT/SIGTERM, and always leaves a valid dataset of the\n"
-      "scenes received. Scenes repeated (same generator_id and seq) are stored once; seq gaps are\n"
-      "reported as lost.\n"
+      "DIR/annotations.journal is the durable record of every scene stored (annotations.json\n"
+      "is made from it). Stops after N scenes, or on SIGINT/SIGTERM, and always leaves a valid\n"
+      "dataset of the scenes stored.\n"
+      "\n"
+      "Delivery: it is a reliable consumer. It sends credits on STACKGEN_CREDIT (per generator:\n"
+      "stored through which seq, how many more it can take), so no generator runs more than\n"
+      "--window scenes ahead of what it stored; it asks for missed seqs on STACKGEN_RESEND; it\n"
+      "stores every scene of every generator (from seq 0) exactly once, keeping generators apart\n"
+      "by generator_id; it publishes its counters on STACKGEN_STATUS every second. On a file://\n"
+      "LCM log (file://LOG?speed=0) it only reads.\n"
       "\n"
       "The generator's labels decide what is written: an instance it marks annotated becomes an\n"
       "annotation (iscrowd 0), one it marks ignored (its occlusion rule IGNORE) an ignore region\n"
@@ -59,8 +74,15 @@ void PrintHelp() {
       "                        already holds a non-empty annotations.json (never overwritten).\n"
       "  --count N             stop after N scenes are stored (default 0: run until SIGINT or\n"
       "                        SIGTERM).\n"
+      "  --resume              continue the dataset in DIR after a crash or a stop: reloads\n"
+      "                        the journal (a torn last record is cut) and stores only scenes\n"
+      "                        it does not hold; --count counts the scenes already there.\n"
       "  --lcm-url URL         LCM URL to listen on (default: $STACKGEN_LCM_URL when set, else\n"
       "                        %s).\n"
+      "  --window N            scenes a generator may run ahead of what is stored, 1..10000\n"
+      "                        (default 8).\n"
+      "  --fault-drop F        drop the fraction F in [0, 1) of the messages received, from a\n"
+      "                        fixed seed: for tests and demos of lossless delivery (default 0).\n"
       "  --min-visib-fract F   also drop annotated objects whose visible fraction (visib_fract)\n"
       "                        is below F, 0..1: a stricter filter than the generator's\n"
       "                        annotation.min_visib_fract; it never adds objects the generator\n"
@@ -78,7 +100,7 @@ void PrintHelp() {
 }
 
 // a whole-string integer >= 0
-int64_t ParseCount(const std::string& text) {
+int64_t ParseCount(const std::string& flag, const std::string& text) {
   size_t used = 0;
   long long value = -1;
   try {
@@ -87,7 +109,7 @@ int64_t ParseCount(const std::string& text) {
     used = 0;
   }
   if (used != text.size() || text.empty() || value < 0) {
-    UsageError("--count wants a whole number >= 0, got \"" + text + "\"");
+    UsageError(flag + " wants a whole number >= 0, got \"" + text + "\"");
   }
   return value;
 }
@@ -125,8 +147,12 @@ Flags ParseFlags(int argc, char** argv) {
       PrintHelp();
       std::exit(0);
     }
+    if (name == "--resume" && !have_value) {
+      flags.resume = true;
+      continue;
+    }
     if (name != "--out" && name != "--count" && name != "--lcm-url" &&
-        name != "--min-visib-fract") {
+        name != "--min-visib-fract" && name != "--window" && name != "--fault-drop") {
       UsageError("unknown argument \"" + std::string(argv[i]) + "\"");
     }
     if (!have_value) {
@@ -138,7 +164,16 @@ Flags ParseFlags(int argc, char** argv) {
       flags.out = value;
       have_out = true;
     } else if (name == "--count") {
-      flags.count = ParseCount(value);
+      flags.count = ParseCount("--count", value);
+    } else if (name == "--window") {
+      flags.window = ParseCount("--window", value);
+      if (flags.window < 1 || flags.window > 10000) UsageError("--window wants 1..10000");
+    } else if (name == "--fault-drop") {
+      try {
+        flags.fault_drop = stackgen::ParseDropFraction("--fault-drop", value);
+      } catch (const std::invalid_argument& error) {
+        UsageError(error.what());
+      }
     } else if (name == "--lcm-url") {
       flags.lcm_url = value;
     } else {
@@ -163,10 +198,32 @@ std::string FormatDuration(double seconds) {
   return text;
 }
 
+// the consumer's name in credits: stable across restarts of a writer on the same folder
+std::string ConsumerName(const std::string& out) {
+  char host[256] = "localhost";
+  gethostname(host, sizeof(host) - 1);
+  std::error_code error;
+  const std::filesystem::path absolute = std::filesystem::absolute(out, error);
+  return std::string(kProgram) + "@" + host + ":" + (error ? out : absolute.string());
+}
+
+int64_t UnixMicros() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   const Flags flags = ParseFlags(argc, argv);
+  // a file too large for RLIMIT_FSIZE is a write error with a message, not a silent kill
+  std::signal(SIGXFSZ, SIG_IGN);
+  // declared here so that the error path below can still finish the dataset; the client
+  // refers to the bus, so it goes first
+  std::unique_ptr<stackgen::CocoWriter> writer;
+  std::unique_ptr<stackgen::Bus> bus_owner;
+  std::unique_ptr<stackgen::SceneClient> client;
   try {
     // stop cleanly on SIGINT and SIGTERM: the handler only sets a flag
     struct sigaction action {};
@@ -179,39 +236,69 @@ int main(int argc, char** argv) {
     // the dataset first, so a folder that holds one is refused before listening
     stackgen::CocoWriterOptions options;
     options.min_visib_fract = flags.min_visib_fract;
-    stackgen::CocoWriter writer(flags.out, options);
+    options.resume = flags.resume;
+    writer = std::make_unique<stackgen::CocoWriter>(flags.out, options);
+    if (flags.resume) {
+      std::printf("%s: resumed %s: %lld scenes stored%s\n", kProgram, flags.out.c_str(),
+                  static_cast<long long>(writer->num_images()),
+                  writer->truncated_journal_bytes() > 0
+                      ? (", cut a torn last record of " +
+                         std::to_string(writer->truncated_journal_bytes()) + " bytes")
+                            .c_str()
+                      : "");
+    }
+
+    // the bus; on a log file it only reads, live it is a reliable consumer
+    stackgen::BusOptions bus_options;
+    bus_options.drop_receive_fraction = flags.fault_drop;
+    bus_options.fault_seed = 0xC0C0;
+    bus_owner =
+        std::make_unique<stackgen::Bus>(stackgen::ResolveLcmUrl(flags.lcm_url), bus_options);
+    stackgen::Bus& bus = *bus_owner;
+    const std::string name = ConsumerName(flags.out);
+    if (bus.url().rfind("file://", 0) != 0) {
+      stackgen::SceneClientOptions client_options;
+      client_options.name = name;
+      client_options.window = static_cast<int32_t>(flags.window);
+      client_options.max_scenes = flags.count;
+      client = std::make_unique<stackgen::SceneClient>(&bus, client_options);
+      for (const auto& [generator_id, seqs] : writer->StoredSeqs()) {
+        client->Restore(generator_id, seqs);
+      }
+    }
 
     // counters of what did not make it into the dataset
     int64_t decode_errors = 0;
     int64_t invalid_scenes = 0;
     int64_t duplicates = 0;
-    std::map<int32_t, int64_t> last_seq;  // per generator_id, the highest seq seen
+    const auto enough = [&] { return flags.count > 0 && writer->num_images() >= flags.count; };
 
-    stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url));
     bus.Subscribe<stackgen::scene>(
         stackgen::kSceneChannel,
         [&](const stackgen::scene& scene) {
           // once --count scenes are stored, later ones in the same batch are left out
-          if (flags.count > 0 && writer.num_images() >= flags.count) return;
-          // report a seq gap as it appears
+          if (enough()) return;
           const int32_t generator_id = scene.header.generator_id;
           const int64_t seq = scene.header.seq;
-          const auto last = last_seq.find(generator_id);
-          if (last != last_seq.end() && seq > last->second + 1) {
-            std::fprintf(stderr, "%s: generator %d: lost seq %lld..%lld (%lld scenes)\n", kProgram,
-                         generator_id, static_cast<long long>(last->second + 1),
-                         static_cast<long long>(seq - 1),
-                         static_cast<long long>(seq - 1 - last->second));
-          }
-          if (last == last_seq.end() || seq > last->second) last_seq[generator_id] = seq;
-          // store it; an inconsistent scene is reported and skipped
+          // the client tracks seqs; the writer still sees a repeat, to refuse one from another
+          // run (same ids, another seed), and a scene once skipped as invalid may be stored now
+          const bool fresh = !client || client->Received(generator_id, seq);
+          // store it; an inconsistent scene is reported and skipped (never asked for again)
           try {
-            if (!writer.Add(scene)) ++duplicates;
+            if (writer->Add(scene)) {
+              if (client) client->Stored(generator_id, seq);
+            } else if (!client) {
+              ++duplicates;
+            } else if (fresh) {
+              client->Skipped(generator_id, seq);
+            }
           } catch (const stackgen::InvalidSceneError& error) {
+            if (client && fresh) client->Skipped(generator_id, seq);
             if (++invalid_scenes <= kMaxReportedErrors) {
               std::fprintf(stderr, "%s: skipped an invalid scene: %s\n", kProgram, error.what());
             }
           }
+          if (client) client->Service();
         },
         kQueueCapacity,
         [&](const std::string& text) {
@@ -224,41 +311,84 @@ int main(int argc, char** argv) {
                 stackgen::kSceneChannel, flags.out.c_str());
     std::fflush(stdout);
 
+    // publishes the counters on STACKGEN_STATUS
+    int64_t stored_at_last_status = writer->num_images();
+    auto last_status = std::chrono::steady_clock::now();
+    const auto publish_status = [&](std::chrono::steady_clock::time_point now) {
+      const double seconds = std::chrono::duration<double>(now - last_status).count();
+      stackgen::status message{};
+      message.header.seq = writer->num_images();
+      message.header.generator_id = -1;
+      message.header.utime = UnixMicros();
+      message.process = kProgram;
+      message.name = name;
+      const stackgen::DeliveryCounters counters =
+          client ? client->counters() : stackgen::DeliveryCounters{};
+      message.scenes = counters.stored;
+      message.rate_hz = seconds > 0 ? (writer->num_images() - stored_at_last_status) / seconds : 0;
+      message.received = counters.received;
+      message.duplicates = counters.duplicates;
+      message.lost = counters.lost;
+      message.reasked = counters.reasked;
+      message.bad_messages = decode_errors + invalid_scenes;
+      message.fault_dropped = bus.fault_dropped();
+      bus.Publish(stackgen::kStatusChannel, message);
+      last_status = now;
+      stored_at_last_status = writer->num_images();
+    };
+
     // handle scenes until enough are stored or a signal arrives
     const bool show_progress = isatty(STDERR_FILENO) != 0;
     const auto start = std::chrono::steady_clock::now();
+    const int64_t stored_at_start = writer->num_images();
     auto last_progress = start;
-    while (!stop_requested && (flags.count == 0 || writer.num_images() < flags.count)) {
-      bus.HandleFor(100);
+    while (!stop_requested && !enough() && !bus.log_ended()) {
+      bus.HandleFor(50);
+      if (client) client->Service();
       const auto now = std::chrono::steady_clock::now();
+      if (client && now - last_status >= std::chrono::seconds(1)) publish_status(now);
       if (show_progress && now - last_progress >= std::chrono::milliseconds(500)) {
         last_progress = now;
         const double seconds = std::chrono::duration<double>(now - start).count();
-        const double rate = writer.num_images() / std::max(seconds, 1e-9);
+        const double rate = (writer->num_images() - stored_at_start) / std::max(seconds, 1e-9);
         std::string eta;
         if (flags.count > 0 && rate > 0) {
-          eta = ", ETA " + FormatDuration((flags.count - writer.num_images()) / rate);
+          eta = ", ETA " + FormatDuration((flags.count - writer->num_images()) / rate);
         }
         std::fprintf(stderr, "\r%s: %lld scenes, %.1f scenes/s%s   ", kProgram,
-                     static_cast<long long>(writer.num_images()), rate, eta.c_str());
+                     static_cast<long long>(writer->num_images()), rate, eta.c_str());
       }
     }
     if (show_progress) std::fprintf(stderr, "\n");
 
-    // a valid dataset of what arrived
-    writer.Finish();
-    for (const auto& [generator_id, lost] : writer.LostPerGenerator()) {
+    // generators stop waiting for us; a valid dataset of what arrived
+    if (client) {
+      publish_status(std::chrono::steady_clock::now());
+      client->Leave();
+    }
+    writer->Finish();
+    for (const auto& [generator_id, lost] : writer->LostPerGenerator()) {
       if (lost > 0) {
         std::fprintf(stderr, "%s: generator %d: %lld scenes lost\n", kProgram, generator_id,
                      static_cast<long long>(lost));
       }
     }
-    if (decode_errors > 0 || invalid_scenes > 0 || duplicates > 0) {
-      std::fprintf(stderr,
-                   "%s: skipped %lld undecodable messages, %lld invalid scenes, %lld repeated "
-                   "scenes\n",
-                   kProgram, static_cast<long long>(decode_errors),
-                   static_cast<long long>(invalid_scenes), static_cast<long long>(duplicates));
+    if (decode_errors > 0 || invalid_scenes > 0) {
+      std::fprintf(stderr, "%s: skipped %lld undecodable messages, %lld invalid scenes\n", kProgram,
+                   static_cast<long long>(decode_errors), static_cast<long long>(invalid_scenes));
+    }
+    if (client) {
+      const stackgen::DeliveryCounters counters = client->counters();
+      std::printf(
+          "%s: delivery: %lld scenes received, %lld stored, %lld received twice, %lld asked "
+          "for again, %lld missing, %lld messages dropped on purpose\n",
+          kProgram, static_cast<long long>(counters.received),
+          static_cast<long long>(counters.stored), static_cast<long long>(counters.duplicates),
+          static_cast<long long>(counters.reasked), static_cast<long long>(counters.lost),
+          static_cast<long long>(bus.fault_dropped()));
+    } else if (duplicates > 0) {
+      std::printf("%s: %lld scenes received twice, stored once\n", kProgram,
+                  static_cast<long long>(duplicates));
     }
     const std::string dropped_reason =
         flags.min_visib_fract
@@ -267,14 +397,27 @@ int main(int argc, char** argv) {
     std::printf(
         "%s: wrote %s/annotations.json: %lld images, %lld annotations, %lld ignore regions "
         "(iscrowd 1), %lld dropped (%s), %lld lost\n",
-        kProgram, flags.out.c_str(), static_cast<long long>(writer.num_images()),
-        static_cast<long long>(writer.num_annotations()),
-        static_cast<long long>(writer.num_crowd()), static_cast<long long>(writer.num_dropped()),
-        dropped_reason.c_str(), static_cast<long long>(writer.num_lost()));
+        kProgram, flags.out.c_str(), static_cast<long long>(writer->num_images()),
+        static_cast<long long>(writer->num_annotations()),
+        static_cast<long long>(writer->num_crowd()), static_cast<long long>(writer->num_dropped()),
+        dropped_reason.c_str(), static_cast<long long>(writer->num_lost()));
     std::fflush(stdout);
     return 0;
   } catch (const std::exception& error) {
-    std::fprintf(stderr, "%s: error: %s\n", kProgram, error.what());
+    // a write error (full disk, ...): leave what is stored valid and say so. No leaving credit:
+    // the generators wait (up to their --consumer-timeout) for this writer to be resumed.
+    std::string state;
+    if (writer && (writer->num_images() > 0 || flags.resume)) {
+      try {
+        writer->Finish();
+        state = "; " + flags.out + " holds " + std::to_string(writer->num_images()) +
+                " scenes (annotations.json written)";
+      } catch (const std::exception& finish_error) {
+        state = "; annotations.json not updated (" + std::string(finish_error.what()) + ")";
+      }
+      state += "; the journal holds every scene stored: fix the cause and run again with --resume";
+    }
+    std::fprintf(stderr, "%s: error: %s%s\n", kProgram, error.what(), state.c_str());
     return 1;
   }
 }

@@ -8,6 +8,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <iostream>
 #include <map>
 #include <string>
@@ -17,6 +18,7 @@
 
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "bus/delivery.h"
 #include "gen/config/config.h"
 #include "gen/scene/scene_generator.h"
 
@@ -42,10 +44,24 @@ flags:
                       udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304)
   --cache-dir DIR     where convex decompositions are cached
                       (default: $XDG_CACHE_HOME/stackgen, else ~/.cache/stackgen)
+  --resume            continue at the seq the reliable consumers (dataset writers) have
+                      stored through: waits up to --consumer-timeout for their credits
+  --consumer-timeout S  a reliable consumer silent for S seconds is no longer waited for
+                      (default: 10)
+  --resend-ring N     recent scenes kept for resending, 1..10000 (default: 64; each takes the
+                      size of an encoded scene, about 1 MB at 640x480); older ones are
+                      regenerated from their seed when asked for
+  --fault-drop F      drop the fraction F in [0, 1) of the messages received (credits, resend
+                      requests), from a fixed seed: for tests and demos (default: 0)
   --help              this text
 
 channels published: STACKGEN_SCENE (labels + images), STACKGEN_LABELS (labels only),
 STACKGEN_STATUS (1 Hz), STACKGEN_CONFIG (the config in force, 1 Hz).
+channels read: STACKGEN_CREDIT and STACKGEN_RESEND. Reliable consumers (stackgen-coco) send
+credits: the generator never runs more than a consumer's window ahead of what it has stored,
+resends scenes a consumer missed (from the ring, else regenerated: scene k is always the same),
+and after --count scenes waits until every reliable consumer has stored them all.
+Best-effort listeners (stackgen-view, lcm-spy, lcm-logger) are never waited for.
 On exit and on SIGINT it prints the mean milliseconds per scene of each stage.
 )";
 
@@ -82,7 +98,11 @@ int Run(int argc, char** argv) {
                                               {"--seed", "0"},
                                               {"--generator-id", "0"},
                                               {"--lcm-url", ""},
-                                              {"--cache-dir", DefaultCacheDir()}};
+                                              {"--cache-dir", DefaultCacheDir()},
+                                              {"--resume", ""},
+                                              {"--consumer-timeout", "10"},
+                                              {"--resend-ring", "64"},
+                                              {"--fault-drop", "0"}};
   for (int i = 1; i < argc; ++i) {
     std::string arg = argv[i];
     if (arg == "--help" || arg == "-h") {
@@ -91,7 +111,10 @@ int Run(int argc, char** argv) {
     }
     std::string value;
     const size_t equals = arg.find('=');
-    if (equals != std::string::npos) {
+    if (arg.rfind("--resume=", 0) == 0) throw std::invalid_argument("--resume takes no value");
+    if (arg == "--resume") {
+      value = "1";
+    } else if (equals != std::string::npos) {
       value = arg.substr(equals + 1);
       arg = arg.substr(0, equals);
     } else if (flags.count(arg) != 0) {
@@ -105,10 +128,20 @@ int Run(int argc, char** argv) {
   const uint64_t seed = static_cast<uint64_t>(ParseCount("--seed", flags["--seed"], INT64_MAX));
   const int32_t generator_id =
       static_cast<int32_t>(ParseCount("--generator-id", flags["--generator-id"], 65535));
+  const bool resume = !flags["--resume"].empty();
+  const double consumer_timeout_s =
+      static_cast<double>(ParseCount("--consumer-timeout", flags["--consumer-timeout"], 86400));
+  if (consumer_timeout_s < 1) throw std::invalid_argument("--consumer-timeout: must be >= 1 s");
+  const int ring_size =
+      static_cast<int>(ParseCount("--resend-ring", flags["--resend-ring"], 10000));
+  if (ring_size < 1) throw std::invalid_argument("--resend-ring: must be >= 1");
+  BusOptions bus_options;
+  bus_options.drop_receive_fraction = ParseDropFraction("--fault-drop", flags["--fault-drop"]);
+  bus_options.fault_seed = 0x57AC0000u + static_cast<uint64_t>(generator_id);
 
   // config, bus and the scene generator: everything is checked before the first scene.
   const LoadedConfig config = LoadConfig(flags["--config"]);
-  Bus bus(ResolveLcmUrl(flags["--lcm-url"]));
+  Bus bus(ResolveLcmUrl(flags["--lcm-url"]), bus_options);
   SceneGenerator generator(config, generator_id, seed, flags["--cache-dir"]);
   std::printf("stackgen: generator %d, seed %llu, config %s, bus %s\n%s\n", generator_id,
               static_cast<unsigned long long>(seed), config.path.c_str(), bus.url().c_str(),
@@ -125,6 +158,47 @@ int Run(int argc, char** argv) {
                std::chrono::system_clock::now().time_since_epoch())
         .count();
   };
+
+  // delivery: credits and resends of reliable consumers; a scene asked for after it left the
+  // ring is made again (determinism makes it the same scene)
+  StageTimes regenerate_times;
+  SceneServerOptions server_options;
+  server_options.generator_id = generator_id;
+  server_options.ring_size = ring_size;
+  server_options.consumer_timeout_s = consumer_timeout_s;
+  SceneServer server(
+      &bus, server_options,
+      [&](int64_t seq) {
+        scene message = generator.Generate(seq, &regenerate_times);
+        message.header.utime = now_us();
+        return EncodeMessage(message);
+      },
+      [&](const std::string& line) {
+        if (progress) std::fprintf(stderr, "\n");
+        std::fprintf(stderr, "stackgen: %s\n", line.c_str());
+      });
+
+  // hear which reliable consumers are there before the first scene (they credit every 0.2 s)
+  const auto listen = [&](double seconds, const std::function<bool()>& done) {
+    const Clock::time_point until = Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                                       std::chrono::duration<double>(seconds));
+    while (!g_stop && Clock::now() < until && !done()) server.Service(20);
+  };
+  listen(0.5, [] { return false; });
+  int64_t first_seq = 0;
+  if (resume) {
+    listen(consumer_timeout_s, [&] { return server.ResumeSeq().has_value(); });
+    if (!server.ResumeSeq()) {
+      throw std::runtime_error("--resume: no reliable consumer (stackgen-coco) sent a credit on " +
+                               bus.url() + " within " + flags["--consumer-timeout"] +
+                               " s; start the writers first");
+    }
+    listen(0.5, [] { return false; });
+    first_seq = *server.ResumeSeq();
+    std::printf("stackgen: resuming at seq %lld (%d reliable consumers)\n",
+                static_cast<long long>(first_seq), server.reliable_consumers());
+    std::fflush(stdout);
+  }
   config_text config_message;
   config_message.path = config.path;
   config_message.pbtxt = EffectiveConfigText(config.config);
@@ -133,8 +207,10 @@ int Run(int argc, char** argv) {
 
   StageTimes times;
   double publish_ms = 0;
+  double held_back_s = 0;
   int64_t published = 0;
   int64_t published_at_last_status = 0;
+  int64_t next_seq = first_seq;
   const Clock::time_point start = Clock::now();
   Clock::time_point last_status = start - std::chrono::seconds(1);
 
@@ -143,15 +219,16 @@ int Run(int argc, char** argv) {
     const Clock::time_point now = Clock::now();
     const double since = std::chrono::duration<double>(now - last_status).count();
     if (!force && since < 1.0) return;
-    config_message.header.seq = published;
+    config_message.header.seq = next_seq;
     config_message.header.utime = now_us();
     bus.Publish(kConfigChannel, config_message);
     status message{};
-    message.header.seq = published;
+    message.header.seq = next_seq;
     message.header.generator_id = generator_id;
     message.header.seed = static_cast<int64_t>(seed);
     message.header.utime = now_us();
     message.process = "stackgen";
+    message.name = "stackgen/" + std::to_string(generator_id);
     message.scenes = published;
     message.scenes_rejected = times.redraws;
     message.rate_hz = since > 0 ? (published - published_at_last_status) / since : 0;
@@ -160,22 +237,41 @@ int Run(int argc, char** argv) {
     message.render_ms = times.render_ms / n;
     message.annotate_ms = times.annotate_ms / n;
     message.publish_ms = (times.encode_ms + publish_ms) / n;
+    message.resent = server.resent();
+    message.regenerated = server.regenerated();
+    message.reliable_consumers = server.reliable_consumers();
+    message.held_back_s = held_back_s;
+    message.bad_messages = server.bad_messages();
+    message.fault_dropped = bus.fault_dropped();
     bus.Publish(kStatusChannel, message);
     last_status = now;
     published_at_last_status = published;
   };
 
+  // serves consumers for `timeout_ms`, counting the time as held back
+  const auto wait_for_consumers = [&](int timeout_ms) {
+    const Clock::time_point wait_start = Clock::now();
+    server.Service(timeout_ms);
+    held_back_s += std::chrono::duration<double>(Clock::now() - wait_start).count();
+    publish_periodic(false);
+  };
+
   publish_periodic(true);
-  for (int64_t seq = 0; (count == 0 || seq < count) && !g_stop; ++seq) {
+  for (int64_t seq = first_seq; (count == 0 || seq < count) && !g_stop; ++seq) {
+    // never more than a reliable consumer's window ahead of what it stored
+    while (!server.MayPublish(seq) && !g_stop) wait_for_consumers(20);
+    if (g_stop) break;
     scene message = generator.Generate(seq, &times);
 
     // publish the scene and its labels.
     const Clock::time_point publish_start = Clock::now();
     message.header.utime = now_us();
-    bus.Publish(kSceneChannel, message);
+    server.Publish(seq, EncodeMessage(message));
     bus.Publish(kLabelsChannel, LabelsOf(message));
     publish_ms += std::chrono::duration<double, std::milli>(Clock::now() - publish_start).count();
     ++published;
+    next_seq = seq + 1;
+    server.Service(0);
     publish_periodic(false);
 
     if (progress) {
@@ -191,6 +287,10 @@ int Run(int argc, char** argv) {
       }
     }
   }
+  // after the last scene, until every reliable consumer has stored it (or went silent)
+  if (count > 0 && next_seq == count) {
+    while (!server.AllStoredThrough(count - 1) && !g_stop) wait_for_consumers(20);
+  }
   publish_periodic(true);
   if (progress) std::fprintf(stderr, "\n");
 
@@ -199,13 +299,14 @@ int Run(int argc, char** argv) {
   std::printf(
       "stackgen: %lld scenes in %.1f s (%.2f scenes/s)%s; per scene: physics %s ms, render %s "
       "ms, annotate %s ms, publish %s ms; %d drops redrawn (%d unsettled, %d outside the bin, %d "
-      "interpenetrating)\n",
+      "interpenetrating); held back %.1f s by reliable consumers, %lld resent, %lld "
+      "regenerated\n",
       static_cast<long long>(published), elapsed, elapsed > 0 ? published / elapsed : 0.0,
       g_stop ? ", stopped by signal" : "", FormatMs(times.physics_ms, published).c_str(),
-      FormatMs(times.render_ms, published).c_str(),
-      FormatMs(times.annotate_ms, published).c_str(),
+      FormatMs(times.render_ms, published).c_str(), FormatMs(times.annotate_ms, published).c_str(),
       FormatMs(times.encode_ms + publish_ms, published).c_str(), times.redraws,
-      times.redraws_unsettled, times.redraws_outside, times.redraws_penetrating);
+      times.redraws_unsettled, times.redraws_outside, times.redraws_penetrating, held_back_s,
+      static_cast<long long>(server.resent()), static_cast<long long>(server.regenerated()));
   return 0;
 }
 

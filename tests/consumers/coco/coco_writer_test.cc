@@ -1,15 +1,27 @@
 #include "consumers/coco/coco_writer.h"
 
+#include <signal.h>
+#include <sys/mount.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <array>
+#include <cerrno>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "tests/consumers/coco/coco_test_scenes.h"
@@ -37,6 +49,60 @@ std::string AddError(CocoWriter& writer, const stackgen::scene& scene) {
     return error.what();
   }
   return "";
+}
+
+// no file under `dir` is a temporary one
+void ExpectNoTemporaryFiles(const std::string& dir) {
+  for (const auto& entry : fs::recursive_directory_iterator(dir)) {
+    const std::string name = entry.path().filename().string();
+    EXPECT_EQ(name.find(".tmp"), std::string::npos) << entry.path();
+  }
+}
+
+// the text of annotations.json in `dir` without its info line (which holds the date)
+std::string DatasetWithoutInfo(const std::string& dir) {
+  std::istringstream text(testing::ReadFile(dir + "/annotations.json"));
+  std::string result;
+  for (std::string line; std::getline(text, line);) {
+    if (line.rfind("\"info\": ", 0) != 0) result += line + "\n";
+  }
+  return result;
+}
+
+// the message of the std::runtime_error that `body` throws, or "" if it does not throw
+std::string RuntimeError(const std::function<void()>& body) {
+  try {
+    body();
+  } catch (const std::runtime_error& error) {
+    return error.what();
+  }
+  return "";
+}
+
+// a scene of generator `generator_id` with no instances and a `size` x `size` PNG of noise,
+// which does not compress: about 3 * size * size bytes
+stackgen::scene NoiseScene(int generator_id, int64_t seq, int size) {
+  stackgen::scene scene = testing::MakeScene(generator_id, seq, {});
+  cv::Mat noise(size, size, CV_8UC3);
+  cv::randu(noise, cv::Scalar::all(0), cv::Scalar::all(256));
+  std::vector<uint8_t> png;
+  cv::imencode(".png", noise, png);
+  scene.camera.width = scene.camera.height = size;
+  scene.color.width = scene.color.height = size;
+  scene.color.encoding = stackgen::image::ENCODING_PNG;
+  scene.color.data = png;
+  scene.color.size = static_cast<int32_t>(png.size());
+  return scene;
+}
+
+// the end offsets (after the '\n') of the lines of the file `path`
+std::vector<uint64_t> LineEnds(const std::string& path) {
+  const std::string text = testing::ReadFile(path);
+  std::vector<uint64_t> ends;
+  for (size_t i = 0; i < text.size(); ++i) {
+    if (text[i] == '\n') ends.push_back(i + 1);
+  }
+  return ends;
 }
 
 // the amodal fields of `annotation` (over an 8 x 6 image) agree with each other: the full mask
@@ -160,13 +226,42 @@ TEST(CocoWriterTest, WritesDataset) {
     ExpectAmodalFields(annotation);
   }
 
-  // nothing temporary is left once the writer is gone
-  writer.reset();
-  for (const auto& entry : fs::recursive_directory_iterator(dir)) {
-    const std::string name = entry.path().filename().string();
-    EXPECT_EQ(name.find(".tmp"), std::string::npos) << name;
-    EXPECT_EQ(name.find("journal"), std::string::npos) << name;
+  // one image and one annotation per line, as a reader that diffs datasets expects
+  std::istringstream text(testing::ReadFile(dir + "/annotations.json"));
+  int image_lines = 0, annotation_lines = 0;
+  for (std::string line; std::getline(text, line);) {
+    image_lines += line.rfind("{\"file_name\":", 0) == 0;
+    annotation_lines += line.rfind("{\"amodal_bbox\":", 0) == 0;
   }
+  EXPECT_EQ(image_lines, 3);
+  EXPECT_EQ(annotation_lines, 4);
+
+  // nothing temporary is left once the writer is gone; the journal stays
+  writer.reset();
+  ExpectNoTemporaryFiles(dir);
+  EXPECT_TRUE(fs::exists(dir + "/annotations.journal"));
+}
+
+// a repeat of a stored scene is not stored again; the same ids with another seed (another run
+// with the same generator id) are refused, naming the scene and the seed, and nothing changes.
+TEST(CocoWriterTest, RepeatWithAnotherSeedIsRefused) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  CocoWriter writer(scratch.path() + "/d");
+  stackgen::scene scene = testing::SceneA();
+  ASSERT_TRUE(writer.Add(scene));
+  EXPECT_FALSE(writer.Add(scene));
+  scene.header.seed += 1;
+  try {
+    writer.Add(scene);
+    FAIL() << "a repeat with another seed was accepted";
+  } catch (const InvalidSceneError& error) {
+    EXPECT_NE(std::string(error.what()).find("scene 0/0"), std::string::npos) << error.what();
+    EXPECT_NE(std::string(error.what()).find("seed"), std::string::npos) << error.what();
+  }
+  EXPECT_EQ(writer.num_images(), 1);
+  // ids outside the layout are refused before any id is computed from them
+  scene.header.seq = -5;
+  EXPECT_THROW(writer.Add(scene), InvalidSceneError);
 }
 
 // A JPEG scene is written as .jpg, its bytes as they came.
@@ -451,6 +546,535 @@ TEST(CocoWriterTest, IdLayout) {
   EXPECT_EQ(CocoWriter::ImageId(0, 0), 1);
   EXPECT_EQ(CocoWriter::ImageId(3, 41), 3000000042);
   EXPECT_EQ(CocoWriter::AnnotationId(3000000042, 12), 3000000042012);
+}
+
+// A finished dataset resumed and extended equals, byte for byte apart from info, the dataset
+// written in one run with the same scenes; counts and categories come back from the journal.
+TEST(CocoWriterTest, ResumeAfterFinishEqualsSingleRun) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string single = scratch.path() + "/single";
+  const std::string resumed = scratch.path() + "/resumed";
+  const std::vector<stackgen::scene> scenes = {SceneA(), SceneB(), testing::SceneD(), SceneC(),
+                                               testing::MakeScene(0, 2, {})};
+  CocoWriterOptions options;
+  options.min_visib_fract = 0.5;
+  {
+    CocoWriter writer(single, options);
+    for (const stackgen::scene& scene : scenes) ASSERT_TRUE(writer.Add(scene));
+    writer.Finish();
+  }
+  {
+    CocoWriter writer(resumed, options);
+    ASSERT_TRUE(writer.Add(scenes[0]));
+    ASSERT_TRUE(writer.Add(scenes[1]));
+    ASSERT_TRUE(writer.Add(scenes[2]));
+    writer.Finish();
+  }
+  options.resume = true;
+  CocoWriter writer(resumed, options);
+  EXPECT_EQ(writer.resumed_scenes(), 3);
+  EXPECT_EQ(writer.truncated_journal_bytes(), 0);
+  EXPECT_EQ(writer.num_images(), 3);
+  // A: 1 and 3 kept, 2 dropped; B: 1 kept; D: 1 kept, 2 crowd, 3 dropped
+  EXPECT_EQ(writer.num_annotations(), 4);
+  EXPECT_EQ(writer.num_crowd(), 1);
+  EXPECT_EQ(writer.num_dropped(), 2);
+  EXPECT_FALSE(writer.Add(scenes[1])) << "a stored scene is stored again after resume";
+  // a class renamed after resume is still refused: categories came back too
+  stackgen::scene renamed = scenes[3];
+  renamed.instances[0].class_name = "nut";
+  EXPECT_NE(AddError(writer, renamed).find("instances[0].class_name"), std::string::npos);
+  ASSERT_TRUE(writer.Add(scenes[3]));
+  ASSERT_TRUE(writer.Add(scenes[4]));
+  writer.Finish();
+  EXPECT_EQ(DatasetWithoutInfo(resumed), DatasetWithoutInfo(single));
+  EXPECT_EQ(writer.num_dropped(), 3);
+  EXPECT_EQ(writer.num_lost(), 0);
+}
+
+// A journal cut anywhere (inside the last line, just before its '\n', exactly at a line's end,
+// inside the first line) resumes with every complete line's scene and its counts, the torn
+// bytes cut off, the torn scene's image removed; the scenes sent again complete the dataset.
+TEST(CocoWriterTest, ResumeCutsTornLastLine) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::vector<stackgen::scene> scenes = {SceneA(), testing::SceneD(), SceneB(), SceneC()};
+  const std::string full = scratch.path() + "/full";
+  {
+    CocoWriter writer(full);
+    for (const stackgen::scene& scene : scenes) ASSERT_TRUE(writer.Add(scene));
+    writer.Finish();
+  }
+  const std::vector<uint64_t> ends = LineEnds(full + "/annotations.journal");
+  ASSERT_EQ(ends.size(), scenes.size());
+  const std::vector<uint64_t> cuts = {
+      0, 10, ends[0], ends[1] + 1, ends[2] - 1, ends[2], ends[2] + 100, ends[3] - 1, ends[3]};
+  for (const uint64_t cut : cuts) {
+    SCOPED_TRACE("journal cut at byte " + std::to_string(cut));
+    // a copy of the dataset whose journal a crash cut at `cut`
+    const std::string dir = scratch.path() + "/cut-" + std::to_string(cut);
+    fs::copy(full, dir, fs::copy_options::recursive);
+    fs::resize_file(dir + "/annotations.journal", cut);
+    const size_t complete =
+        static_cast<size_t>(std::upper_bound(ends.begin(), ends.end(), cut) - ends.begin());
+    const uint64_t kept = complete == 0 ? 0 : ends[complete - 1];
+
+    // the counts a writer that stored just the complete lines' scenes has
+    const std::string reference = scratch.path() + "/reference-" + std::to_string(cut);
+    CocoWriter expected(reference);
+    for (size_t i = 0; i < complete; ++i) expected.Add(scenes[i]);
+
+    CocoWriterOptions options;
+    options.resume = true;
+    CocoWriter writer(dir, options);
+    EXPECT_EQ(writer.resumed_scenes(), static_cast<int64_t>(complete));
+    EXPECT_EQ(writer.truncated_journal_bytes(), static_cast<int64_t>(cut - kept));
+    EXPECT_EQ(fs::file_size(dir + "/annotations.journal"), kept);
+    EXPECT_EQ(writer.num_images(), expected.num_images());
+    EXPECT_EQ(writer.num_annotations(), expected.num_annotations());
+    EXPECT_EQ(writer.num_crowd(), expected.num_crowd());
+    EXPECT_EQ(writer.num_dropped(), expected.num_dropped());
+    EXPECT_EQ(writer.StoredSeqs(), expected.StoredSeqs());
+    // the images of scenes no complete line records are gone
+    size_t images = 0;
+    for (const auto& entry : fs::directory_iterator(dir + "/images")) {
+      (void)entry;
+      ++images;
+    }
+    EXPECT_EQ(images, complete);
+
+    // every scene sent again: the dataset of the run that was never cut
+    for (size_t i = 0; i < scenes.size(); ++i) {
+      EXPECT_EQ(writer.Add(scenes[i]), i >= complete) << "scene " << i;
+    }
+    writer.Finish();
+    EXPECT_EQ(DatasetWithoutInfo(dir), DatasetWithoutInfo(full));
+  }
+}
+
+// Without resume, a folder holding a journal (a dataset cut short, or finished) is refused,
+// naming the file and suggesting --resume; resume needs the journal of an annotations.json;
+// a second writer on the same folder is refused; resume of a new folder starts fresh.
+TEST(CocoWriterTest, RefusesAJournalWithoutResume) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string dir = scratch.path() + "/cut-short";
+  {
+    CocoWriter writer(dir);
+    ASSERT_TRUE(writer.Add(SceneA()));
+  }
+  const std::string journal_error = RuntimeError([&] { CocoWriter again(dir); });
+  EXPECT_NE(journal_error.find(dir + "/annotations.journal already exists"), std::string::npos)
+      << journal_error;
+  EXPECT_NE(journal_error.find("--resume"), std::string::npos) << journal_error;
+  EXPECT_EQ(fs::file_size(dir + "/annotations.journal"), LineEnds(dir + "/annotations.journal")[0])
+      << "the refused writer changed the journal";
+  {
+    CocoWriterOptions options;
+    options.resume = true;
+    CocoWriter writer(dir, options);
+    EXPECT_EQ(writer.resumed_scenes(), 1);
+    writer.Finish();
+    // one writer per folder
+    const std::string busy_error = RuntimeError([&] { CocoWriter second(dir, options); });
+    EXPECT_NE(busy_error.find(dir + "/annotations.journal is in use"), std::string::npos)
+        << busy_error;
+  }
+  const std::string finished_error = RuntimeError([&] { CocoWriter again(dir); });
+  EXPECT_NE(finished_error.find(dir + "/annotations.json already exists"), std::string::npos)
+      << finished_error;
+  EXPECT_NE(finished_error.find("--resume"), std::string::npos) << finished_error;
+
+  // a dataset without its journal cannot be resumed (nor overwritten)
+  fs::remove(dir + "/annotations.journal");
+  CocoWriterOptions options;
+  options.resume = true;
+  const std::string no_journal_error = RuntimeError([&] { CocoWriter writer(dir, options); });
+  EXPECT_NE(no_journal_error.find("cannot resume " + dir + "/annotations.json without its journal"),
+            std::string::npos)
+      << no_journal_error;
+  EXPECT_NE(RuntimeError([&] { CocoWriter writer(dir); }).find("annotations.json"),
+            std::string::npos);
+
+  // a resumed writer must filter as the journal's did
+  const std::string strict = scratch.path() + "/strict";
+  {
+    CocoWriterOptions strict_options;
+    strict_options.min_visib_fract = 0.5;
+    CocoWriter writer(strict, strict_options);
+    ASSERT_TRUE(writer.Add(SceneA()));
+  }
+  const std::string filter_error = RuntimeError([&] { CocoWriter writer(strict, options); });
+  EXPECT_NE(filter_error.find("line 1 (byte 0): written with min_visib_fract 0.5"),
+            std::string::npos)
+      << filter_error;
+
+  // nothing there yet: resume starts a new dataset
+  CocoWriter fresh(scratch.path() + "/new", options);
+  EXPECT_EQ(fresh.resumed_scenes(), 0);
+  EXPECT_TRUE(fresh.Add(SceneA()));
+}
+
+// A complete journal line that does not parse, in the middle or last, is an error naming the
+// journal, the line and its byte offset; the journal is left as it was.
+TEST(CocoWriterTest, CorruptJournalLineIsAnError) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string dir = scratch.path();
+  {
+    CocoWriter writer(dir);
+    for (const stackgen::scene& scene : {SceneA(), SceneB(), SceneC()}) writer.Add(scene);
+  }
+  const std::string journal = dir + "/annotations.journal";
+  const std::string intact = testing::ReadFile(journal);
+  const std::vector<uint64_t> ends = LineEnds(journal);
+  CocoWriterOptions options;
+  options.resume = true;
+  for (const size_t line : {size_t{1}, size_t{2}}) {
+    SCOPED_TRACE("line " + std::to_string(line + 1));
+    // a byte of the line's image record overwritten
+    std::string corrupt = intact;
+    corrupt[ends[line - 1] + 20] = '#';
+    std::ofstream(journal, std::ios::binary | std::ios::trunc) << corrupt;
+    const std::string error = RuntimeError([&] { CocoWriter writer(dir, options); });
+    EXPECT_NE(error.find(journal + " line " + std::to_string(line + 1) + " (byte " +
+                         std::to_string(ends[line - 1]) + "): "),
+              std::string::npos)
+        << error;
+    EXPECT_EQ(testing::ReadFile(journal), corrupt);
+  }
+  // a record whose lengths do not match its line is caught as well
+  std::string shifted = intact;
+  const size_t length = shifted.find("\"image_length\":");
+  ASSERT_NE(length, std::string::npos);
+  shifted[length + 15] = shifted[length + 15] == '9' ? '8' : '9';
+  std::ofstream(journal, std::ios::binary | std::ios::trunc) << shifted;
+  const std::string error = RuntimeError([&] { CocoWriter writer(dir, options); });
+  EXPECT_NE(error.find(journal + " line 1 (byte 0): image_length"), std::string::npos) << error;
+}
+
+// Resume removes what an Add or a Finish cut short left behind: temporary files and images that
+// no journal line records; an image the journal records but that is gone is an error.
+TEST(CocoWriterTest, ResumeRemovesLeftovers) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string dir = scratch.path();
+  {
+    CocoWriter writer(dir);
+    writer.Add(SceneA());
+    writer.Add(SceneB());
+  }
+  for (const char* name : {"/images/1_000000.png.tmp", "/images/1_000000.png",
+                           "/images/7_000003.jpg", "/annotations.json.tmp", "/images/notes.txt"}) {
+    std::ofstream(dir + name) << "left over";
+  }
+  CocoWriterOptions options;
+  options.resume = true;
+  {
+    CocoWriter writer(dir, options);
+    EXPECT_EQ(writer.resumed_scenes(), 2);
+  }
+  ExpectNoTemporaryFiles(dir);
+  EXPECT_FALSE(fs::exists(dir + "/images/1_000000.png"));
+  EXPECT_FALSE(fs::exists(dir + "/images/7_000003.jpg"));
+  EXPECT_TRUE(fs::exists(dir + "/images/0_000000.png"));
+  EXPECT_TRUE(fs::exists(dir + "/images/0_000001.png"));
+  EXPECT_TRUE(fs::exists(dir + "/images/notes.txt")) << "not a name the writer gives";
+
+  fs::remove(dir + "/images/0_000001.png");
+  const std::string error = RuntimeError([&] { CocoWriter writer(dir, options); });
+  EXPECT_NE(error.find(dir + "/images/0_000001.png is missing"), std::string::npos) << error;
+}
+
+// StoredThrough, Has and StoredSeqs follow gaps and several generators, whatever the order
+// scenes arrive in, and come back the same after resume.
+TEST(CocoWriterTest, StoredThroughAndHas) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string dir = scratch.path();
+  auto stored = std::make_unique<CocoWriter>(dir);
+  CocoWriter& writer = *stored;
+  EXPECT_EQ(writer.StoredThrough(0), -1);
+  for (const auto& [generator_id, seq] :
+       std::vector<std::pair<int, int64_t>>{{0, 1}, {0, 3}, {2, 2}, {2, 1}, {5, 0}, {0, 0}}) {
+    ASSERT_TRUE(writer.Add(testing::MakeScene(generator_id, seq, {})));
+  }
+  EXPECT_EQ(writer.StoredThrough(0), 1);
+  EXPECT_EQ(writer.StoredThrough(2), -1) << "seq 0 of generator 2 is missing";
+  EXPECT_EQ(writer.StoredThrough(5), 0);
+  EXPECT_EQ(writer.StoredThrough(7), -1);
+  EXPECT_TRUE(writer.Has(0, 3));
+  EXPECT_FALSE(writer.Has(0, 2));
+  EXPECT_FALSE(writer.Has(1, 0));
+  EXPECT_FALSE(writer.Has(-1, 0));
+  EXPECT_FALSE(writer.Has(0, -1));
+  EXPECT_FALSE(writer.Has(0, 2000000000)) << "outside the id layout, not generator 2's seq";
+  const std::map<int32_t, std::vector<int64_t>> seqs = {{0, {0, 1, 3}}, {2, {1, 2}}, {5, {0}}};
+  EXPECT_EQ(writer.StoredSeqs(), seqs);
+  // the gap filled: StoredThrough runs on to the end of what is there
+  ASSERT_TRUE(writer.Add(testing::MakeScene(0, 2, {})));
+  EXPECT_EQ(writer.StoredThrough(0), 3);
+  ASSERT_TRUE(writer.Add(testing::MakeScene(2, 0, {})));
+  EXPECT_EQ(writer.StoredThrough(2), 2);
+
+  // the same after resume
+  const std::map<int32_t, std::vector<int64_t>> all = writer.StoredSeqs();
+  stored.reset();
+  CocoWriterOptions options;
+  options.resume = true;
+  const CocoWriter resumed(dir, options);
+  EXPECT_EQ(resumed.StoredSeqs(), all);
+  EXPECT_EQ(resumed.StoredThrough(0), 3);
+  EXPECT_EQ(resumed.StoredThrough(2), 2);
+  EXPECT_EQ(resumed.StoredThrough(5), 0);
+  EXPECT_TRUE(resumed.Has(2, 1));
+}
+
+// kill -9 of a writer mid-run, then a writer resumed on the same folder: every scene the killed
+// writer reported stored is there, nothing else is half there, and sending every scene again
+// gives each scene exactly once.
+TEST(CocoWriterTest, ResumeAfterKill) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string dir = scratch.path() + "/coco";
+  // made here: the child only writes (PNG scenes need no encoding)
+  std::vector<stackgen::scene> scenes;
+  for (int64_t seq = 0; seq < 200; ++seq) {
+    scenes.push_back(testing::MakeScene(
+        0, seq, {testing::MakeInstance(1, 1, "connector", cv::Rect(1, 2, 3, 3), 1.0)},
+        stackgen::image::ENCODING_PNG));
+  }
+  int fds[2];
+  ASSERT_EQ(pipe(fds), 0);
+  const pid_t pid = fork();
+  if (pid == 0) {
+    // the child stores scenes and says so, one byte per scene, until it is killed
+    close(fds[0]);
+    CocoWriter writer(dir);
+    for (const stackgen::scene& scene : scenes) {
+      if (!writer.Add(scene) || write(fds[1], "s", 1) != 1) _exit(1);
+    }
+    pause();
+    _exit(0);
+  }
+  close(fds[1]);
+  int64_t reported = 0;
+  char byte;
+  while (reported < 20 && read(fds[0], &byte, 1) == 1) ++reported;
+  kill(pid, SIGKILL);
+  int status = 0;
+  waitpid(pid, &status, 0);
+  close(fds[0]);
+  ASSERT_EQ(reported, 20);
+  ASSERT_TRUE(WIFSIGNALED(status)) << "the child failed: " << status;
+
+  CocoWriterOptions options;
+  options.resume = true;
+  CocoWriter writer(dir, options);
+  EXPECT_GE(writer.resumed_scenes(), reported);
+  EXPECT_EQ(writer.StoredThrough(0), writer.resumed_scenes() - 1);
+  ExpectNoTemporaryFiles(dir);
+  for (const stackgen::scene& scene : scenes) {
+    EXPECT_EQ(writer.Add(scene), scene.header.seq >= writer.resumed_scenes());
+  }
+  writer.Finish();
+  const json dataset = ReadDataset(dir);
+  ASSERT_EQ(dataset["images"].size(), scenes.size());
+  for (size_t i = 0; i < scenes.size(); ++i) {
+    EXPECT_EQ(dataset["images"][i]["id"], CocoWriter::ImageId(0, static_cast<int64_t>(i)));
+  }
+  EXPECT_EQ(dataset["annotations"].size(), scenes.size());
+}
+
+// A small tmpfs mounted for the test, so the disk really fills (needs root; skipped otherwise).
+class CocoWriterFullDiskTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    fs::create_directory(disk_);
+    if (mount("stackgen-test", disk_.c_str(), "tmpfs", 0, "size=1m") != 0) {
+      GTEST_SKIP() << "cannot mount a 1 MiB tmpfs at " << disk_ << " (" << std::strerror(errno)
+                   << "; needs root): no full disk to test with";
+    }
+    mounted_ = true;
+  }
+  void TearDown() override {
+    if (mounted_) umount2(disk_.c_str(), MNT_DETACH);
+  }
+
+  // writes `path` until the disk is full
+  static void Fill(const std::string& path) {
+    std::FILE* file = std::fopen(path.c_str(), "ab");
+    ASSERT_NE(file, nullptr);
+    const std::vector<char> block(4096, 'x');
+    while (std::fwrite(block.data(), 1, block.size(), file) == block.size() &&
+           std::fflush(file) == 0) {
+    }
+    std::fclose(file);
+  }
+
+  testing::ScopedTempDir scratch_{"coco-writer"};
+  std::string disk_ = scratch_.path() + "/disk";
+  bool mounted_ = false;
+};
+
+// A full disk: Add throws naming the file and "No space left on device" and leaves nothing of
+// the scene; Finish on the full disk fails and keeps the previous annotations.json; with room
+// again Finish and Add work, and a resumed writer finds exactly the scenes Add reported stored.
+TEST_F(CocoWriterFullDiskTest, DiskFullLeavesValidDataset) {
+  const std::string dir = disk_ + "/coco";
+  auto writer = std::make_unique<CocoWriter>(dir);
+  ASSERT_TRUE(writer->Add(SceneA()));
+  ASSERT_TRUE(writer->Add(SceneB()));
+  writer->Finish();
+  const std::string finished = testing::ReadFile(dir + "/annotations.json");
+  // room for half the disk's worth of scenes, then a full disk
+  std::ofstream(disk_ + "/room", std::ios::binary) << std::string(400 << 10, 'r');
+
+  // Add until the disk is full
+  std::string error;
+  int64_t failed_seq = -1;
+  for (int64_t seq = 0; seq < 100 && error.empty(); ++seq) {
+    const stackgen::scene scene = NoiseScene(3, seq, 64);
+    error = RuntimeError([&] { EXPECT_TRUE(writer->Add(scene)); });
+    if (!error.empty()) failed_seq = seq;
+  }
+  ASSERT_GT(failed_seq, 0) << error;
+  EXPECT_NE(error.find("cannot write " + dir + "/"), std::string::npos) << error;
+  EXPECT_NE(error.find(": No space left on device"), std::string::npos) << error;
+  EXPECT_EQ(writer->num_images(), 2 + failed_seq);
+  EXPECT_FALSE(writer->Has(3, failed_seq));
+  EXPECT_EQ(writer->StoredThrough(3), failed_seq - 1);
+  EXPECT_FALSE(
+      fs::exists(dir + "/images/3_" + std::string(5, '0') + std::to_string(failed_seq) + ".png"))
+      << "the failed scene's image stayed";
+  ExpectNoTemporaryFiles(dir);
+
+  // Finish on a full disk keeps the annotations.json there was
+  Fill(disk_ + "/filler");
+  const std::string finish_error = RuntimeError([&] { writer->Finish(); });
+  EXPECT_NE(finish_error.find("cannot write " + dir + "/annotations.json.tmp: No space left"),
+            std::string::npos)
+      << finish_error;
+  EXPECT_EQ(testing::ReadFile(dir + "/annotations.json"), finished);
+  ExpectNoTemporaryFiles(dir);
+
+  // room again: Finish writes what was stored, Add goes on
+  fs::remove(disk_ + "/filler");
+  fs::remove(disk_ + "/room");
+  writer->Finish();
+  EXPECT_EQ(ReadDataset(dir)["images"].size(), static_cast<size_t>(2 + failed_seq));
+  ASSERT_TRUE(writer->Add(NoiseScene(3, failed_seq, 64)));
+  writer.reset();
+
+  // the journal holds exactly the stored scenes
+  CocoWriterOptions options;
+  options.resume = true;
+  const CocoWriter resumed(dir, options);
+  EXPECT_EQ(resumed.resumed_scenes(), 3 + failed_seq);
+  EXPECT_EQ(resumed.truncated_journal_bytes(), 0);
+  EXPECT_EQ(resumed.StoredThrough(3), failed_seq);
+}
+
+// what a writer in a child process whose files may not grow past a limit did: the scenes Add
+// reported stored and the text of the error that stopped it
+struct LimitedRun {
+  std::vector<int64_t> stored_seqs;
+  std::string error;
+  int status = -1;
+};
+
+// adds `scenes` to a new dataset in `dir` in a forked child whose files may grow to
+// `limit_bytes` (SIGXFSZ ignored, so a write past it fails with EFBIG), until an Add throws
+LimitedRun AddWithFileSizeLimit(const std::string& dir, const std::vector<stackgen::scene>& scenes,
+                                rlim_t limit_bytes) {
+  int fds[2];
+  if (pipe(fds) != 0) return {};
+  const pid_t pid = fork();
+  if (pid == 0) {
+    close(fds[0]);
+    signal(SIGXFSZ, SIG_IGN);
+    const rlimit limit = {limit_bytes, limit_bytes};
+    if (setrlimit(RLIMIT_FSIZE, &limit) != 0) _exit(90);
+    // "<seq> " per stored scene, then "error: <text>"
+    std::string report;
+    try {
+      CocoWriter writer(dir);
+      for (const stackgen::scene& scene : scenes) {
+        if (writer.Add(scene)) report += std::to_string(scene.header.seq) + " ";
+      }
+    } catch (const std::exception& error) {
+      report += std::string("error: ") + error.what();
+    }
+    if (write(fds[1], report.data(), report.size()) != static_cast<ssize_t>(report.size())) {
+      _exit(91);
+    }
+    _exit(0);
+  }
+  close(fds[1]);
+  std::string report;
+  char buffer[4096];
+  for (ssize_t n; (n = read(fds[0], buffer, sizeof(buffer))) > 0;) report.append(buffer, n);
+  close(fds[0]);
+  LimitedRun run;
+  waitpid(pid, &run.status, 0);
+  const size_t error = report.find("error: ");
+  std::istringstream seqs(report.substr(0, error));
+  for (int64_t seq; seqs >> seq;) run.stored_seqs.push_back(seq);
+  if (error != std::string::npos) run.error = report.substr(error + 7);
+  return run;
+}
+
+// A file that may not grow (EFBIG, from RLIMIT_FSIZE in a child process): when the journal
+// cannot grow, Add throws naming it and "File too large", cuts it back and removes the scene's
+// image; when an image cannot be written, its .tmp is removed. Either way the journal resumes
+// cleanly with exactly the scenes Add reported stored.
+TEST(CocoWriterTest, FileSizeLimitLeavesValidJournal) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  // the scenes are made here: the child only writes (PNG scenes need no encoding)
+  std::vector<stackgen::scene> small;
+  for (int64_t seq = 0; seq < 40; ++seq) {
+    small.push_back(
+        testing::MakeScene(0, seq,
+                           {testing::MakeInstance(1, 1, "connector", cv::Rect(1, 2, 3, 3), 1.0),
+                            testing::MakeInstance(2, 1, "connector", cv::Rect(0, 0, 2, 1), 0.1)},
+                           stackgen::image::ENCODING_PNG));
+  }
+  const std::vector<stackgen::scene> big_image = {small[0], NoiseScene(0, 1, 64), small[2]};
+  CocoWriterOptions options;
+  options.resume = true;
+
+  // the journal reaches the limit
+  const std::string journal_dir = scratch.path() + "/journal";
+  const LimitedRun journal_run = AddWithFileSizeLimit(journal_dir, small, 8000);
+  ASSERT_TRUE(WIFEXITED(journal_run.status) && WEXITSTATUS(journal_run.status) == 0)
+      << journal_run.status;
+  EXPECT_EQ(journal_run.error,
+            "cannot write " + journal_dir + "/annotations.journal: File too large");
+  ASSERT_GT(journal_run.stored_seqs.size(), 1u);
+  ASSERT_LT(journal_run.stored_seqs.size(), small.size());
+  const int64_t failed_seq = static_cast<int64_t>(journal_run.stored_seqs.size());
+  EXPECT_FALSE(fs::exists(journal_dir + "/images/0_00000" + std::to_string(failed_seq) + ".png"))
+      << "the image of the scene the journal could not take stayed";
+  ExpectNoTemporaryFiles(journal_dir);
+  {
+    CocoWriter writer(journal_dir, options);
+    EXPECT_EQ(writer.truncated_journal_bytes(), 0) << "the journal was not cut back";
+    EXPECT_EQ(writer.StoredSeqs(),
+              (std::map<int32_t, std::vector<int64_t>>{{0, journal_run.stored_seqs}}));
+    EXPECT_EQ(writer.num_dropped(), failed_seq);
+    writer.Finish();
+    EXPECT_EQ(ReadDataset(journal_dir)["images"].size(), journal_run.stored_seqs.size());
+  }
+
+  // an image reaches the limit
+  const std::string image_dir = scratch.path() + "/image";
+  const LimitedRun image_run = AddWithFileSizeLimit(image_dir, big_image, 8000);
+  ASSERT_TRUE(WIFEXITED(image_run.status) && WEXITSTATUS(image_run.status) == 0)
+      << image_run.status;
+  EXPECT_EQ(image_run.error,
+            "cannot write " + image_dir + "/images/0_000001.png.tmp: File too large");
+  EXPECT_EQ(image_run.stored_seqs, std::vector<int64_t>{0});
+  ExpectNoTemporaryFiles(image_dir);
+  {
+    CocoWriter writer(image_dir, options);
+    EXPECT_EQ(writer.resumed_scenes(), 1);
+    EXPECT_EQ(writer.truncated_journal_bytes(), 0);
+    EXPECT_TRUE(writer.Has(0, 0));
+  }
 }
 
 }  // namespace

@@ -1,0 +1,429 @@
+#include "bus/delivery.h"
+
+#include <algorithm>
+#include <chrono>
+#include <deque>
+#include <map>
+#include <set>
+#include <stdexcept>
+#include <utility>
+
+#include <stackgen/credit.hpp>
+#include <stackgen/resend_request.hpp>
+
+#include "bus/channels.h"
+
+namespace stackgen {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// the most seqs one resend request carries
+constexpr int kMaxSeqsPerRequest = 256;
+// the ids a scene may carry (--generator-id is 0..65535; seqs as the COCO id layout allows)
+constexpr int32_t kMaxGeneratorId = 65535;
+constexpr int64_t kMaxSeq = 999999998;
+// a window larger than this is taken as this
+constexpr int32_t kMaxWindow = 1000000;
+
+double SecondsSince(Clock::time_point then, Clock::time_point now) {
+  return std::chrono::duration<double>(now - then).count();
+}
+
+int64_t UnixMicros() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------
+// SceneServer
+
+struct SceneServer::Impl {
+  // what the generator knows of one reliable consumer
+  struct Consumer {
+    bool addressed = false;  // it has sent a credit for this generator (not only the wildcard)
+    int64_t stored_through = -1;
+    int64_t last_received = -1;
+    int32_t window = 0;
+    Clock::time_point last_heard;
+    Clock::time_point last_tail_resend;
+  };
+  // a published scene kept for resending
+  struct Kept {
+    int64_t seq = 0;
+    std::vector<uint8_t> bytes;
+  };
+
+  Bus* bus = nullptr;
+  SceneServerOptions options;
+  Regenerate regenerate;
+  Notice notice;
+  std::map<std::string, Consumer> consumers;
+  std::deque<Kept> ring;
+  int64_t next_seq = -1;  // one past the last seq published; -1 before the first
+  Clock::time_point last_publish_time;
+  std::set<int64_t> requested;                     // seqs asked for and not served yet
+  std::map<int64_t, Clock::time_point> resent_at;  // when a seq was last published again
+  int64_t resent = 0;
+  int64_t regenerated = 0;
+  int64_t bad_messages = 0;
+
+  void OnCredit(const credit& message) {
+    const int32_t target = message.header.generator_id;
+    if (target != options.generator_id && target != -1) return;
+    // a credit no stackgen consumer sends is counted and ignored
+    if (message.consumer.empty() || message.header.seq < -1 || message.header.seq > kMaxSeq ||
+        message.last_received_seq < -1 || message.last_received_seq > kMaxSeq) {
+      ++bad_messages;
+      return;
+    }
+    const Clock::time_point now = Clock::now();
+    auto found = consumers.find(message.consumer);
+    if (message.leaving) {
+      if (found != consumers.end()) {
+        consumers.erase(found);
+        notice("reliable consumer " + message.consumer + " left");
+      }
+      return;
+    }
+    if (found == consumers.end()) {
+      found = consumers.emplace(message.consumer, Consumer{}).first;
+      found->second.last_tail_resend = now;
+      notice("reliable consumer " + message.consumer + " registered");
+    }
+    Consumer& consumer = found->second;
+    consumer.last_heard = now;
+    // a credit addressed to this generator wins over the wildcard's "nothing stored yet"
+    if (target == -1 && consumer.addressed) return;
+    consumer.addressed = consumer.addressed || target != -1;
+    consumer.stored_through = message.header.seq;
+    consumer.last_received = std::max(message.last_received_seq, message.header.seq);
+    consumer.window = std::clamp(message.window, 0, kMaxWindow);
+  }
+
+  // only a registered consumer's requests, and only for seqs it can take (its window): a stray
+  // request cannot make the generator regenerate its whole history
+  void OnResend(const resend_request& message) {
+    if (message.header.generator_id != options.generator_id) return;
+    const auto found = consumers.find(message.consumer);
+    if (found == consumers.end()) return;
+    const Consumer& consumer = found->second;
+    const int64_t last =
+        std::min(next_seq - 1, consumer.stored_through + std::max<int64_t>(1, consumer.window));
+    int served = 0;
+    for (const int64_t seq : message.seqs) {
+      if (++served > kMaxSeqsPerRequest) break;
+      if (seq > consumer.stored_through && seq <= last) requested.insert(seq);
+    }
+  }
+
+  // publishes `seq` again, from the ring or regenerated
+  void Serve(int64_t seq, Clock::time_point now) {
+    const auto sent = resent_at.find(seq);
+    if (sent != resent_at.end() &&
+        SecondsSince(sent->second, now) < options.min_resend_interval_s) {
+      return;
+    }
+    const auto kept = std::find_if(ring.begin(), ring.end(),
+                                   [seq](const Kept& entry) { return entry.seq == seq; });
+    if (kept != ring.end()) {
+      bus->PublishEncoded(kSceneChannel, kept->bytes);
+      ++resent;
+    } else {
+      bus->PublishEncoded(kSceneChannel, regenerate(seq));
+      ++regenerated;
+    }
+    resent_at[seq] = Clock::now();
+  }
+};
+
+SceneServer::SceneServer(Bus* bus, const SceneServerOptions& options, Regenerate regenerate,
+                         Notice notice)
+    : impl_(std::make_unique<Impl>()) {
+  if (options.ring_size < 1) throw std::invalid_argument("the resend ring needs >= 1 scene");
+  if (!(options.consumer_timeout_s > 0)) {
+    throw std::invalid_argument("the consumer timeout must be > 0 s");
+  }
+  impl_->bus = bus;
+  impl_->options = options;
+  impl_->regenerate = std::move(regenerate);
+  impl_->notice = std::move(notice);
+  Impl* impl = impl_.get();
+  const auto count_bad = [impl](const std::string&) { ++impl->bad_messages; };
+  bus->Subscribe<credit>(
+      kCreditChannel, [impl](const credit& message) { impl->OnCredit(message); }, 1000, count_bad);
+  bus->Subscribe<resend_request>(
+      kResendChannel, [impl](const resend_request& message) { impl->OnResend(message); }, 1000,
+      count_bad);
+}
+
+SceneServer::~SceneServer() = default;
+
+void SceneServer::Publish(int64_t seq, std::vector<uint8_t> encoded_scene) {
+  if (impl_->next_seq >= 0 && seq != impl_->next_seq) {
+    throw std::logic_error("SceneServer::Publish: seq " + std::to_string(seq) + " after " +
+                           std::to_string(impl_->next_seq - 1));
+  }
+  impl_->bus->PublishEncoded(kSceneChannel, encoded_scene);
+  impl_->last_publish_time = Clock::now();
+  impl_->next_seq = seq + 1;
+  impl_->ring.push_back(Impl::Kept{seq, std::move(encoded_scene)});
+  while (static_cast<int>(impl_->ring.size()) > impl_->options.ring_size) impl_->ring.pop_front();
+}
+
+bool SceneServer::MayPublish(int64_t seq) const {
+  for (const auto& [name, consumer] : impl_->consumers) {
+    if (seq > consumer.stored_through + consumer.window) return false;
+  }
+  return true;
+}
+
+void SceneServer::Service(int timeout_ms) {
+  Impl& impl = *impl_;
+  impl.bus->HandleFor(timeout_ms);
+  const Clock::time_point now = Clock::now();
+
+  // drop consumers that went silent
+  for (auto it = impl.consumers.begin(); it != impl.consumers.end();) {
+    const double silent_s = SecondsSince(it->second.last_heard, now);
+    if (silent_s > impl.options.consumer_timeout_s) {
+      impl.notice("reliable consumer " + it->first + " silent for " +
+                  std::to_string(static_cast<int>(silent_s)) +
+                  " s: no longer waited for (it registers again with its next credit)");
+      it = impl.consumers.erase(it);
+    } else {
+      ++it;
+    }
+  }
+
+  // unreceived tails: what a consumer can take but has not received a while after publication
+  const int64_t last_published = impl.next_seq - 1;
+  if (last_published >= 0 &&
+      SecondsSince(impl.last_publish_time, now) >= impl.options.tail_resend_s) {
+    for (auto& [name, consumer] : impl.consumers) {
+      if (consumer.last_received >= last_published) continue;
+      if (SecondsSince(consumer.last_tail_resend, now) < impl.options.tail_resend_s) continue;
+      const int64_t last = std::min(last_published, consumer.stored_through + consumer.window);
+      for (int64_t seq = consumer.last_received + 1; seq <= last; ++seq) {
+        impl.requested.insert(seq);
+      }
+      consumer.last_tail_resend = now;
+    }
+  }
+
+  // serve, oldest first; forget send times long past
+  const std::set<int64_t> due = std::move(impl.requested);
+  impl.requested.clear();
+  for (const int64_t seq : due) impl.Serve(seq, now);
+  for (auto it = impl.resent_at.begin(); it != impl.resent_at.end();) {
+    it = SecondsSince(it->second, now) > 10 ? impl.resent_at.erase(it) : std::next(it);
+  }
+}
+
+bool SceneServer::AllStoredThrough(int64_t last_seq) const {
+  for (const auto& [name, consumer] : impl_->consumers) {
+    if (consumer.stored_through < last_seq) return false;
+  }
+  return true;
+}
+
+std::optional<int64_t> SceneServer::ResumeSeq() const {
+  std::optional<int64_t> seq;
+  for (const auto& [name, consumer] : impl_->consumers) {
+    const int64_t next = consumer.stored_through + 1;
+    if (!seq || next < *seq) seq = next;
+  }
+  return seq;
+}
+
+int SceneServer::reliable_consumers() const { return static_cast<int>(impl_->consumers.size()); }
+int64_t SceneServer::resent() const { return impl_->resent; }
+int64_t SceneServer::regenerated() const { return impl_->regenerated; }
+int64_t SceneServer::bad_messages() const { return impl_->bad_messages; }
+
+// ---------------------------------------------------------------------------------------------
+// SceneClient
+
+struct SceneClient::Impl {
+  // what the consumer knows of one generator's stream
+  struct Stream {
+    int64_t stored_through = -1;
+    std::set<int64_t> done_above;  // stored or skipped seqs above stored_through
+    int64_t last_received = -1;
+    std::map<int64_t, Clock::time_point> asked;  // missing seq -> when last asked for
+    bool credit_due = true;
+  };
+
+  Bus* bus = nullptr;
+  SceneClientOptions options;
+  std::map<int32_t, Stream> streams;
+  DeliveryCounters counters;
+  int64_t stored_total = 0;  // stored, restored ones included (not skipped ones)
+  Clock::time_point last_credit;
+  bool left = false;
+
+  // true when `seq` was not done before
+  bool MarkDone(int32_t generator_id, int64_t seq) {
+    Stream& stream = streams[generator_id];
+    if (seq <= stream.stored_through || !stream.done_above.insert(seq).second) return false;
+    stream.asked.erase(seq);
+    while (!stream.done_above.empty() && *stream.done_above.begin() == stream.stored_through + 1) {
+      stream.done_above.erase(stream.done_above.begin());
+      ++stream.stored_through;
+    }
+    stream.last_received = std::max(stream.last_received, seq);
+    stream.credit_due = true;
+    return true;
+  }
+
+  // how many scenes past stored_through a generator may publish now
+  int32_t Window() const {
+    int64_t window = options.window;
+    if (options.max_scenes > 0) window = std::min(window, options.max_scenes - stored_total);
+    return static_cast<int32_t>(std::max<int64_t>(0, window));
+  }
+
+  void SendCredit(int32_t generator_id, int64_t stored_through, int64_t last_received,
+                  bool leaving) {
+    credit message{};
+    message.header.seq = stored_through;
+    message.header.generator_id = generator_id;
+    message.header.utime = UnixMicros();
+    message.consumer = options.name;
+    message.window = Window();
+    message.last_received_seq = last_received;
+    message.leaving = leaving;
+    bus->Publish(kCreditChannel, message);
+  }
+};
+
+SceneClient::SceneClient(Bus* bus, const SceneClientOptions& options)
+    : impl_(std::make_unique<Impl>()) {
+  if (options.name.empty()) throw std::invalid_argument("a reliable consumer needs a name");
+  if (options.window < 1) throw std::invalid_argument("the window must be >= 1 scene");
+  if (options.max_scenes < 0) throw std::invalid_argument("max_scenes must be >= 0");
+  impl_->bus = bus;
+  impl_->options = options;
+  impl_->last_credit = Clock::now() - std::chrono::hours(1);
+}
+
+SceneClient::~SceneClient() = default;
+
+void SceneClient::Restore(int32_t generator_id, const std::vector<int64_t>& seqs) {
+  if (generator_id < 0 || generator_id > kMaxGeneratorId) return;
+  for (const int64_t seq : seqs) {
+    if (seq >= 0 && seq <= kMaxSeq && impl_->MarkDone(generator_id, seq)) ++impl_->stored_total;
+  }
+}
+
+bool SceneClient::Received(int32_t generator_id, int64_t seq) {
+  if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) {
+    return false;
+  }
+  ++impl_->counters.received;
+  Impl::Stream& stream = impl_->streams[generator_id];
+  if (seq <= stream.stored_through || stream.done_above.count(seq) != 0) {
+    ++impl_->counters.duplicates;
+    return false;
+  }
+  if (seq > stream.last_received) {
+    stream.last_received = seq;
+    stream.credit_due = true;
+  }
+  return true;
+}
+
+void SceneClient::Stored(int32_t generator_id, int64_t seq) {
+  if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) return;
+  ++impl_->counters.stored;
+  ++impl_->stored_total;
+  impl_->MarkDone(generator_id, seq);
+}
+
+void SceneClient::Skipped(int32_t generator_id, int64_t seq) {
+  if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) return;
+  impl_->MarkDone(generator_id, seq);
+}
+
+void SceneClient::Service() {
+  Impl& impl = *impl_;
+  if (impl.left) return;
+  const Clock::time_point now = Clock::now();
+  const bool period_due = SecondsSince(impl.last_credit, now) >= impl.options.credit_period_s;
+
+  for (auto& [generator_id, stream] : impl.streams) {
+    // credits: at once after a change, else every period
+    if (stream.credit_due || period_due) {
+      impl.SendCredit(generator_id, stream.stored_through, stream.last_received, false);
+      stream.credit_due = false;
+    }
+
+    // missing seqs below the highest received, as far as the window reaches
+    const int64_t last =
+        std::min(stream.last_received, stream.stored_through + std::max<int64_t>(1, impl.Window()));
+    std::vector<int64_t> ask;
+    for (int64_t seq = stream.stored_through + 1;
+         seq <= last && static_cast<int>(ask.size()) < kMaxSeqsPerRequest; ++seq) {
+      if (stream.done_above.count(seq) != 0) continue;
+      const auto asked = stream.asked.find(seq);
+      if (asked != stream.asked.end() &&
+          SecondsSince(asked->second, now) < impl.options.reask_after_s) {
+        continue;
+      }
+      stream.asked[seq] = now;
+      ask.push_back(seq);
+    }
+    if (!ask.empty()) {
+      resend_request request{};
+      request.header.seq = ask.front();
+      request.header.generator_id = generator_id;
+      request.header.utime = UnixMicros();
+      request.consumer = impl.options.name;
+      request.num_seqs = static_cast<int32_t>(ask.size());
+      request.seqs = ask;
+      impl.bus->Publish(kResendChannel, request);
+      impl.counters.reasked += static_cast<int64_t>(ask.size());
+    }
+  }
+
+  // the wildcard: generators not heard from yet count this consumer as having stored nothing
+  if (period_due) {
+    impl.SendCredit(-1, -1, -1, false);
+    impl.last_credit = now;
+  }
+}
+
+void SceneClient::Leave() {
+  Impl& impl = *impl_;
+  if (impl.left) return;
+  for (const auto& [generator_id, stream] : impl.streams) {
+    impl.SendCredit(generator_id, stream.stored_through, stream.last_received, true);
+  }
+  impl.SendCredit(-1, -1, -1, true);
+  // once more: a lost last credit would keep a generator waiting for the whole timeout
+  for (const auto& [generator_id, stream] : impl.streams) {
+    impl.SendCredit(generator_id, stream.stored_through, stream.last_received, true);
+  }
+  impl.SendCredit(-1, -1, -1, true);
+  impl.left = true;
+}
+
+int64_t SceneClient::StoredThrough(int32_t generator_id) const {
+  const auto found = impl_->streams.find(generator_id);
+  return found == impl_->streams.end() ? -1 : found->second.stored_through;
+}
+
+DeliveryCounters SceneClient::counters() const {
+  DeliveryCounters counters = impl_->counters;
+  counters.lost = 0;
+  for (const auto& [generator_id, stream] : impl_->streams) {
+    const int64_t span = stream.last_received - stream.stored_through;
+    counters.lost += std::max<int64_t>(0, span - static_cast<int64_t>(stream.done_above.size()));
+  }
+  return counters;
+}
+
+}  // namespace stackgen

@@ -1,0 +1,169 @@
+#pragma once
+
+// Delivery without loss (design.md): the small protocol the bus layers on typed messages so that
+// dataset writers lose no scene while a live viewer never slows the generator.
+//
+// - A reliable consumer (SceneClient) registers by sending credits on STACKGEN_CREDIT: per
+//   generator, the last seq below which it has durably stored every scene, the highest seq it
+//   received and how many more scenes it can take (its window).
+// - The generator (SceneServer) never publishes a seq above stored + window of any registered
+//   consumer; a consumer silent for longer than a timeout is dropped from the set with a warning.
+// - A consumer that sees a gap asks for the missing seqs on STACKGEN_RESEND (and asks again while
+//   they stay missing); the generator serves them from a ring of recent scenes, or beyond it
+//   regenerates them from the seed (determinism makes them exact). A tail the consumer never saw
+//   (no later scene shows the gap) is resent by the generator when the consumer's credit says it
+//   has not received it a short while after publication.
+// - Best-effort consumers send nothing and are never waited for.
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "bus/bus.h"
+
+namespace stackgen {
+
+/// How a SceneServer serves its consumers.
+struct SceneServerOptions {
+  /// The generator's id (header.generator_id of its scenes).
+  int32_t generator_id = 0;
+  /// Encoded scenes kept for resending, most recent ones (default 64).
+  int ring_size = 64;
+  /// A registered consumer with no credit for this long is dropped from the set, with a warning
+  /// (seconds, default 10).
+  double consumer_timeout_s = 10;
+  /// A consumer whose credit says it has not received the newest scenes this long after they
+  /// were published gets them again (seconds, default 0.3).
+  double tail_resend_s = 0.3;
+  /// A seq resent less than this ago is not resent again for another request (seconds,
+  /// default 0.1), so that several consumers asking for it at once cost one resend.
+  double min_resend_interval_s = 0.1;
+};
+
+/// The generator's side: publishes scenes on STACKGEN_SCENE, keeps the recent ones, follows
+/// the credits of reliable consumers and serves resend requests. Subscribes to STACKGEN_CREDIT
+/// and STACKGEN_RESEND on the bus given; messages there that do not decode, or that address
+/// another generator, are skipped (the former counted). Not thread-safe.
+class SceneServer {
+ public:
+  /// Returns the encoded scene `seq` made again (for a seq older than the ring).
+  using Regenerate = std::function<std::vector<uint8_t>(int64_t seq)>;
+  /// Receives one line about consumers registering, leaving or going silent.
+  using Notice = std::function<void(const std::string&)>;
+
+  /// `bus` must outlive the server, and must not handle messages (HandleFor) after the server
+  /// is destroyed: its subscriptions stay. Throws std::invalid_argument on options out of range.
+  SceneServer(Bus* bus, const SceneServerOptions& options, Regenerate regenerate, Notice notice);
+  ~SceneServer();
+  SceneServer(const SceneServer&) = delete;
+  SceneServer& operator=(const SceneServer&) = delete;
+
+  /// Publishes the encoded scene `seq` on STACKGEN_SCENE for the first time and keeps it in the
+  /// ring. Seqs must increase by one from the first one published.
+  void Publish(int64_t seq, std::vector<uint8_t> encoded_scene);
+
+  /// True when publishing `seq` keeps within the window of every registered consumer (always
+  /// true with none registered).
+  bool MayPublish(int64_t seq) const;
+
+  /// Handles credits and resend requests that arrive within `timeout_ms`, then drops consumers
+  /// silent for longer than the timeout, and serves what is due: requested seqs and unreceived
+  /// tails (published again from the ring or regenerated). Throws what the bus or Regenerate
+  /// throws.
+  void Service(int timeout_ms);
+
+  /// True when every registered consumer has stored every seq up to `last_seq` (or has left).
+  bool AllStoredThrough(int64_t last_seq) const;
+
+  /// The seq to continue at after a restart: the smallest "stored through + 1" of the registered
+  /// consumers; unset while none is registered.
+  std::optional<int64_t> ResumeSeq() const;
+
+  /// Reliable consumers registered now.
+  int reliable_consumers() const;
+  /// Scenes published again from the ring.
+  int64_t resent() const;
+  /// Scenes regenerated (older than the ring) and published again.
+  int64_t regenerated() const;
+  /// Credit and resend messages that did not decode.
+  int64_t bad_messages() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// How a SceneClient takes part in delivery.
+struct SceneClientOptions {
+  /// The consumer's name in its credits, unique on the bus and stable across restarts of the
+  /// same writer (e.g. "stackgen-coco@host:/data/set1").
+  std::string name;
+  /// Scenes it can take beyond what it has stored, per generator (default 8, >= 1).
+  int32_t window = 8;
+  /// Scenes it wants in all (restored ones included), 0 = no limit. The window shrinks so that
+  /// a generator never publishes more than the consumer will store; skipped scenes do not count.
+  int64_t max_scenes = 0;
+  /// Credits are sent this often when nothing changes (seconds, default 0.2).
+  double credit_period_s = 0.2;
+  /// A missing seq is asked for again after this long (seconds, default 0.3).
+  double reask_after_s = 0.3;
+};
+
+/// Counters of a SceneClient since it started (see status.lcm).
+struct DeliveryCounters {
+  /// Scenes received, duplicates included.
+  int64_t received = 0;
+  /// Scenes stored.
+  int64_t stored = 0;
+  /// Scenes received again after they were stored or skipped.
+  int64_t duplicates = 0;
+  /// Seqs missing now, below the highest seq received of each generator.
+  int64_t lost = 0;
+  /// Seqs asked for on STACKGEN_RESEND, each ask counted.
+  int64_t reasked = 0;
+};
+
+/// A reliable consumer's side: tracks, per generator, what it received and stored, sends
+/// credits and resend requests. The consumer subscribes to STACKGEN_SCENE itself and tells the
+/// client about every scene (Received, then Stored or Skipped). Not thread-safe.
+class SceneClient {
+ public:
+  /// `bus` must outlive the client. Throws std::invalid_argument on options out of range.
+  /// Generator ids outside 0..65535 and seqs outside 0..999999998 are not tracked: Received
+  /// returns false for them, and Stored, Skipped and Restore ignore them.
+  SceneClient(Bus* bus, const SceneClientOptions& options);
+  ~SceneClient();
+  SceneClient(const SceneClient&) = delete;
+  SceneClient& operator=(const SceneClient&) = delete;
+
+  /// Seqs stored by an earlier run of the same consumer (--resume); not counted as received.
+  void Restore(int32_t generator_id, const std::vector<int64_t>& seqs);
+
+  /// Scene `seq` of `generator_id` arrived. True when it is new and should be stored; false when
+  /// it was stored or skipped before (counted as a duplicate), or its ids are out of range.
+  bool Received(int32_t generator_id, int64_t seq);
+  /// The scene Received said was new is now durably stored.
+  void Stored(int32_t generator_id, int64_t seq);
+  /// The scene Received said was new will never be stored (e.g. invalid): stop asking for it.
+  void Skipped(int32_t generator_id, int64_t seq);
+
+  /// Sends what is due: credits (every credit period, and at once when something was stored)
+  /// and resend requests for missing seqs. Cheap when nothing is due; call it often.
+  void Service();
+  /// Sends a last credit, marked leaving, for every generator (and the wildcard).
+  void Leave();
+
+  /// The highest seq s of `generator_id` such that 0..s are all stored or skipped; -1 if none.
+  int64_t StoredThrough(int32_t generator_id) const;
+  /// Counters since start; `lost` is the number of seqs missing right now.
+  DeliveryCounters counters() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace stackgen

@@ -1,0 +1,355 @@
+#include "bus/delivery.h"
+
+#include <chrono>
+#include <map>
+#include <set>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <stackgen/credit.hpp>
+#include <stackgen/resend_request.hpp>
+#include <stackgen/scene.hpp>
+
+#include "bus/bus.h"
+#include "bus/channels.h"
+
+namespace stackgen {
+namespace {
+
+// a small scene: only the header matters to delivery
+std::vector<uint8_t> EncodedScene(int32_t generator_id, int64_t seq) {
+  scene message{};
+  message.header.seq = seq;
+  message.header.generator_id = generator_id;
+  message.header.seed = seq * 7 + 1;
+  return EncodeMessage(message);
+}
+
+// a generator, a reliable consumer and the link between them, all on one memq:// bus. The test
+// decides which scene messages the consumer gets to see (`drop`), like a lossy network would.
+class DeliveryFixture : public ::testing::Test {
+ protected:
+  void SetUpLink(const SceneServerOptions& server_options, const SceneClientOptions& client_options,
+                 const BusOptions& bus_options = {}) {
+    bus_ = std::make_unique<Bus>("memq://", bus_options);
+    server_ = std::make_unique<SceneServer>(
+        bus_.get(), server_options,
+        [this, id = server_options.generator_id](int64_t seq) {
+          regenerated_.push_back(seq);
+          return EncodedScene(id, seq);
+        },
+        [this](const std::string& line) { notices_.push_back(line); });
+    client_ = std::make_unique<SceneClient>(bus_.get(), client_options);
+    bus_->Subscribe<scene>(kSceneChannel, [this](const scene& message) {
+      const int32_t id = message.header.generator_id;
+      const int64_t seq = message.header.seq;
+      ++arrivals_[{id, seq}];
+      if (drop_.erase({id, seq}) != 0) return;
+      if (client_->Received(id, seq)) {
+        stored_[{id, seq}]++;
+        client_->Stored(id, seq);
+      }
+    });
+  }
+
+  // one round trip: the client says what it has, the generator serves, the client takes it in
+  void Exchange() {
+    client_->Service();
+    server_->Service(0);
+    bus_->HandleFor(0);
+    client_->Service();
+    server_->Service(0);
+  }
+
+  std::unique_ptr<Bus> bus_;
+  std::unique_ptr<SceneServer> server_;
+  std::unique_ptr<SceneClient> client_;
+  std::set<std::pair<int32_t, int64_t>> drop_;
+  std::map<std::pair<int32_t, int64_t>, int> arrivals_;
+  std::map<std::pair<int32_t, int64_t>, int> stored_;
+  std::vector<int64_t> regenerated_;
+  std::vector<std::string> notices_;
+};
+
+SceneClientOptions Client(int32_t window, int64_t max_scenes = 0) {
+  SceneClientOptions options;
+  options.name = "test-consumer";
+  options.window = window;
+  options.max_scenes = max_scenes;
+  options.reask_after_s = 0;    // ask again at every Service: no waiting in tests
+  options.credit_period_s = 0;  // and credit at every Service
+  return options;
+}
+
+// with no reliable consumer registered the generator is never held back; once one is, it may
+// run exactly `window` scenes past what the consumer stored, and storing opens the window.
+TEST_F(DeliveryFixture, WindowHoldsTheGenerator) {
+  SetUpLink(SceneServerOptions{}, Client(3));
+  EXPECT_TRUE(server_->MayPublish(1000));
+  Exchange();
+  EXPECT_EQ(server_->reliable_consumers(), 1);
+  EXPECT_TRUE(server_->MayPublish(2));
+  EXPECT_FALSE(server_->MayPublish(3));
+
+  server_->Publish(0, EncodedScene(0, 0));
+  bus_->HandleFor(0);
+  Exchange();
+  EXPECT_EQ(client_->StoredThrough(0), 0);
+  EXPECT_TRUE(server_->MayPublish(3));
+  EXPECT_FALSE(server_->MayPublish(4));
+}
+
+// a scene lost in the middle is asked for and served from the ring; it is stored once.
+TEST_F(DeliveryFixture, GapIsResentFromTheRing) {
+  SetUpLink(SceneServerOptions{}, Client(8));
+  Exchange();
+  drop_ = {{0, 1}};
+  for (int64_t seq = 0; seq < 3; ++seq) server_->Publish(seq, EncodedScene(0, seq));
+  bus_->HandleFor(0);
+  EXPECT_EQ(client_->StoredThrough(0), 0);
+  EXPECT_EQ(client_->counters().lost, 1);
+  Exchange();
+  bus_->HandleFor(0);
+  EXPECT_EQ(client_->StoredThrough(0), 2);
+  EXPECT_EQ(stored_[std::make_pair(0, int64_t{1})], 1);
+  EXPECT_EQ(server_->resent(), 1);
+  EXPECT_EQ(server_->regenerated(), 0);
+  const DeliveryCounters counters = client_->counters();
+  EXPECT_EQ(counters.lost, 0);
+  EXPECT_EQ(counters.reasked, 1);
+  EXPECT_EQ(counters.stored, 3);
+}
+
+// a seq older than the ring is regenerated (the callback gets that seq) and stored.
+TEST_F(DeliveryFixture, BeyondTheRingIsRegenerated) {
+  SceneServerOptions server_options;
+  server_options.ring_size = 2;
+  SetUpLink(server_options, Client(8));
+  Exchange();
+  drop_ = {{0, 0}};
+  for (int64_t seq = 0; seq < 4; ++seq) server_->Publish(seq, EncodedScene(0, seq));
+  bus_->HandleFor(0);
+  Exchange();
+  bus_->HandleFor(0);
+  EXPECT_EQ(regenerated_, std::vector<int64_t>{0});
+  EXPECT_EQ(server_->regenerated(), 1);
+  EXPECT_EQ(client_->StoredThrough(0), 3);
+}
+
+// the last scene lost shows no gap to the consumer; the generator resends it when the credit
+// says it was not received a while after publication.
+TEST_F(DeliveryFixture, LostTailIsResentByTheGenerator) {
+  SceneServerOptions server_options;
+  server_options.tail_resend_s = 0.5;
+  SetUpLink(server_options, Client(8));
+  Exchange();
+  drop_ = {{0, 2}};
+  for (int64_t seq = 0; seq < 3; ++seq) server_->Publish(seq, EncodedScene(0, seq));
+  bus_->HandleFor(0);
+  Exchange();
+  EXPECT_EQ(client_->StoredThrough(0), 1);
+  EXPECT_FALSE(server_->AllStoredThrough(2));
+  std::this_thread::sleep_for(std::chrono::milliseconds(600));
+  Exchange();
+  bus_->HandleFor(0);
+  Exchange();
+  EXPECT_EQ(client_->StoredThrough(0), 2);
+  EXPECT_TRUE(server_->AllStoredThrough(2));
+  EXPECT_EQ(client_->counters().reasked, 0);
+}
+
+// a scene received twice is stored once and counted as a duplicate, also one restored from an
+// earlier run; the generator's resume seq follows the restored state.
+TEST_F(DeliveryFixture, DuplicatesAndRestore) {
+  SetUpLink(SceneServerOptions{}, Client(8));
+  client_->Restore(0, {0, 1, 2, 4});
+  EXPECT_EQ(client_->StoredThrough(0), 2);
+  EXPECT_FALSE(server_->ResumeSeq().has_value());
+  Exchange();
+  ASSERT_TRUE(server_->ResumeSeq().has_value());
+  EXPECT_EQ(*server_->ResumeSeq(), 3);
+
+  EXPECT_FALSE(client_->Received(0, 1));
+  EXPECT_FALSE(client_->Received(0, 4));
+  EXPECT_TRUE(client_->Received(0, 3));
+  client_->Stored(0, 3);
+  EXPECT_EQ(client_->StoredThrough(0), 4);
+  const DeliveryCounters counters = client_->counters();
+  EXPECT_EQ(counters.received, 3);
+  EXPECT_EQ(counters.duplicates, 2);
+  EXPECT_EQ(counters.stored, 1);
+}
+
+// a consumer that wants N scenes in all never lets a generator publish scene N.
+TEST_F(DeliveryFixture, MaxScenesShrinksTheWindow) {
+  SetUpLink(SceneServerOptions{}, Client(8, 5));
+  Exchange();
+  EXPECT_TRUE(server_->MayPublish(4));
+  EXPECT_FALSE(server_->MayPublish(5));
+  for (int64_t seq = 0; seq < 5; ++seq) server_->Publish(seq, EncodedScene(0, seq));
+  bus_->HandleFor(0);
+  Exchange();
+  EXPECT_EQ(client_->StoredThrough(0), 4);
+  EXPECT_FALSE(server_->MayPublish(5));
+}
+
+// a scene skipped as invalid does not use up the scenes a consumer wants: the generator may still
+// publish enough for it to store them all.
+TEST_F(DeliveryFixture, SkippedScenesDoNotUseUpMaxScenes) {
+  SetUpLink(SceneServerOptions{}, Client(8, 3));
+  Exchange();
+  EXPECT_TRUE(client_->Received(0, 0));
+  client_->Skipped(0, 0);
+  EXPECT_TRUE(client_->Received(0, 1));
+  client_->Stored(0, 1);
+  Exchange();
+  EXPECT_EQ(client_->StoredThrough(0), 1);
+  EXPECT_TRUE(server_->MayPublish(3));
+  EXPECT_FALSE(server_->MayPublish(4));
+  // ids out of range are not tracked
+  EXPECT_FALSE(client_->Received(-1, 0));
+  EXPECT_FALSE(client_->Received(0, -1));
+  EXPECT_EQ(client_->counters().received, 2);
+}
+
+// requests from a consumer that is not registered, or for seqs beyond its window, are not served:
+// a stray request cannot make the generator regenerate its history.
+TEST_F(DeliveryFixture, StrayResendRequestsAreNotServed) {
+  SetUpLink(SceneServerOptions{}, Client(2));
+  drop_ = {{0, 0}, {0, 1}};
+  for (int64_t seq = 0; seq < 2; ++seq) server_->Publish(seq, EncodedScene(0, seq));
+  resend_request stray{};
+  stray.consumer = "nobody";
+  stray.num_seqs = 2;
+  stray.seqs = {0, 1};
+  bus_->Publish(kResendChannel, stray);
+  server_->Service(0);
+  EXPECT_EQ(server_->resent() + server_->regenerated(), 0);
+
+  Exchange();  // registers test-consumer: stored through -1, window 2
+  stray.consumer = "test-consumer";
+  stray.seqs = {1, 5};
+  bus_->Publish(kResendChannel, stray);
+  server_->Service(0);
+  EXPECT_EQ(server_->resent(), 1);  // seq 1 only: 5 was never published
+}
+
+// a consumer that goes silent is dropped after the timeout, with a notice; one that leaves is
+// dropped at once; either way the generator is free again.
+TEST_F(DeliveryFixture, SilentOrLeavingConsumerIsDropped) {
+  SceneServerOptions server_options;
+  server_options.consumer_timeout_s = 0.05;
+  SetUpLink(server_options, Client(1));
+  Exchange();
+  EXPECT_FALSE(server_->MayPublish(1));
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  server_->Service(0);
+  EXPECT_TRUE(server_->MayPublish(1));
+  ASSERT_FALSE(notices_.empty());
+  EXPECT_NE(notices_.back().find("silent"), std::string::npos) << notices_.back();
+
+  Exchange();
+  EXPECT_FALSE(server_->MayPublish(1));
+  client_->Leave();
+  server_->Service(0);
+  EXPECT_TRUE(server_->MayPublish(1));
+  EXPECT_NE(notices_.back().find("left"), std::string::npos) << notices_.back();
+}
+
+// credits of another generator do not hold this one; a consumer keeps two generators' seqs
+// apart (the same seq from each is stored twice, once per generator).
+TEST_F(DeliveryFixture, GeneratorsAreKeptApart) {
+  SceneServerOptions server_options;
+  server_options.generator_id = 7;
+  SetUpLink(server_options, Client(2));
+  Exchange();
+  // the consumer has stored nothing of generator 3: it may still publish 0 and 1 ...
+  EXPECT_TRUE(client_->Received(3, 0));
+  client_->Stored(3, 0);
+  EXPECT_TRUE(client_->Received(3, 1));
+  client_->Stored(3, 1);
+  Exchange();
+  // ... and generator 7 is still held to its own window
+  EXPECT_TRUE(server_->MayPublish(1));
+  EXPECT_FALSE(server_->MayPublish(2));
+  server_->Publish(0, EncodedScene(7, 0));
+  bus_->HandleFor(0);
+  EXPECT_EQ(client_->StoredThrough(7), 0);
+  EXPECT_EQ(client_->StoredThrough(3), 1);
+}
+
+// the whole protocol over a bus that drops 30 % of what it receives (scenes, credits and resend
+// requests alike): every one of 200 scenes is stored exactly once.
+TEST_F(DeliveryFixture, EveryoneStoredOnceDespiteLoss) {
+  SceneServerOptions server_options;
+  server_options.ring_size = 16;
+  server_options.tail_resend_s = 0.01;
+  server_options.min_resend_interval_s = 0;
+  BusOptions lossy;
+  lossy.drop_receive_fraction = 0.3;
+  lossy.fault_seed = 42;
+  SetUpLink(server_options, Client(4), lossy);
+  constexpr int64_t kScenes = 200;
+  int64_t next = 0;
+  // a bound on the rounds, not a timing check: it fails only if delivery stalls
+  for (int round = 0;
+       round < 100000 && !(next == kScenes && server_->AllStoredThrough(kScenes - 1)); ++round) {
+    if (next < kScenes && server_->MayPublish(next)) {
+      server_->Publish(next, EncodedScene(0, next));
+      ++next;
+    }
+    Exchange();
+    if (round % 16 == 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  ASSERT_EQ(next, kScenes);
+  EXPECT_TRUE(server_->AllStoredThrough(kScenes - 1));
+  EXPECT_EQ(client_->StoredThrough(0), kScenes - 1);
+  EXPECT_EQ(stored_.size(), static_cast<size_t>(kScenes));
+  for (const auto& [key, times] : stored_) EXPECT_EQ(times, 1) << "seq " << key.second;
+  EXPECT_GT(bus_->fault_dropped(), 0);
+  EXPECT_GT(server_->resent() + server_->regenerated(), 0);
+  EXPECT_EQ(client_->counters().lost, 0);
+}
+
+// a drop fraction outside [0, 1) is refused with the flag named.
+TEST(DropFractionTest, ParsesAndRefuses) {
+  EXPECT_DOUBLE_EQ(ParseDropFraction("--fault-drop", "0.1"), 0.1);
+  EXPECT_DOUBLE_EQ(ParseDropFraction("--fault-drop", "0"), 0.0);
+  for (const char* bad : {"1", "-0.1", "x", "0.1x", ""}) {
+    try {
+      ParseDropFraction("--fault-drop", bad);
+      ADD_FAILURE() << "accepted " << bad;
+    } catch (const std::invalid_argument& error) {
+      EXPECT_NE(std::string(error.what()).find("--fault-drop"), std::string::npos);
+    }
+  }
+}
+
+// the bus drops close to the fraction asked for, the same messages for the same seed.
+TEST(FaultDropTest, FractionAndSeed) {
+  const auto dropped = [](uint64_t seed) {
+    BusOptions options;
+    options.drop_receive_fraction = 0.1;
+    options.fault_seed = seed;
+    Bus bus("memq://", options);
+    std::vector<int64_t> kept;
+    bus.Subscribe<credit>(kCreditChannel, [&](const credit& m) { kept.push_back(m.header.seq); });
+    for (int64_t i = 0; i < 2000; ++i) {
+      credit message{};
+      message.header.seq = i;
+      bus.Publish(kCreditChannel, message);
+      bus.HandleFor(0);
+    }
+    EXPECT_EQ(bus.fault_dropped(), 2000 - static_cast<int64_t>(kept.size()));
+    return kept;
+  };
+  const std::vector<int64_t> a = dropped(1), b = dropped(1), c = dropped(2);
+  EXPECT_EQ(a, b);
+  EXPECT_NE(a, c);
+  EXPECT_NEAR(2000.0 - a.size(), 200.0, 45.0);
+}
+
+}  // namespace
+}  // namespace stackgen

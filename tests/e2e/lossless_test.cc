@@ -1,0 +1,308 @@
+// Delivery without loss, end to end: stackgen and stackgen-coco as separate processes over real
+// UDP multicast, with injected loss, kill -9 and restarts, several generators and a write error.
+// Every dataset is compared with one written by a plain run: the same images, byte for byte, and
+// the same annotations.json apart from its info block.
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdlib>
+#include <filesystem>
+#include <map>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "tests/support/process.h"
+
+namespace stackgen {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using testing::Process;
+
+constexpr int kScenes = 14;
+constexpr const char* kSeed = "5";
+
+const std::string kBin = STACKGEN_BIN_DIR;
+
+// the writer's command line
+std::vector<std::string> Coco(const std::string& out, const std::string& url,
+                              std::vector<std::string> extra = {}) {
+  std::vector<std::string> argv = {kBin + "/stackgen-coco", "--out",     out, "--count",
+                                   std::to_string(kScenes), "--lcm-url", url};
+  argv.insert(argv.end(), extra.begin(), extra.end());
+  return argv;
+}
+
+// the generator's command line
+std::vector<std::string> Generator(const std::string& url, const std::string& cache,
+                                   std::vector<std::string> extra = {}) {
+  std::vector<std::string> argv = {
+      kBin + "/stackgen", "--count", std::to_string(kScenes), "--seed", kSeed, "--lcm-url", url,
+      "--cache-dir",      cache,     "--consumer-timeout",    "5"};
+  argv.insert(argv.end(), extra.begin(), extra.end());
+  return argv;
+}
+
+// images (not .tmp) in a dataset folder
+int ImagesStored(const std::string& dataset) {
+  std::error_code error;
+  int count = 0;
+  for (const auto& entry : fs::directory_iterator(dataset + "/images", error)) {
+    if (entry.path().extension() != ".tmp") ++count;
+  }
+  return count;
+}
+
+// waits until the dataset holds `count` images; false after `timeout_s`
+bool WaitForImages(const std::string& dataset, int count, double timeout_s) {
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+  while (std::chrono::steady_clock::now() < deadline) {
+    if (ImagesStored(dataset) >= count) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  return false;
+}
+
+json Annotations(const std::string& dataset) {
+  json parsed = json::parse(testing::ReadFile(dataset + "/annotations.json"));
+  parsed.erase("info");
+  return parsed;
+}
+
+// the same annotations (info aside) and the same image files, byte for byte
+void ExpectSameDataset(const std::string& expected, const std::string& actual) {
+  const json a = Annotations(expected), b = Annotations(actual);
+  EXPECT_EQ(a["images"].size(), static_cast<size_t>(kScenes));
+  EXPECT_EQ(a, b) << actual << " differs from " << expected;
+  std::map<std::string, std::string> files;
+  for (const auto& entry : fs::directory_iterator(expected + "/images")) {
+    files[entry.path().filename()] = testing::ReadFile(entry.path());
+  }
+  int compared = 0;
+  for (const auto& entry : fs::directory_iterator(actual + "/images")) {
+    const std::string name = entry.path().filename();
+    ASSERT_EQ(files.count(name), 1u) << "extra file " << name << " in " << actual;
+    EXPECT_TRUE(files[name] == testing::ReadFile(entry.path())) << name << " differs";
+    ++compared;
+  }
+  EXPECT_EQ(compared, static_cast<int>(files.size()));
+}
+
+class LosslessTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    cache_ = scratch_.path() + "/cache";
+    reference_ = scratch_.path() + "/reference";
+    // the reference: a plain run, no injected loss
+    const std::string url = testing::FreeMulticastUrl();
+    Process coco(Coco(reference_, url), scratch_.path() + "/reference-coco");
+    ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+    Process generator(Generator(url, cache_), scratch_.path() + "/reference-gen");
+    ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
+    ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+  }
+
+  testing::ScratchDir scratch_{"stackgen-lossless"};
+  std::string cache_;
+  std::string reference_;
+};
+
+// with 10 % of the messages each process receives dropped (scenes at the writer; credits and
+// resend requests at the generator), the dataset is complete and identical to the reference.
+// The generator keeps only 2 scenes for resending, so most resent scenes are made again from
+// their seed: regenerated scenes are byte-identical too.
+TEST_F(LosslessTest, InjectedLossGivesTheSameDataset) {
+  const std::string url = testing::FreeMulticastUrl();
+  const std::string out = scratch_.path() + "/lossy";
+  Process coco(Coco(out, url, {"--fault-drop", "0.1"}), out + "-coco");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  Process generator(Generator(url, cache_, {"--fault-drop", "0.1", "--resend-ring", "2"}),
+                    out + "-gen");
+  ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
+  ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+  EXPECT_EQ(generator.Stdout().find(" 0 regenerated"), std::string::npos) << generator.Stdout();
+  const std::string summary = coco.Stdout();
+  EXPECT_NE(summary.find(std::to_string(kScenes) + " images"), std::string::npos) << summary;
+  EXPECT_NE(summary.find(", 0 missing"), std::string::npos) << summary;
+  EXPECT_EQ(summary.find(", 0 messages dropped on purpose"), std::string::npos) << summary;
+  ExpectSameDataset(reference_, out);
+}
+
+// kill -9 of the writer mid-run, then the same writer again with --resume: every scene once.
+TEST_F(LosslessTest, WriterKilledAndResumed) {
+  const std::string url = testing::FreeMulticastUrl();
+  const std::string out = scratch_.path() + "/killed-writer";
+  auto coco = std::make_unique<Process>(Coco(out, url), out + "-coco1");
+  ASSERT_TRUE(coco->WaitForOutput("listening", 30)) << coco->Stderr();
+  Process generator(Generator(url, cache_), out + "-gen");
+  ASSERT_TRUE(WaitForImages(out, 5, 300));
+  coco->Signal(SIGKILL);
+  EXPECT_EQ(coco->Wait(10), 128 + SIGKILL);
+  ASSERT_FALSE(fs::exists(out + "/annotations.json"));
+
+  Process resumed(Coco(out, url, {"--resume"}), out + "-coco2");
+  ASSERT_EQ(resumed.Wait(600), 0) << resumed.Stderr();
+  EXPECT_NE(resumed.Stdout().find("resumed"), std::string::npos) << resumed.Stdout();
+  ASSERT_EQ(generator.Wait(120), 0) << generator.Stderr();
+  ExpectSameDataset(reference_, out);
+}
+
+// kill -9 of the generator mid-run, then a restart with --resume: it continues where the writer
+// stands, and the dataset is complete.
+TEST_F(LosslessTest, GeneratorKilledAndResumed) {
+  const std::string url = testing::FreeMulticastUrl();
+  const std::string out = scratch_.path() + "/killed-generator";
+  Process coco(Coco(out, url), out + "-coco");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  {
+    Process generator(Generator(url, cache_), out + "-gen1");
+    ASSERT_TRUE(WaitForImages(out, 5, 300));
+    generator.Signal(SIGKILL);
+    EXPECT_EQ(generator.Wait(10), 128 + SIGKILL);
+  }
+  const int stored = ImagesStored(out);
+  ASSERT_LT(stored, kScenes);
+  Process resumed(Generator(url, cache_, {"--resume"}), out + "-gen2");
+  ASSERT_EQ(resumed.Wait(600), 0) << resumed.Stderr();
+  // it continued at the writer's seq, not at 0
+  const std::string said = resumed.Stdout();
+  const size_t at = said.find("resuming at seq ");
+  ASSERT_NE(at, std::string::npos) << said;
+  EXPECT_GE(std::stoll(said.substr(at + 16)), stored - 2) << said;
+  ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+  ExpectSameDataset(reference_, out);
+}
+
+// two generators with distinct ids publish into the same channels; the writer stores every scene
+// of each once, kept apart by generator id, and generator 0's scenes equal the reference.
+TEST_F(LosslessTest, TwoGenerators) {
+  const std::string url = testing::FreeMulticastUrl();
+  const std::string out = scratch_.path() + "/two";
+  std::vector<std::string> coco_argv = Coco(out, url);
+  coco_argv[4] = std::to_string(2 * kScenes);  // --count
+  Process coco(coco_argv, out + "-coco");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  Process first(Generator(url, cache_), out + "-gen0");
+  Process second(Generator(url, cache_, {"--generator-id", "1"}), out + "-gen1");
+  ASSERT_EQ(first.Wait(600), 0) << first.Stderr();
+  ASSERT_EQ(second.Wait(600), 0) << second.Stderr();
+  ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+
+  const json dataset = Annotations(out);
+  std::map<int, int> per_generator;
+  for (const json& image : dataset["images"]) {
+    ++per_generator[image["stackgen"]["generator_id"].get<int>()];
+  }
+  EXPECT_EQ(per_generator, (std::map<int, int>{{0, kScenes}, {1, kScenes}}));
+  // generator 0's images are the reference's
+  const json reference = Annotations(reference_);
+  for (const json& image : reference["images"]) {
+    const std::string name = image["file_name"];
+    EXPECT_TRUE(testing::ReadFile(reference_ + "/images/" + name) ==
+                testing::ReadFile(out + "/images/" + name))
+        << name;
+  }
+}
+
+// a full disk stops the writer with one line naming the file and the cause; what is on disk
+// stays valid, and --resume once there is room completes the dataset. The disk is a small tmpfs
+// (needs root to mount; skipped otherwise).
+TEST_F(LosslessTest, FullDiskStopsCleanlyAndResumes) {
+  const std::string out = scratch_.path() + "/full-disk";
+  fs::create_directories(out);
+  // room for about four of the reference's images
+  std::vector<uintmax_t> sizes;
+  for (const auto& entry : fs::directory_iterator(reference_ + "/images")) {
+    sizes.push_back(entry.file_size());
+  }
+  std::sort(sizes.begin(), sizes.end());
+  const uintmax_t room = 4 * sizes[sizes.size() / 2];
+  const std::string mount =
+      "mount -t tmpfs -o size=" + std::to_string(room) + " stackgen-test '" + out + "' 2>&1";
+  if (std::system(mount.c_str()) != 0) {
+    GTEST_SKIP() << "cannot mount a tmpfs (needs root): no full disk to test with";
+  }
+  struct Unmount {
+    std::string dir;
+    ~Unmount() { std::system(("umount '" + dir + "'").c_str()); }
+  } unmount{out};
+
+  const std::string url = testing::FreeMulticastUrl();
+  Process coco(Coco(out, url), scratch_.path() + "/full-disk-coco1");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  Process generator(Generator(url, cache_), scratch_.path() + "/full-disk-gen");
+  EXPECT_EQ(coco.Wait(600), 1);
+  const std::string error = coco.Stderr();
+  EXPECT_NE(error.find("stackgen-coco: error: "), std::string::npos) << error;
+  EXPECT_NE(error.find(out), std::string::npos) << error;
+  EXPECT_NE(error.find("No space left on device"), std::string::npos) << error;
+  EXPECT_NE(error.find("--resume"), std::string::npos) << error;
+  const int stored = ImagesStored(out);
+  EXPECT_GT(stored, 0);
+  EXPECT_LT(stored, kScenes);
+  // no partial file is left behind
+  for (const auto& entry : fs::directory_iterator(out + "/images")) {
+    EXPECT_NE(entry.path().extension(), ".tmp") << entry.path();
+  }
+
+  // room again, and the same writer resumes
+  ASSERT_EQ(std::system(("mount -o remount,size=256m '" + out + "'").c_str()), 0);
+  Process resumed(Coco(out, url, {"--resume"}), scratch_.path() + "/full-disk-coco2");
+  ASSERT_EQ(resumed.Wait(600), 0) << resumed.Stderr();
+  ASSERT_EQ(generator.Wait(120), 0) << generator.Stderr();
+  ExpectSameDataset(reference_, out);
+}
+
+// two network namespaces joined by a veth pair stand for two hosts of a LAN: the generator in
+// one, the writer in the other, multicast with ttl=1 over the link; the dataset is complete and
+// the reference's. Needs root for `ip netns` (skipped otherwise).
+TEST_F(LosslessTest, AcrossANetworkLink) {
+  const std::string ip = fs::exists("/usr/sbin/ip") ? "/usr/sbin/ip" : "/sbin/ip";
+  const std::string tag = "sg" + std::to_string(getpid() % 100000);
+  const std::string host_a = tag + "a", host_b = tag + "b";
+  const std::string setup =
+      ip + " netns add " + host_a + " && " + ip + " netns add " + host_b + " && " + ip +
+      " link add " + host_a + " type veth peer name " + host_b + " && " + ip + " link set " +
+      host_a + " netns " + host_a + " && " + ip + " link set " + host_b + " netns " + host_b +
+      " && " + ip + " -n " + host_a + " addr add 10.213.0.1/24 dev " + host_a + " && " + ip +
+      " -n " + host_b + " addr add 10.213.0.2/24 dev " + host_b + " && " + ip + " -n " + host_a +
+      " link set " + host_a + " up && " + ip + " -n " + host_b + " link set " + host_b + " up && " +
+      ip + " -n " + host_a + " route add 224.0.0.0/4 dev " + host_a + " && " + ip + " -n " +
+      host_b + " route add 224.0.0.0/4 dev " + host_b + " 2>&1";
+  struct Teardown {
+    std::string command;
+    ~Teardown() { std::system(command.c_str()); }
+  } teardown{ip + " netns del " + host_a + " 2>/dev/null; " + ip + " netns del " + host_b +
+             " 2>/dev/null"};
+  if (std::system(setup.c_str()) != 0) {
+    GTEST_SKIP() << "cannot make network namespaces and a veth pair (needs root and iproute2)";
+  }
+
+  // ttl=1: the datagrams may cross one link
+  const std::string url = "udpm://239.255.76.67:" + std::to_string(testing::FreeUdpPort()) +
+                          "?ttl=1&recv_buf_size=4194304";
+  const std::string out = scratch_.path() + "/link";
+  std::vector<std::string> coco_argv = {ip, "netns", "exec", host_b};
+  for (const std::string& arg : Coco(out, url)) coco_argv.push_back(arg);
+  Process coco(coco_argv, out + "-coco");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  std::vector<std::string> generator_argv = {ip, "netns", "exec", host_a};
+  for (const std::string& arg : Generator(url, cache_)) generator_argv.push_back(arg);
+  Process generator(generator_argv, out + "-gen");
+  ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
+  ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+  EXPECT_NE(generator.Stderr().find("reliable consumer stackgen-coco@"), std::string::npos)
+      << generator.Stderr();
+  ExpectSameDataset(reference_, out);
+}
+
+}  // namespace
+}  // namespace stackgen

@@ -27,10 +27,12 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <stackgen/scene.hpp>
+#include <stackgen/status.hpp>
 
 #include "bus/bounded_decode.h"
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "bus/flags.h"
 #include "gen/annotate/rle.h"
 
 namespace {
@@ -109,6 +111,7 @@ void PrintHelp() {
       "  --lcm-url URL    listen on this LCM URL instead, as a best-effort consumer of %s:\n"
       "                   the first N distinct scenes received (repeats skipped; a scene that\n"
       "                   does not decode or disagrees with itself is skipped with a warning).\n"
+      "                   Its counters go out on STACKGEN_STATUS every second and at the end.\n"
       "                   \"default\" means $STACKGEN_LCM_URL when set, else\n"
       "                   %s.\n"
       "  --out SHEET.png  the sheet to write (PNG; through SHEET.png.tmp and a rename).\n"
@@ -129,113 +132,42 @@ void PrintHelp() {
       kCaptionHeight, kGap, stackgen::kSceneChannel, stackgen::kDefaultLcmUrl);
 }
 
-[[noreturn]] void UsageError(const std::string& text) {
-  std::fprintf(stderr, "%s: error: %s (see --help)\n", kProgram, text.c_str());
-  std::exit(2);
-}
-
-// a whole-string integer in [low, high]
-int ParseInt(const std::string& name, const std::string& text, int low, int high) {
-  size_t used = 0;
-  long long value = 0;
-  try {
-    value = std::stoll(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (text.empty() || used != text.size() || value < low || value > high) {
-    UsageError(name + " wants a whole number in " + std::to_string(low) + ".." +
-               std::to_string(high) + ", got \"" + text + "\"");
-  }
-  return static_cast<int>(value);
-}
-
-// a whole-string number > 0 and at most a day
-double ParseSeconds(const std::string& name, const std::string& text) {
-  size_t used = 0;
-  double value = 0.0;
-  try {
-    value = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (text.empty() || used != text.size() || !(value > 0.0 && value <= 86400.0)) {
-    UsageError(name + " wants seconds in (0, 86400], got \"" + text + "\"");
-  }
-  return value;
-}
-
 Flags ParseFlags(int argc, char** argv) {
   Flags flags;
-  bool have_timeout = false;
-  bool have_fault_drop = false;
-  for (int i = 1; i < argc; ++i) {
-    std::string name = argv[i];
-    std::string value;
-    bool have_value = false;
-    // --name=value or --name value
-    const size_t equals = name.find('=');
-    if (name.rfind("--", 0) == 0 && equals != std::string::npos) {
-      value = name.substr(equals + 1);
-      name = name.substr(0, equals);
-      have_value = true;
+  stackgen::FlagParser parser(kProgram);
+  parser.String("--coco", &flags.coco_dir, "a folder");
+  parser.String("--lcm-url", &flags.lcm_url, "a URL (or \"default\")");
+  parser.Custom("--out", [&flags](const std::string& value) {
+    if (value.size() < 5 || value.substr(value.size() - 4) != ".png") {
+      throw stackgen::UsageError("--out wants a file name ending in .png, got \"" + value + "\"");
     }
-    if (name == "--help" || name == "-h") {
-      PrintHelp();
-      std::exit(0);
+    flags.out = value;
+  });
+  parser.Require("--out");
+  parser.Int("--count", &flags.count, 1, 1000);
+  parser.Int("--columns", &flags.columns, 1, 100);
+  parser.Int("--tile-width", &flags.tile_width, 16, 4096);
+  parser.Double("--timeout", &flags.timeout_s, stackgen::Interval::OpenClosed(0, 86400));
+  parser.FaultDrop(&flags.fault_drop);
+  // the rules between flags
+  const auto check = [&flags, &parser] {
+    if (flags.coco_dir.empty() == flags.lcm_url.empty()) {
+      throw stackgen::UsageError("give either --coco DIR or --lcm-url URL");
     }
-    if (name != "--coco" && name != "--lcm-url" && name != "--out" && name != "--count" &&
-        name != "--columns" && name != "--tile-width" && name != "--timeout" &&
-        name != "--fault-drop") {
-      UsageError("unknown argument \"" + std::string(argv[i]) + "\"");
-    }
-    if (!have_value) {
-      if (i + 1 >= argc) UsageError(name + " wants a value");
-      value = argv[++i];
-    }
-    if (name == "--coco") {
-      if (value.empty()) UsageError("--coco wants a folder");
-      flags.coco_dir = value;
-    } else if (name == "--lcm-url") {
-      if (value.empty()) UsageError("--lcm-url wants a URL (or \"default\")");
-      flags.lcm_url = value;
-    } else if (name == "--out") {
-      if (value.size() < 5 || value.substr(value.size() - 4) != ".png") {
-        UsageError("--out wants a file name ending in .png, got \"" + value + "\"");
+    for (const char* bus_only : {"--timeout", "--fault-drop"}) {
+      if (parser.Given(bus_only) && !flags.coco_dir.empty()) {
+        throw stackgen::UsageError(std::string(bus_only) + " applies to --lcm-url only");
       }
-      flags.out = value;
-    } else if (name == "--count") {
-      flags.count = ParseInt(name, value, 1, 1000);
-    } else if (name == "--columns") {
-      flags.columns = ParseInt(name, value, 1, 100);
-    } else if (name == "--tile-width") {
-      flags.tile_width = ParseInt(name, value, 16, 4096);
-    } else if (name == "--fault-drop") {
-      try {
-        flags.fault_drop = stackgen::ParseDropFraction(name, value);
-      } catch (const std::invalid_argument& error) {
-        UsageError(error.what());
-      }
-      have_fault_drop = true;
-    } else {
-      flags.timeout_s = ParseSeconds(name, value);
-      have_timeout = true;
     }
-  }
-  if (flags.coco_dir.empty() == flags.lcm_url.empty()) {
-    UsageError("give either --coco DIR or --lcm-url URL");
-  }
-  if (flags.out.empty()) UsageError("--out SHEET.png is required");
-  if (have_timeout && !flags.coco_dir.empty()) UsageError("--timeout applies to --lcm-url only");
-  if (have_fault_drop && !flags.coco_dir.empty()) {
-    UsageError("--fault-drop applies to --lcm-url only");
-  }
-  const int64_t sheet_width =
-      kGap + int64_t{std::min(flags.columns, flags.count)} * (flags.tile_width + kGap);
-  if (sheet_width > kMaxSheetWidth) {
-    UsageError("--columns and --tile-width give a sheet " + std::to_string(sheet_width) +
-               " px wide, more than " + std::to_string(kMaxSheetWidth));
-  }
+    const int64_t sheet_width =
+        kGap + int64_t{std::min(flags.columns, flags.count)} * (flags.tile_width + kGap);
+    if (sheet_width > kMaxSheetWidth) {
+      throw stackgen::UsageError("--columns and --tile-width give a sheet " +
+                                 std::to_string(sheet_width) + " px wide, more than " +
+                                 std::to_string(kMaxSheetWidth));
+    }
+  };
+  parser.ParseOrExit(argc, argv, PrintHelp, check);
   return flags;
 }
 
@@ -698,7 +630,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
 
   std::vector<Tile> tiles;
   std::set<std::pair<int32_t, int64_t>> seen;
-  int64_t undecodable = 0, invalid = 0, repeated = 0;
+  int64_t undecodable = 0, invalid = 0, repeated = 0, received = 0;
   const auto warn = [](int64_t number, const std::string& text) {
     if (number <= kMaxReportedWarnings) {
       std::fprintf(stderr, "%s: warning: %s\n", kProgram, text.c_str());
@@ -712,6 +644,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
   bus.Subscribe<stackgen::scene>(
       stackgen::kSceneChannel,
       [&](const stackgen::scene& scene) {
+        ++received;
         if (static_cast<int>(tiles.size()) >= flags.count) return;
         const std::pair<int32_t, int64_t> key(scene.header.generator_id, scene.header.seq);
         if (seen.count(key) != 0) {
@@ -734,14 +667,39 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
               stackgen::kSceneChannel, flags.count);
   std::fflush(stdout);
 
+  // its counters on STACKGEN_STATUS (a best-effort consumer: it sends no credits)
+  const bool live = bus.url().rfind("file://", 0) != 0;
+  const auto publish_status = [&] {
+    stackgen::status message{};
+    message.header.seq = static_cast<int64_t>(tiles.size());
+    message.header.generator_id = -1;
+    message.header.utime = std::chrono::duration_cast<std::chrono::microseconds>(
+                               std::chrono::system_clock::now().time_since_epoch())
+                               .count();
+    message.process = kProgram;
+    message.name = kProgram;
+    message.scenes = static_cast<int64_t>(tiles.size());
+    message.received = received;
+    message.duplicates = repeated;
+    message.bad_messages = undecodable + invalid;
+    message.fault_dropped = bus.fault_dropped();
+    bus.Publish(stackgen::kStatusChannel, message);
+  };
+
   // scenes until enough, the timeout or a signal
   const auto deadline = std::chrono::steady_clock::now() +
                         std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                             std::chrono::duration<double>(flags.timeout_s));
+  auto last_status = std::chrono::steady_clock::now();
   while (!stop_requested && static_cast<int>(tiles.size()) < flags.count &&
          std::chrono::steady_clock::now() < deadline && !bus.log_ended()) {
     bus.HandleFor(100);
+    if (live && std::chrono::steady_clock::now() - last_status >= std::chrono::seconds(1)) {
+      publish_status();
+      last_status = std::chrono::steady_clock::now();
+    }
   }
+  if (live) publish_status();
   if (undecodable > 0 || invalid > 0 || repeated > 0) {
     std::fprintf(stderr,
                  "%s: skipped %lld undecodable messages, %lld invalid scenes, %lld repeated "

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <chrono>
 #include <csignal>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
@@ -22,6 +23,7 @@
 #include "bus/bus.h"
 #include "bus/channels.h"
 #include "bus/delivery.h"
+#include "bus/flags.h"
 #include "consumers/coco/coco_writer.h"
 
 namespace {
@@ -94,93 +96,18 @@ void PrintHelp() {
       kProgram, stackgen::kSceneChannel, stackgen::kDefaultLcmUrl);
 }
 
-[[noreturn]] void UsageError(const std::string& text) {
-  std::fprintf(stderr, "%s: error: %s (see --help)\n", kProgram, text.c_str());
-  std::exit(2);
-}
-
-// a whole-string integer >= 0
-int64_t ParseCount(const std::string& flag, const std::string& text) {
-  size_t used = 0;
-  long long value = -1;
-  try {
-    value = std::stoll(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used != text.size() || text.empty() || value < 0) {
-    UsageError(flag + " wants a whole number >= 0, got \"" + text + "\"");
-  }
-  return value;
-}
-
-// a whole-string number in [0, 1]
-double ParseFraction(const std::string& text) {
-  size_t used = 0;
-  double value = -1.0;
-  try {
-    value = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (used != text.size() || text.empty() || !(value >= 0.0 && value <= 1.0)) {
-    UsageError("--min-visib-fract wants a number in [0, 1], got \"" + text + "\"");
-  }
-  return value;
-}
-
 Flags ParseFlags(int argc, char** argv) {
   Flags flags;
-  bool have_out = false;
-  for (int i = 1; i < argc; ++i) {
-    std::string name = argv[i];
-    std::string value;
-    bool have_value = false;
-    // --name=value or --name value
-    const size_t equals = name.find('=');
-    if (name.rfind("--", 0) == 0 && equals != std::string::npos) {
-      value = name.substr(equals + 1);
-      name = name.substr(0, equals);
-      have_value = true;
-    }
-    if (name == "--help" || name == "-h") {
-      PrintHelp();
-      std::exit(0);
-    }
-    if (name == "--resume" && !have_value) {
-      flags.resume = true;
-      continue;
-    }
-    if (name != "--out" && name != "--count" && name != "--lcm-url" &&
-        name != "--min-visib-fract" && name != "--window" && name != "--fault-drop") {
-      UsageError("unknown argument \"" + std::string(argv[i]) + "\"");
-    }
-    if (!have_value) {
-      if (i + 1 >= argc) UsageError(name + " wants a value");
-      value = argv[++i];
-    }
-    if (name == "--out") {
-      if (value.empty()) UsageError("--out wants a folder");
-      flags.out = value;
-      have_out = true;
-    } else if (name == "--count") {
-      flags.count = ParseCount("--count", value);
-    } else if (name == "--window") {
-      flags.window = ParseCount("--window", value);
-      if (flags.window < 1 || flags.window > 10000) UsageError("--window wants 1..10000");
-    } else if (name == "--fault-drop") {
-      try {
-        flags.fault_drop = stackgen::ParseDropFraction("--fault-drop", value);
-      } catch (const std::invalid_argument& error) {
-        UsageError(error.what());
-      }
-    } else if (name == "--lcm-url") {
-      flags.lcm_url = value;
-    } else {
-      flags.min_visib_fract = ParseFraction(value);
-    }
-  }
-  if (!have_out) UsageError("--out DIR is required");
+  stackgen::FlagParser parser(kProgram);
+  parser.String("--out", &flags.out, "a folder");
+  parser.Require("--out");
+  parser.Int("--count", &flags.count, 0, INT64_MAX);
+  parser.Switch("--resume", &flags.resume);
+  parser.LcmUrl(&flags.lcm_url);
+  parser.Int("--window", &flags.window, 1, 10000);
+  parser.FaultDrop(&flags.fault_drop);
+  parser.Double("--min-visib-fract", &flags.min_visib_fract, stackgen::Interval::Closed(0, 1));
+  parser.ParseOrExit(argc, argv, PrintHelp);
   return flags;
 }
 

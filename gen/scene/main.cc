@@ -10,7 +10,6 @@
 #include <cstdlib>
 #include <functional>
 #include <iostream>
-#include <map>
 #include <string>
 
 #include <stackgen/config_text.hpp>
@@ -19,6 +18,7 @@
 #include "bus/bus.h"
 #include "bus/channels.h"
 #include "bus/delivery.h"
+#include "bus/flags.h"
 #include "gen/config/config.h"
 #include "gen/scene/scene_generator.h"
 
@@ -65,18 +65,6 @@ Best-effort listeners (stackgen-view, lcm-spy, lcm-logger) are never waited for.
 On exit and on SIGINT it prints the mean milliseconds per scene of each stage.
 )";
 
-// a flag value as a non-negative integer up to `max`, or a usage error naming the flag.
-int64_t ParseCount(const std::string& flag, const std::string& text, int64_t max) {
-  char* end = nullptr;
-  errno = 0;
-  const long long value = std::strtoll(text.c_str(), &end, 10);
-  if (text.empty() || *end != '\0' || errno != 0 || value < 0 || value > max) {
-    throw std::invalid_argument(flag + ": '" + text + "' is not an integer in 0.." +
-                                std::to_string(max));
-  }
-  return value;
-}
-
 std::string DefaultCacheDir() {
   const char* xdg = std::getenv("XDG_CACHE_HOME");
   if (xdg != nullptr && xdg[0] != '\0') return std::string(xdg) + "/stackgen";
@@ -93,56 +81,36 @@ std::string FormatMs(double total_ms, int64_t scenes) {
 
 int Run(int argc, char** argv) {
   // flags.
-  std::map<std::string, std::string> flags = {{"--config", STACKGEN_DEFAULT_CONFIG},
-                                              {"--count", "0"},
-                                              {"--seed", "0"},
-                                              {"--generator-id", "0"},
-                                              {"--lcm-url", ""},
-                                              {"--cache-dir", DefaultCacheDir()},
-                                              {"--resume", ""},
-                                              {"--consumer-timeout", "10"},
-                                              {"--resend-ring", "64"},
-                                              {"--fault-drop", "0"}};
-  for (int i = 1; i < argc; ++i) {
-    std::string arg = argv[i];
-    if (arg == "--help" || arg == "-h") {
-      std::printf(kUsage, STACKGEN_DEFAULT_CONFIG);
-      return 0;
-    }
-    std::string value;
-    const size_t equals = arg.find('=');
-    if (arg.rfind("--resume=", 0) == 0) throw std::invalid_argument("--resume takes no value");
-    if (arg == "--resume") {
-      value = "1";
-    } else if (equals != std::string::npos) {
-      value = arg.substr(equals + 1);
-      arg = arg.substr(0, equals);
-    } else if (flags.count(arg) != 0) {
-      if (i + 1 >= argc) throw std::invalid_argument(arg + " needs a value");
-      value = argv[++i];
-    }
-    if (flags.count(arg) == 0) throw std::invalid_argument("unknown flag " + arg + " (see --help)");
-    flags[arg] = value;
-  }
-  const int64_t count = ParseCount("--count", flags["--count"], INT64_MAX);
-  const uint64_t seed = static_cast<uint64_t>(ParseCount("--seed", flags["--seed"], INT64_MAX));
-  const int32_t generator_id =
-      static_cast<int32_t>(ParseCount("--generator-id", flags["--generator-id"], 65535));
-  const bool resume = !flags["--resume"].empty();
-  const double consumer_timeout_s =
-      static_cast<double>(ParseCount("--consumer-timeout", flags["--consumer-timeout"], 86400));
-  if (consumer_timeout_s < 1) throw std::invalid_argument("--consumer-timeout: must be >= 1 s");
-  const int ring_size =
-      static_cast<int>(ParseCount("--resend-ring", flags["--resend-ring"], 10000));
-  if (ring_size < 1) throw std::invalid_argument("--resend-ring: must be >= 1");
+  std::string config_path = STACKGEN_DEFAULT_CONFIG;
+  int64_t count = 0;
+  int64_t seed_flag = 0;
+  int generator_id = 0;
+  std::string lcm_url;
+  std::string cache_dir = DefaultCacheDir();
+  bool resume = false;
+  int64_t consumer_timeout = 10;
+  int ring_size = 64;
   BusOptions bus_options;
-  bus_options.drop_receive_fraction = ParseDropFraction("--fault-drop", flags["--fault-drop"]);
+  FlagParser parser("stackgen");
+  parser.String("--config", &config_path);
+  parser.Int("--count", &count, 0, INT64_MAX);
+  parser.Int("--seed", &seed_flag, 0, INT64_MAX);
+  parser.Int("--generator-id", &generator_id, 0, 65535);
+  parser.LcmUrl(&lcm_url);
+  parser.String("--cache-dir", &cache_dir);
+  parser.Switch("--resume", &resume);
+  parser.Int("--consumer-timeout", &consumer_timeout, 1, 86400);
+  parser.Int("--resend-ring", &ring_size, 1, 10000);
+  parser.FaultDrop(&bus_options.drop_receive_fraction);
+  parser.ParseOrExit(argc, argv, [] { std::printf(kUsage, STACKGEN_DEFAULT_CONFIG); });
+  const uint64_t seed = static_cast<uint64_t>(seed_flag);
+  const double consumer_timeout_s = static_cast<double>(consumer_timeout);
   bus_options.fault_seed = 0x57AC0000u + static_cast<uint64_t>(generator_id);
 
   // config, bus and the scene generator: everything is checked before the first scene.
-  const LoadedConfig config = LoadConfig(flags["--config"]);
-  Bus bus(ResolveLcmUrl(flags["--lcm-url"]), bus_options);
-  SceneGenerator generator(config, generator_id, seed, flags["--cache-dir"]);
+  const LoadedConfig config = LoadConfig(config_path);
+  Bus bus(ResolveLcmUrl(lcm_url), bus_options);
+  SceneGenerator generator(config, generator_id, seed, cache_dir);
   std::printf("stackgen: generator %d, seed %llu, config %s, bus %s\n%s\n", generator_id,
               static_cast<unsigned long long>(seed), config.path.c_str(), bus.url().c_str(),
               generator.Description().c_str());
@@ -190,7 +158,7 @@ int Run(int argc, char** argv) {
     listen(consumer_timeout_s, [&] { return server.ResumeSeq().has_value(); });
     if (!server.ResumeSeq()) {
       throw std::runtime_error("--resume: no reliable consumer (stackgen-coco) sent a credit on " +
-                               bus.url() + " within " + flags["--consumer-timeout"] +
+                               bus.url() + " within " + std::to_string(consumer_timeout) +
                                " s; start the writers first");
     }
     listen(0.5, [] { return false; });
@@ -316,9 +284,6 @@ int Run(int argc, char** argv) {
 int main(int argc, char** argv) {
   try {
     return stackgen::Run(argc, argv);
-  } catch (const std::invalid_argument& error) {
-    std::fprintf(stderr, "stackgen: error: %s\n", error.what());
-    return 2;
   } catch (const std::exception& error) {
     std::fprintf(stderr, "stackgen: error: %s\n", error.what());
     return 1;

@@ -36,6 +36,7 @@ namespace stackgen {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::FindOnPath;
 using testing::Process;
 using testing::ScratchDir;
 
@@ -46,20 +47,6 @@ const std::string kRecord = kRoot + "/tools/record";
 const std::string kBuildDir = fs::path(STACKGEN_BIN_DIR).parent_path().string();
 const std::string kTypesJar = kBuildDir + "/share/stackgen_types.jar";
 const std::string kFixtureLog = kRoot + "/tests/fixtures/logs/tiny.lcmlog";
-
-// `name` found on $PATH; empty if it is not there
-std::string FindOnPath(const std::string& name) {
-  const char* path = std::getenv("PATH");
-  const std::string folders = path != nullptr ? path : "/usr/bin:/bin";
-  size_t start = 0;
-  while (start <= folders.size()) {
-    const size_t end = std::min(folders.find(':', start), folders.size());
-    const fs::path candidate = fs::path(folders.substr(start, end - start)) / name;
-    if (access(candidate.c_str(), X_OK) == 0) return candidate.string();
-    start = end + 1;
-  }
-  return "";
-}
 
 // why tools/spy --check cannot run here; empty when it can
 std::string SpyCheckUnavailable() {
@@ -126,13 +113,13 @@ TEST(LcmToolsTest, SpyCheckListsEveryType) {
     EXPECT_TRUE(std::regex_search(out, line)) << type << " missing from\n" << out;
   }
   // the Java classes and the C++ ones come from the same definitions
-  for (const auto& [name, hash] : std::map<std::string, int64_t>{
-           {"stackgen.scene", scene::getHash()},
-           {"stackgen.labels", labels::getHash()},
-           {"stackgen.status", status::getHash()},
-           {"stackgen.config_text", config_text::getHash()},
-           {"stackgen.credit", credit::getHash()},
-           {"stackgen.resend_request", resend_request::getHash()}}) {
+  for (const auto& [name, hash] :
+       std::map<std::string, int64_t>{{"stackgen.scene", scene::getHash()},
+                                      {"stackgen.labels", labels::getHash()},
+                                      {"stackgen.status", status::getHash()},
+                                      {"stackgen.config_text", config_text::getHash()},
+                                      {"stackgen.credit", credit::getHash()},
+                                      {"stackgen.resend_request", resend_request::getHash()}}) {
     EXPECT_NE(out.find(name + " " + Hex(hash) + "\n"), std::string::npos)
         << name << " " << Hex(hash) << " missing from\n"
         << out;
@@ -194,8 +181,7 @@ TEST(LcmToolsTest, SpyCheckFailsOnMissingType) {
   ASSERT_EQ(std::system(command.c_str()), 0) << command;
 
   std::string out, err;
-  EXPECT_NE(RunSpy({"--check"}, scratch.path() + "/build", scratch.path() + "/spy", &out, &err),
-            0)
+  EXPECT_NE(RunSpy({"--check"}, scratch.path() + "/build", scratch.path() + "/spy", &out, &err), 0)
       << out;
   EXPECT_NE(err.find("stackgen.labels (types/*.lcm) is missing from"), std::string::npos) << err;
   EXPECT_NE(out.find("stackgen.scene 0x"), std::string::npos) << out;

@@ -13,6 +13,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <stackgen/header.hpp>
+#include <stackgen/status.hpp>
 
 #include "bus/bus.h"
 #include "bus/channels.h"
@@ -175,7 +176,8 @@ TEST(ViewTest, DrawsScenesFromTheBus) {
 }
 
 // A message that is not a scene and scenes that disagree with themselves are skipped with a
-// warning naming the field; the program goes on and draws the good ones.
+// warning naming the field; the program goes on and draws the good ones, and its last status on
+// STACKGEN_STATUS counts them.
 TEST(ViewTest, SkipsCorruptScenes) {
   const ScratchDir scratch("view");
   const std::string url = testing::FreeMulticastUrl();
@@ -184,6 +186,9 @@ TEST(ViewTest, SkipsCorruptScenes) {
                scratch.path() + "/run");
   ASSERT_TRUE(view.WaitForOutput("listening", 30)) << view.Stderr();
   Bus bus(url);
+  std::vector<stackgen::status> statuses;
+  bus.Subscribe<stackgen::status>(kStatusChannel,
+                                  [&](const stackgen::status& m) { statuses.push_back(m); });
   stackgen::scene bad_mask = testing::SceneA();
   bad_mask.instances[0].mask_visib_rle = "1p";
   stackgen::scene short_image = testing::SceneD();
@@ -201,6 +206,15 @@ TEST(ViewTest, SkipsCorruptScenes) {
   EXPECT_NE(err.find("color.size 10 != width*height*3"), std::string::npos) << err;
   EXPECT_NE(err.find("2 undecodable messages, 1 invalid scenes"), std::string::npos) << err;
   EXPECT_EQ(cv::imread(sheet_path).size(), SheetSize(2, 1, 400, 300));
+  for (int i = 0; i < 50 && (statuses.empty() || statuses.back().scenes < 2); ++i) {
+    bus.HandleFor(100);
+  }
+  ASSERT_FALSE(statuses.empty());
+  const stackgen::status& last = statuses.back();
+  EXPECT_EQ(last.process, "stackgen-view");
+  EXPECT_EQ(last.scenes, 2);
+  EXPECT_EQ(last.received, 3);
+  EXPECT_EQ(last.bad_messages, 3);
 }
 
 // When fewer scenes than --count arrive before --timeout the sheet shows those; none is an error

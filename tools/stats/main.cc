@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "bus/flags.h"
 #include "gen/annotate/pose.h"
 #include "tools/stats/dataset.h"
 #include "tools/stats/plots.h"
@@ -89,46 +90,28 @@ void PrintHelp() {
       kProgram);
 }
 
-[[noreturn]] void UsageError(const std::string& text) {
-  std::fprintf(stderr, "%s: error: %s (see --help)\n", kProgram, text.c_str());
-  std::exit(2);
-}
-
-// a whole-string number, or exits naming the flag
-double ParseNumber(const std::string& text, const std::string& flag) {
-  size_t used = 0;
-  double value = std::nan("");
-  try {
-    value = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (text.empty() || used != text.size() || !std::isfinite(value)) {
-    UsageError(flag + " wants a number, got \"" + text + "\"");
-  }
-  return value;
-}
-
 // CLASS=RZ,RY,RX
 void ParseFrame(const std::string& text, stackgen::stats::ReadOptions* read) {
   const size_t equals = text.rfind('=');
   if (equals == std::string::npos || equals == 0) {
-    UsageError("--frame wants CLASS=RZ,RY,RX, got \"" + text + "\"");
+    throw stackgen::UsageError("--frame wants CLASS=RZ,RY,RX, got \"" + text + "\"");
   }
   const std::string class_name = text.substr(0, equals);
   std::vector<double> angles;
   std::string rest = text.substr(equals + 1);
   for (size_t start = 0;;) {
     const size_t comma = rest.find(',', start);
-    angles.push_back(ParseNumber(rest.substr(start, comma - start), "--frame " + class_name));
+    angles.push_back(stackgen::ParseNumber(
+        "--frame " + class_name, rest.substr(start, comma - start), stackgen::Interval::All()));
     if (comma == std::string::npos) break;
     start = comma + 1;
   }
   if (angles.size() != 3) {
-    UsageError("--frame wants three angles RZ,RY,RX for " + class_name + ", got \"" + rest + "\"");
+    throw stackgen::UsageError("--frame wants three angles RZ,RY,RX for " + class_name +
+                               ", got \"" + rest + "\"");
   }
   if (read->object_R_reference.count(class_name) != 0) {
-    UsageError("--frame given twice for class " + class_name);
+    throw stackgen::UsageError("--frame given twice for class " + class_name);
   }
   read->object_R_reference[class_name] =
       stackgen::RotationFromPostureDeg(Eigen::Vector3d(angles[0], angles[1], angles[2]));
@@ -136,56 +119,15 @@ void ParseFrame(const std::string& text, stackgen::stats::ReadOptions* read) {
 
 Flags ParseFlags(int argc, char** argv) {
   Flags flags;
-  for (int i = 1; i < argc; ++i) {
-    std::string name = argv[i];
-    std::string value;
-    bool have_value = false;
-    // --name=value or --name value
-    const size_t equals = name.find('=');
-    if (name.rfind("--", 0) == 0 && equals != std::string::npos) {
-      value = name.substr(equals + 1);
-      name = name.substr(0, equals);
-      have_value = true;
-    }
-    if (name == "--help" || name == "-h") {
-      PrintHelp();
-      std::exit(0);
-    }
-    if (name == "--all-instances") {
-      if (have_value) UsageError("--all-instances takes no value");
-      flags.read.all_instances = true;
-      continue;
-    }
-    if (name.rfind("-", 0) != 0 || name == "-") {
-      flags.datasets.push_back(name);
-      continue;
-    }
-    if (name != "--out" && name != "--alpha" && name != "--frame" && name != "--class") {
-      UsageError("unknown flag " + name);
-    }
-    if (!have_value) {
-      if (i + 1 >= argc) UsageError(name + " needs a value");
-      value = argv[++i];
-    }
-    if (name == "--out") {
-      if (value.empty()) UsageError("--out needs a folder");
-      flags.out = value;
-    } else if (name == "--alpha") {
-      flags.significance = ParseNumber(value, "--alpha");
-      if (!(flags.significance > 0.0 && flags.significance < 1.0)) {
-        UsageError("--alpha wants a significance level between 0 and 1, got \"" + value + "\"");
-      }
-    } else if (name == "--frame") {
-      ParseFrame(value, &flags.read);
-    } else {
-      if (value.empty()) UsageError("--class needs a class name");
-      flags.read.class_name = value;
-    }
-  }
-  if (flags.datasets.empty()) UsageError("no dataset given");
-  if (flags.datasets.size() > 2)
-    UsageError("at most two datasets, got " + std::to_string(flags.datasets.size()));
-  if (flags.out.empty()) UsageError("--out DIR is required");
+  stackgen::FlagParser parser(kProgram);
+  parser.Positional(&flags.datasets, "dataset", 1, 2);
+  parser.String("--out", &flags.out, "a folder");
+  parser.Require("--out");
+  parser.Double("--alpha", &flags.significance, stackgen::Interval::Open(0, 1));
+  parser.Custom("--frame", [&flags](const std::string& value) { ParseFrame(value, &flags.read); });
+  parser.String("--class", &flags.read.class_name, "a class name");
+  parser.Switch("--all-instances", &flags.read.all_instances);
+  parser.ParseOrExit(argc, argv, PrintHelp);
   return flags;
 }
 

@@ -27,6 +27,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
+using testing::FindOnPath;
 using testing::Process;
 using testing::ScratchDir;
 
@@ -50,20 +51,6 @@ std::vector<scene> FixtureScenes(const std::string& path, std::string* error) {
   }
   if (error->empty() && scenes.empty()) *error = "fixture log " + path + " holds no scene";
   return scenes;
-}
-
-// `name` found on $PATH; empty if it is not there
-std::string FindOnPath(const std::string& name) {
-  const char* path = std::getenv("PATH");
-  std::string folders = path != nullptr ? path : "/usr/bin:/bin";
-  size_t start = 0;
-  while (start <= folders.size()) {
-    const size_t end = std::min(folders.find(':', start), folders.size());
-    const fs::path candidate = fs::path(folders.substr(start, end - start)) / name;
-    if (access(candidate.c_str(), X_OK) == 0) return candidate.string();
-    start = end + 1;
-  }
-  return "";
 }
 
 // the annotations.json of a dataset folder
@@ -112,8 +99,8 @@ void ExpectMatchesLog(const json& dataset, const std::vector<scene>& scenes) {
       EXPECT_EQ(annotation["area"], object.px_count_visib);
       EXPECT_EQ(annotation["px_count_all"], object.px_count_all);
       EXPECT_EQ(annotation["segmentation"]["counts"], object.mask_visib_rle);
-      EXPECT_EQ(annotation["bbox"], json(std::vector<int>(object.bbox_visib,
-                                                         object.bbox_visib + 4)));
+      EXPECT_EQ(annotation["bbox"],
+                json(std::vector<int>(object.bbox_visib, object.bbox_visib + 4)));
     }
     EXPECT_EQ(annotations[id].size(), expected_ids.size());
     expected_annotations += expected_ids.size();

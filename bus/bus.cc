@@ -14,6 +14,8 @@
 
 #include <lcm/lcm-cpp.hpp>
 
+#include "bus/flags.h"
+
 namespace stackgen {
 namespace {
 
@@ -59,17 +61,11 @@ void CheckMulticastRoute(const std::string& url) {
 }  // namespace
 
 double ParseDropFraction(const std::string& flag, const std::string& text) {
-  size_t used = 0;
-  double value = -1.0;
   try {
-    value = std::stod(text, &used);
-  } catch (const std::exception&) {
-    used = 0;
-  }
-  if (text.empty() || used != text.size() || !(value >= 0.0 && value < 1.0)) {
+    return ParseNumber(flag, text, Interval::ClosedOpen(0, 1));
+  } catch (const UsageError&) {
     throw std::invalid_argument(flag + " wants a fraction in [0, 1), got \"" + text + "\"");
   }
-  return value;
 }
 
 std::string ResolveLcmUrl(const std::string& flag_value) {

@@ -124,7 +124,12 @@ void FlagParser::Switch(const std::string& name, bool* out) {
   Add(name, false, [out](const std::string&) { *out = true; });
 }
 
-void FlagParser::LcmUrl(std::string* out) { String("--lcm-url", out); }
+void FlagParser::LcmUrl(std::string* out) {
+  Add("--lcm-url", true, [out](const std::string& value) {
+    if (value.empty()) throw UsageError("--lcm-url wants a URL (or \"default\"), got \"\"");
+    *out = value == "default" ? "" : value;
+  });
+}
 
 void FlagParser::FaultDrop(double* out) {
   Add("--fault-drop", true, [out](const std::string& value) {
@@ -159,6 +164,7 @@ bool FlagParser::Parse(int argc, const char* const* argv) {
   bool help = false;
   int positional_count = 0;
   for (auto& [name, flag] : flags_) flag.given = false;
+  if (positional_ != nullptr) positional_->clear();
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
     // --name=value or --name (value next)

@@ -93,7 +93,8 @@ class FlagParser {
   /// for --name=value.
   void Switch(const std::string& name, bool* out);
 
-  /// --lcm-url URL, the bus to use: any text; empty (the default) means ResolveLcmUrl's choice.
+  /// --lcm-url URL, the bus to use; "default" (or leaving the flag out) sets "", which means
+  /// ResolveLcmUrl's choice. An empty value is a usage error.
   void LcmUrl(std::string* out);
 
   /// --fault-drop F, the fraction of received messages the bus drops on purpose: a number in

@@ -1,14 +1,17 @@
 // stackgen-overlay: draws the masks, boxes and ids of one image of a COCO dataset written by
 // stackgen-coco over the image, for a quick look (the README's example image).
 
+#include <cstdint>
 #include <cstdio>
 #include <fstream>
 #include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "bus/flags.h"
 #include "gen/annotate/rle.h"
 
 namespace {
@@ -21,18 +24,16 @@ and its instance id and visible fraction.
 )";
 
 int Run(int argc, char** argv) {
-  if (argc >= 2 && (std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h")) {
-    std::printf("%s", kUsage);
-    return 0;
-  }
-  if (argc != 3 && argc != 5) throw std::invalid_argument("expected DATASET_DIR OUT.png");
-  const std::string dir = argv[1];
-  const std::string out = argv[2];
-  size_t index = 0;
-  if (argc == 5) {
-    if (std::string(argv[3]) != "--image") throw std::invalid_argument("unknown flag " + std::string(argv[3]));
-    index = std::stoul(argv[4]);
-  }
+  // the command line: a bad one is one line and exit status 2
+  std::vector<std::string> paths;
+  int64_t image = 0;
+  stackgen::FlagParser parser("stackgen-overlay");
+  parser.Positional(&paths, "path", 2, 2);  // DATASET_DIR OUT.png
+  parser.Int("--image", &image, 0, INT32_MAX);
+  parser.ParseOrExit(argc, argv, [] { std::printf("%s", kUsage); });
+  const std::string dir = paths[0];
+  const std::string out = paths[1];
+  const size_t index = static_cast<size_t>(image);
 
   // the dataset and the chosen image.
   std::ifstream file(dir + "/annotations.json");
@@ -53,8 +54,8 @@ int Run(int argc, char** argv) {
   std::vector<std::pair<cv::Mat, cv::Scalar>> outlines;
   for (const nlohmann::json& annotation : dataset["annotations"]) {
     if (annotation["image_id"].get<int64_t>() != image_id) continue;
-    const cv::Mat mask = stackgen::DecodeRle(annotation["segmentation"]["counts"].get<std::string>(),
-                                             picture.rows, picture.cols);
+    const cv::Mat mask = stackgen::DecodeRle(
+        annotation["segmentation"]["counts"].get<std::string>(), picture.rows, picture.cols);
     const int id = annotation.value("instance_id", drawn + 1);
     const cv::Scalar colour((id * 67) % 200 + 55, (id * 131) % 200 + 55, (id * 29) % 200 + 55);
     tint.setTo(colour, mask);

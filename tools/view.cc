@@ -74,7 +74,8 @@ void RequestStop(int) { stop_requested = true; }
 
 struct Flags {
   std::string coco_dir;  // COCO mode when not empty
-  std::string lcm_url;   // bus mode when not empty ("default": ResolveLcmUrl(""))
+  bool bus = false;      // bus mode: --lcm-url given
+  std::string lcm_url;   // the bus ("": ResolveLcmUrl's choice)
   std::string out;
   int count = 12;
   int columns = 4;
@@ -111,7 +112,8 @@ void PrintHelp() {
       "  --lcm-url URL    listen on this LCM URL instead, as a best-effort consumer of %s:\n"
       "                   the first N distinct scenes received (repeats skipped; a scene that\n"
       "                   does not decode or disagrees with itself is skipped with a warning).\n"
-      "                   Its counters go out on STACKGEN_STATUS every second and at the end.\n"
+      "                   Its counters go out on STACKGEN_STATUS every second and at the end\n"
+      "                   (not when reading a file:// log).\n"
       "                   \"default\" means $STACKGEN_LCM_URL when set, else\n"
       "                   %s.\n"
       "  --out SHEET.png  the sheet to write (PNG; through SHEET.png.tmp and a rename).\n"
@@ -136,7 +138,7 @@ Flags ParseFlags(int argc, char** argv) {
   Flags flags;
   stackgen::FlagParser parser(kProgram);
   parser.String("--coco", &flags.coco_dir, "a folder");
-  parser.String("--lcm-url", &flags.lcm_url, "a URL (or \"default\")");
+  parser.LcmUrl(&flags.lcm_url);
   parser.Custom("--out", [&flags](const std::string& value) {
     if (value.size() < 5 || value.substr(value.size() - 4) != ".png") {
       throw stackgen::UsageError("--out wants a file name ending in .png, got \"" + value + "\"");
@@ -151,7 +153,8 @@ Flags ParseFlags(int argc, char** argv) {
   parser.FaultDrop(&flags.fault_drop);
   // the rules between flags
   const auto check = [&flags, &parser] {
-    if (flags.coco_dir.empty() == flags.lcm_url.empty()) {
+    flags.bus = parser.Given("--lcm-url");
+    if (flags.coco_dir.empty() == !flags.bus) {
       throw stackgen::UsageError("give either --coco DIR or --lcm-url URL");
     }
     for (const char* bus_only : {"--timeout", "--fault-drop"}) {
@@ -639,8 +642,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
   stackgen::BusOptions bus_options;
   bus_options.drop_receive_fraction = flags.fault_drop;
   bus_options.fault_seed = 0x5EE;
-  stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url == "default" ? "" : flags.lcm_url),
-                    bus_options);
+  stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url), bus_options);
   bus.Subscribe<stackgen::scene>(
       stackgen::kSceneChannel,
       [&](const stackgen::scene& scene) {
@@ -677,7 +679,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
                                std::chrono::system_clock::now().time_since_epoch())
                                .count();
     message.process = kProgram;
-    message.name = kProgram;
+    message.name = std::string(kProgram) + "/" + std::to_string(getpid());
     message.scenes = static_cast<int64_t>(tiles.size());
     message.received = received;
     message.duplicates = repeated;

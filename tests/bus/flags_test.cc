@@ -154,6 +154,8 @@ TEST(FlagsTest, SwitchGivenValue) {
   EXPECT_EQ(ErrorOf(fixture.parser, {"--resume"}), "");
   EXPECT_TRUE(fixture.resume);
   EXPECT_EQ(ErrorOf(fixture.parser, {"--resume=yes"}), "--resume takes no value, got \"yes\"");
+  // a switch does not take the next argument as its value
+  EXPECT_EQ(ErrorOf(fixture.parser, {"--resume", "word"}), "unknown argument \"word\"");
 }
 
 // a required flag that is not given is named; a String with `what` refuses the empty text.
@@ -194,25 +196,30 @@ TEST(FlagsTest, Positional) {
   parser.String("--out", &out);
   EXPECT_EQ(ErrorOf(parser, {"--out", "o"}), "no dataset given");
   EXPECT_EQ(ErrorOf(parser, {"a", "b", "c"}), "at most 2 datasets, got 3");
-  datasets.clear();
+  // each Parse starts from an empty list
   EXPECT_EQ(ErrorOf(parser, {"a", "--out", "o", "-"}), "");
   EXPECT_EQ(datasets, (std::vector<std::string>{"a", "-"}));
-  datasets.clear();
   EXPECT_EQ(ErrorOf(parser, {"a", "-x"}), "unknown argument \"-x\"");
 }
 
-// --fault-drop and --lcm-url mean the same in every program.
+// --fault-drop and --lcm-url mean the same in every program: "default" is the default bus, an
+// empty URL and a fraction outside [0, 1) (or with a sign or spaces) are refused.
 TEST(FlagsTest, BusFlags) {
   double drop = 0;
   std::string url = "unchanged";
   FlagParser parser("prog");
   parser.FaultDrop(&drop);
   parser.LcmUrl(&url);
-  EXPECT_EQ(ErrorOf(parser, {"--fault-drop", "0.25", "--lcm-url="}), "");
+  EXPECT_EQ(ErrorOf(parser, {"--fault-drop", "0.25", "--lcm-url=udpm://239.1.2.3:7"}), "");
   EXPECT_DOUBLE_EQ(drop, 0.25);
+  EXPECT_EQ(url, "udpm://239.1.2.3:7");
+  EXPECT_EQ(ErrorOf(parser, {"--lcm-url", "default"}), "");
   EXPECT_EQ(url, "");
-  EXPECT_EQ(ErrorOf(parser, {"--fault-drop", "1"}),
-            "--fault-drop wants a fraction in [0, 1), got \"1\"");
+  EXPECT_EQ(ErrorOf(parser, {"--lcm-url="}), "--lcm-url wants a URL (or \"default\"), got \"\"");
+  for (const char* bad : {"1", "+0.5", " 0.5", "-0.1"}) {
+    EXPECT_EQ(ErrorOf(parser, {"--fault-drop", bad}),
+              "--fault-drop wants a fraction in [0, 1), got \"" + std::string(bad) + "\"");
+  }
 }
 
 // --help and -h anywhere a flag may stand win over errors; as a flag's value they are a value.

@@ -7,16 +7,15 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdlib>
 #include <filesystem>
 #include <map>
+#include <mutex>
 #include <string>
 #include <thread>
 #include <vector>
-
-#include <atomic>
-#include <mutex>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -111,8 +110,14 @@ class StatusListener {
       const std::lock_guard<std::mutex> lock(mutex_);
       last_[message.process] = message;
     });
+    // an exception must not leave the thread (it would abort every test): keep its text
     thread_ = std::thread([this] {
-      while (!stop_) bus_.HandleFor(50);
+      try {
+        while (!stop_) bus_.HandleFor(50);
+      } catch (const std::exception& error) {
+        const std::lock_guard<std::mutex> lock(mutex_);
+        error_ = error.what();
+      }
     });
   }
   ~StatusListener() {
@@ -126,6 +131,8 @@ class StatusListener {
       {
         const std::lock_guard<std::mutex> lock(mutex_);
         const auto found = last_.find(process);
+        EXPECT_EQ(error_, "") << "the status listener stopped";
+        if (!error_.empty()) return false;
         if (found != last_.end() && found->second.header.seq == seq) {
           *out = found->second;
           return true;
@@ -140,6 +147,7 @@ class StatusListener {
   Bus bus_;
   std::mutex mutex_;
   std::map<std::string, status> last_;
+  std::string error_;
   std::atomic<bool> stop_{false};
   std::thread thread_;
 };
@@ -166,7 +174,8 @@ class LosslessTest : public ::testing::Test {
 // with 10 % of the messages each process receives dropped (scenes at the writer; credits and
 // resend requests at the generator), the dataset is complete and identical to the reference.
 // The generator keeps only 2 scenes for resending, so most resent scenes are made again from
-// their seed: regenerated scenes are byte-identical too.
+// their seed: regenerated scenes are byte-identical too. Both processes' last status on
+// STACKGEN_STATUS counts what happened.
 TEST_F(LosslessTest, InjectedLossGivesTheSameDataset) {
   const std::string url = testing::FreeMulticastUrl();
   const std::string out = scratch_.path() + "/lossy";

@@ -146,6 +146,37 @@ int Run(int argc, char** argv) {
         std::fprintf(stderr, "stackgen: %s\n", line.c_str());
       });
 
+  // another generator with this id on the bus would mix its scenes with ours: the one that has
+  // published fewer scenes (on a tie, the larger name) gives way with an error, the other warns
+  char host[256] = "localhost";
+  gethostname(host, sizeof(host) - 1);
+  const std::string name =
+      "stackgen/" + std::to_string(generator_id) + "@" + host + ":" + std::to_string(getpid());
+  int64_t published = 0;
+  bool warned_of_twin = false;
+  bus.Subscribe<status>(
+      kStatusChannel,
+      [&](const status& other) {
+        if (other.process != "stackgen" || other.header.generator_id != generator_id ||
+            other.name == name) {
+          return;
+        }
+        if (other.scenes > published || (other.scenes == published && other.name < name)) {
+          throw std::runtime_error("another generator with --generator-id " +
+                                   std::to_string(generator_id) + " publishes on " + bus.url() +
+                                   " (" + other.name + ", " + std::to_string(other.scenes) +
+                                   " scenes): give each generator its own --generator-id");
+        }
+        if (!warned_of_twin) {
+          std::fprintf(stderr,
+                       "stackgen: warning: another generator with --generator-id %d (%s) "
+                       "publishes on this bus; it has published less and gives way\n",
+                       generator_id, other.name.c_str());
+          warned_of_twin = true;
+        }
+      },
+      100, [](const std::string&) {});
+
   // hear which reliable consumers are there before the first scene (they credit every 0.2 s)
   const auto listen = [&](double seconds, const std::function<bool()>& done) {
     const Clock::time_point until = Clock::now() + std::chrono::duration_cast<Clock::duration>(
@@ -176,7 +207,6 @@ int Run(int argc, char** argv) {
   StageTimes times;
   double publish_ms = 0;
   double held_back_s = 0;
-  int64_t published = 0;
   int64_t published_at_last_status = 0;
   int64_t next_seq = first_seq;
   const Clock::time_point start = Clock::now();
@@ -196,7 +226,7 @@ int Run(int argc, char** argv) {
     message.header.seed = static_cast<int64_t>(seed);
     message.header.utime = now_us();
     message.process = "stackgen";
-    message.name = "stackgen/" + std::to_string(generator_id);
+    message.name = name;
     message.scenes = published;
     message.scenes_rejected = times.redraws;
     message.rate_hz = since > 0 ? (published - published_at_last_status) / since : 0;

@@ -1,10 +1,14 @@
-// The stackgen program refuses bad input with one clear line and a non-zero exit, and answers
-// --help.
+// The stackgen program refuses bad input (and a second generator with its id on the bus) with
+// one clear line and a non-zero exit, and answers --help.
 
-#include <gtest/gtest.h>
-
+#include <algorithm>
 #include <string>
 
+#include <gtest/gtest.h>
+#include <stackgen/status.hpp>
+
+#include "bus/bus.h"
+#include "bus/channels.h"
 #include "tests/support/process.h"
 
 namespace stackgen {
@@ -126,6 +130,38 @@ TEST(StackgenCliTest, MissingConfig) {
   EXPECT_EQ(outcome.code, 1);
   EXPECT_NE(outcome.err.find("nope.pbtxt"), std::string::npos) << outcome.err;
   ExpectOneLine(outcome.err);
+}
+
+// a second generator with the same --generator-id on the same bus refuses to run, naming the id
+// and the first one, while the first (it has published more) goes on with a warning.
+TEST(StackgenCliTest, SameGeneratorIdRefused) {
+  const testing::ScratchDir scratch("stackgen-cli");
+  const std::string dir = scratch.path();
+  const std::string url = testing::FreeMulticastUrl();
+  const std::string bin = std::string(STACKGEN_BIN_DIR) + "/stackgen";
+  Bus bus(url);
+  int64_t first_scenes = 0;
+  bus.Subscribe<stackgen::status>(kStatusChannel, [&](const stackgen::status& message) {
+    if (message.process == "stackgen") first_scenes = std::max(first_scenes, message.scenes);
+  });
+  Process first({bin, "--generator-id", "3", "--lcm-url", url, "--cache-dir", dir + "/cache"},
+                dir + "/first");
+  for (int i = 0; i < 600 && first_scenes < 1; ++i) bus.HandleFor(100);
+  ASSERT_GE(first_scenes, 1) << first.Stderr();
+
+  Process second({bin, "--generator-id", "3", "--lcm-url", url, "--cache-dir", dir + "/cache"},
+                 dir + "/second");
+  EXPECT_EQ(second.Wait(120), 1);
+  const std::string err = second.Stderr();
+  ExpectOneLine(err);
+  EXPECT_NE(err.find("another generator with --generator-id 3"), std::string::npos) << err;
+  EXPECT_NE(err.find("stackgen/3@"), std::string::npos) << err;
+
+  first.Signal(SIGINT);
+  EXPECT_EQ(first.Wait(60), 0) << first.Stderr();
+  EXPECT_NE(first.Stderr().find("warning: another generator with --generator-id 3"),
+            std::string::npos)
+      << first.Stderr();
 }
 
 }  // namespace

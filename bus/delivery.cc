@@ -251,7 +251,7 @@ struct SceneClient::Impl {
   // what the consumer knows of one generator's stream
   struct Stream {
     int64_t stored_through = -1;
-    std::set<int64_t> done_above;  // stored or skipped seqs above stored_through
+    std::set<int64_t> done_above;  // stored or skipped seqs (of this shard) above stored_through
     int64_t last_received = -1;
     std::map<int64_t, Clock::time_point> asked;  // missing seq -> when last asked for
     bool credit_due = true;
@@ -265,15 +265,58 @@ struct SceneClient::Impl {
   Clock::time_point last_credit;
   bool left = false;
 
-  // true when `seq` was not done before
-  bool MarkDone(int32_t generator_id, int64_t seq) {
-    Stream& stream = streams[generator_id];
-    if (seq <= stream.stored_through || !stream.done_above.insert(seq).second) return false;
-    stream.asked.erase(seq);
-    while (!stream.done_above.empty() && *stream.done_above.begin() == stream.stored_through + 1) {
-      stream.done_above.erase(stream.done_above.begin());
+  // whether scenes of `generator_id` are tracked at all
+  bool Tracked(int32_t generator_id) const {
+    if (generator_id < 0 || generator_id > kMaxGeneratorId) return false;
+    const std::vector<int32_t>& ids = options.generator_ids;
+    return ids.empty() || std::find(ids.begin(), ids.end(), generator_id) != ids.end();
+  }
+
+  // whether the wildcard credit is sent (a writer of every generator)
+  bool Wildcard() const { return options.generator_ids.empty() && !options.join_where_heard; }
+
+  // whether `seq` belongs to this consumer's shard
+  bool InShard(int64_t seq) const { return seq % options.shard_count == options.shard_index; }
+
+  // seqs of this shard in 0..seq
+  int64_t ShardSeqsThrough(int64_t seq) const {
+    if (seq < options.shard_index) return 0;
+    return (seq - options.shard_index) / options.shard_count + 1;
+  }
+
+  // moves stored_through over every seq that is done: stored, skipped or of another shard
+  static void Advance(const Impl& impl, Stream& stream) {
+    while (true) {
+      const int64_t next = stream.stored_through + 1;
+      if (!stream.done_above.empty() && *stream.done_above.begin() == next) {
+        stream.done_above.erase(stream.done_above.begin());
+      } else if (impl.InShard(next) || next > kMaxSeq) {
+        break;
+      }
       ++stream.stored_through;
     }
+  }
+
+  // the stream of `generator_id`, created (with other shards' first seqs done) when new;
+  // `heard_seq` is the seq that makes a learner create it (join_where_heard)
+  Stream& StreamOf(int32_t generator_id, int64_t heard_seq = -1) {
+    const auto found = streams.find(generator_id);
+    if (found != streams.end()) return found->second;
+    Stream& stream = streams[generator_id];
+    if (options.join_where_heard && heard_seq > options.window) {
+      stream.stored_through = heard_seq - 1;
+      stream.last_received = heard_seq - 1;
+    }
+    Advance(*this, stream);
+    return stream;
+  }
+
+  // true when `seq` was not done before
+  bool MarkDone(int32_t generator_id, int64_t seq) {
+    Stream& stream = StreamOf(generator_id);
+    if (seq <= stream.stored_through || !stream.done_above.insert(seq).second) return false;
+    stream.asked.erase(seq);
+    Advance(*this, stream);
     stream.last_received = std::max(stream.last_received, seq);
     stream.credit_due = true;
     return true;
@@ -305,26 +348,52 @@ SceneClient::SceneClient(Bus* bus, const SceneClientOptions& options)
   if (options.name.empty()) throw std::invalid_argument("a reliable consumer needs a name");
   if (options.window < 1) throw std::invalid_argument("the window must be >= 1 scene");
   if (options.max_scenes < 0) throw std::invalid_argument("max_scenes must be >= 0");
+  if (options.shard_count < 1 || options.shard_count > kMaxShards) {
+    throw std::invalid_argument("a stream splits into 1.." + std::to_string(kMaxShards) +
+                                " shards, not " + std::to_string(options.shard_count));
+  }
+  if (options.shard_index < 0 || options.shard_index >= options.shard_count) {
+    throw std::invalid_argument("shard " + std::to_string(options.shard_index) +
+                                " is not one of 0.." + std::to_string(options.shard_count - 1));
+  }
+  for (const int32_t generator_id : options.generator_ids) {
+    if (generator_id < 0 || generator_id > kMaxGeneratorId) {
+      throw std::invalid_argument("generator id " + std::to_string(generator_id) +
+                                  " is outside 0.." + std::to_string(kMaxGeneratorId));
+    }
+  }
   impl_->bus = bus;
   impl_->options = options;
   impl_->last_credit = Clock::now() - std::chrono::hours(1);
+  // listed generators are credited from the start (a learner's once heard): no wildcard
+  if (!options.join_where_heard) {
+    for (const int32_t generator_id : options.generator_ids) impl_->StreamOf(generator_id);
+  }
 }
 
 SceneClient::~SceneClient() = default;
 
 void SceneClient::Restore(int32_t generator_id, const std::vector<int64_t>& seqs) {
-  if (generator_id < 0 || generator_id > kMaxGeneratorId) return;
+  if (!impl_->Tracked(generator_id)) return;
   for (const int64_t seq : seqs) {
-    if (seq >= 0 && seq <= kMaxSeq && impl_->MarkDone(generator_id, seq)) ++impl_->stored_total;
+    if (seq >= 0 && seq <= kMaxSeq && impl_->InShard(seq) && impl_->MarkDone(generator_id, seq)) {
+      ++impl_->stored_total;
+    }
   }
 }
 
 bool SceneClient::Received(int32_t generator_id, int64_t seq) {
-  if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) {
+  if (!impl_->Tracked(generator_id) || seq < 0 || seq > kMaxSeq) return false;
+  Impl::Stream& stream = impl_->StreamOf(generator_id, seq);
+  // another shard's scene: it only shows how far the generator has got
+  if (!impl_->InShard(seq)) {
+    if (seq > stream.last_received) {
+      stream.last_received = seq;
+      stream.credit_due = true;
+    }
     return false;
   }
   ++impl_->counters.received;
-  Impl::Stream& stream = impl_->streams[generator_id];
   if (seq <= stream.stored_through || stream.done_above.count(seq) != 0) {
     ++impl_->counters.duplicates;
     return false;
@@ -337,14 +406,14 @@ bool SceneClient::Received(int32_t generator_id, int64_t seq) {
 }
 
 void SceneClient::Stored(int32_t generator_id, int64_t seq) {
-  if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) return;
+  if (!impl_->Tracked(generator_id) || seq < 0 || seq > kMaxSeq || !impl_->InShard(seq)) return;
   ++impl_->counters.stored;
   ++impl_->stored_total;
   impl_->MarkDone(generator_id, seq);
 }
 
 void SceneClient::Skipped(int32_t generator_id, int64_t seq) {
-  if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) return;
+  if (!impl_->Tracked(generator_id) || seq < 0 || seq > kMaxSeq || !impl_->InShard(seq)) return;
   impl_->MarkDone(generator_id, seq);
 }
 
@@ -367,7 +436,7 @@ void SceneClient::Service() {
     std::vector<int64_t> ask;
     for (int64_t seq = stream.stored_through + 1;
          seq <= last && static_cast<int>(ask.size()) < kMaxSeqsPerRequest; ++seq) {
-      if (stream.done_above.count(seq) != 0) continue;
+      if (!impl.InShard(seq) || stream.done_above.count(seq) != 0) continue;
       const auto asked = stream.asked.find(seq);
       if (asked != stream.asked.end() &&
           SecondsSince(asked->second, now) < impl.options.reask_after_s) {
@@ -390,8 +459,9 @@ void SceneClient::Service() {
   }
 
   // the wildcard: generators not heard from yet count this consumer as having stored nothing
+  // (not with a list of generators: those are credited by name, and others must not wait)
   if (period_due) {
-    impl.SendCredit(-1, -1, -1, false);
+    if (impl.Wildcard()) impl.SendCredit(-1, -1, -1, false);
     impl.last_credit = now;
   }
 }
@@ -402,12 +472,12 @@ void SceneClient::Leave() {
   for (const auto& [generator_id, stream] : impl.streams) {
     impl.SendCredit(generator_id, stream.stored_through, stream.last_received, true);
   }
-  impl.SendCredit(-1, -1, -1, true);
+  if (impl.Wildcard()) impl.SendCredit(-1, -1, -1, true);
   // once more: a lost last credit would keep a generator waiting for the whole timeout
   for (const auto& [generator_id, stream] : impl.streams) {
     impl.SendCredit(generator_id, stream.stored_through, stream.last_received, true);
   }
-  impl.SendCredit(-1, -1, -1, true);
+  if (impl.Wildcard()) impl.SendCredit(-1, -1, -1, true);
   impl.left = true;
 }
 
@@ -419,8 +489,10 @@ int64_t SceneClient::StoredThrough(int32_t generator_id) const {
 DeliveryCounters SceneClient::counters() const {
   DeliveryCounters counters = impl_->counters;
   counters.lost = 0;
+  // this shard's seqs between stored_through and the highest received that are not done
   for (const auto& [generator_id, stream] : impl_->streams) {
-    const int64_t span = stream.last_received - stream.stored_through;
+    const int64_t span = impl_->ShardSeqsThrough(stream.last_received) -
+                         impl_->ShardSeqsThrough(stream.stored_through);
     counters.lost += std::max<int64_t>(0, span - static_cast<int64_t>(stream.done_above.size()));
   }
   return counters;

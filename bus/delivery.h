@@ -110,7 +110,28 @@ struct SceneClientOptions {
   double credit_period_s = 0.2;
   /// A missing seq is asked for again after this long (seconds, default 0.3).
   double reask_after_s = 0.3;
+  /// The generators it takes scenes from; empty (the default): every generator. With a list,
+  /// credits go to those generators from the start and no wildcard credit is sent, so other
+  /// generators never wait for this consumer; their scenes are not tracked (Received: false).
+  std::vector<int32_t> generator_ids;
+  /// Consumers that split one stream between them (the DataLoader workers of one learner) each
+  /// take one shard: the seqs with seq % shard_count == shard_index, of every generator. The
+  /// seqs of other shards count as done (never asked for, never waited for, not counted), so a
+  /// generator is held back only by what this consumer's own shard still lacks.
+  /// shard_count 1..kMaxShards (default 1: every seq), shard_index 0..shard_count-1.
+  int32_t shard_index = 0;
+  int32_t shard_count = 1;
+  /// False (a dataset writer): every generator is taken from seq 0, and a wildcard credit
+  /// registers the consumer with generators it has not heard from. True (a learner): a generator
+  /// is credited only once a scene of it has been heard, and one first heard past seq `window`
+  /// is taken from that seq on (earlier seqs count as done), so a learner that joins a running
+  /// generator never makes it resend its history; one first heard at a lower seq started with
+  /// the learner and is taken from seq 0.
+  bool join_where_heard = false;
 };
+
+/// The most consumers one stream can be split between (SceneClientOptions::shard_count).
+inline constexpr int32_t kMaxShards = 256;
 
 /// Counters of a SceneClient since it started (see status.lcm).
 struct DeliveryCounters {
@@ -132,8 +153,10 @@ struct DeliveryCounters {
 class SceneClient {
  public:
   /// `bus` must outlive the client. Throws std::invalid_argument on options out of range.
-  /// Generator ids outside 0..65535 and seqs outside 0..999999998 are not tracked: Received
-  /// returns false for them, and Stored, Skipped and Restore ignore them.
+  /// Generator ids outside 0..65535 (or outside options.generator_ids) and seqs outside
+  /// 0..999999998 are not tracked: Received returns false for them, and Stored, Skipped and
+  /// Restore ignore them. So are seqs of other shards, except that Received notes them as
+  /// published (they show that a generator has gone on, and count as done).
   SceneClient(Bus* bus, const SceneClientOptions& options);
   ~SceneClient();
   SceneClient(const SceneClient&) = delete;

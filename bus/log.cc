@@ -1,6 +1,11 @@
 #include "bus/log.h"
 
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
 #include <cerrno>
+#include <climits>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -145,6 +150,46 @@ void LogWriter::Close() {
       std::fflush(impl_->log->getFilePtr()) == 0 && std::ferror(impl_->log->getFilePtr()) == 0;
   impl_->log.reset();
   if (!flushed) throw std::runtime_error("cannot write " + impl_->path);
+}
+
+LogAppender::LogAppender(const std::string& path) : path_(path) {
+  fd_ = open(path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+  if (fd_ < 0) throw std::runtime_error("cannot open " + path + ": " + std::strerror(errno));
+}
+
+LogAppender::~LogAppender() {
+  if (fd_ >= 0) close(fd_);
+}
+
+void LogAppender::AppendBytes(const std::string& channel, const uint8_t* data, size_t size,
+                              int64_t utime) {
+  if (channel.empty() || static_cast<int64_t>(channel.size()) >= kMaxChannelLength ||
+      size > static_cast<size_t>(INT32_MAX)) {
+    throw std::runtime_error("cannot append an event of " + std::to_string(size) +
+                             " bytes on channel \"" + channel + "\" to " + path_);
+  }
+  // the whole event in one buffer: header (big-endian), channel, data
+  std::vector<uint8_t> event(static_cast<size_t>(kLogHeaderBytes) + channel.size() + size);
+  const auto put = [&event](size_t offset, uint64_t value, int bytes) {
+    for (int k = 0; k < bytes; ++k) {
+      event[offset + k] = static_cast<uint8_t>(value >> (8 * (bytes - 1 - k)));
+    }
+  };
+  put(0, kLcmLogMagic, 4);
+  put(4, static_cast<uint64_t>(next_event_), 8);
+  put(12, static_cast<uint64_t>(utime), 8);
+  put(20, channel.size(), 4);
+  put(24, size, 4);
+  std::copy(channel.begin(), channel.end(), event.begin() + kLogHeaderBytes);
+  if (size > 0) std::copy(data, data + size, event.begin() + kLogHeaderBytes + channel.size());
+  // one write: with O_APPEND the kernel places it whole at the end of the file
+  const ssize_t written = write(fd_, event.data(), event.size());
+  if (written != static_cast<ssize_t>(event.size())) {
+    const std::string why = written < 0 ? std::strerror(errno) : "short write";
+    // a short write leaves a torn last event, which readers skip; say so
+    throw std::runtime_error("cannot append to " + path_ + ": " + why);
+  }
+  ++next_event_;
 }
 
 }  // namespace stackgen

@@ -97,4 +97,30 @@ class LogWriter {
   std::unique_ptr<Impl> impl_;
 };
 
+/// Appends events to an LCM log that several processes may write at once (the DataLoader workers
+/// of one learner recording what they hand out): the file is opened with O_APPEND and every event
+/// goes out in one write(2), so on a local file system events never interleave. Each appender
+/// numbers its own events from 0. A log is read by ReadLog, lcm-logplayer and file:// buses.
+class LogAppender {
+ public:
+  /// Opens `path` for appending, creating it (mode 0644) when missing; throws std::runtime_error
+  /// naming it on failure.
+  explicit LogAppender(const std::string& path);
+  ~LogAppender();
+  LogAppender(const LogAppender&) = delete;
+  LogAppender& operator=(const LogAppender&) = delete;
+
+  /// Appends `size` bytes as one event on `channel` received at `utime` (microseconds since the
+  /// Unix epoch). Throws std::runtime_error naming the file and the system's reason.
+  void AppendBytes(const std::string& channel, const uint8_t* data, size_t size, int64_t utime);
+
+  /// The path given.
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+  int fd_ = -1;
+  int64_t next_event_ = 0;
+};
+
 }  // namespace stackgen

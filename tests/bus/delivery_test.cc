@@ -313,6 +313,177 @@ TEST_F(DeliveryFixture, EveryoneStoredOnceDespiteLoss) {
   EXPECT_EQ(client_->counters().lost, 0);
 }
 
+// two consumers that split one stream (seq % 2) each store only their own seqs, never ask for
+// the other's (lost or not), and hold the generator back only by what their own shard lacks.
+TEST(ShardedDeliveryTest, ShardsSplitTheStream) {
+  Bus bus("memq://");
+  SceneServerOptions server_options;
+  server_options.min_resend_interval_s = 0;
+  SceneServer server(
+      &bus, server_options, [](int64_t seq) { return EncodedScene(0, seq); },
+      [](const std::string&) {});
+  std::vector<std::unique_ptr<SceneClient>> clients;
+  std::map<int, std::vector<int64_t>> stored;
+  for (int shard = 0; shard < 2; ++shard) {
+    SceneClientOptions options = Client(2);
+    options.name = "worker" + std::to_string(shard);
+    options.shard_index = shard;
+    options.shard_count = 2;
+    clients.push_back(std::make_unique<SceneClient>(&bus, options));
+  }
+  std::vector<int64_t> asked;
+  bus.Subscribe<resend_request>(kResendChannel, [&](const resend_request& request) {
+    asked.insert(asked.end(), request.seqs.begin(), request.seqs.end());
+  });
+  std::set<int64_t> lost = {3};  // seq 3 (shard 1) is lost on its way to both workers
+  bus.Subscribe<scene>(kSceneChannel, [&](const scene& message) {
+    const int64_t seq = message.header.seq;
+    if (lost.count(seq) != 0) return;
+    for (int shard = 0; shard < 2; ++shard) {
+      if (clients[shard]->Received(0, seq)) {
+        stored[shard].push_back(seq);
+        clients[shard]->Stored(0, seq);
+      }
+    }
+  });
+  const auto exchange = [&] {
+    for (auto& client : clients) client->Service();
+    server.Service(0);
+    bus.HandleFor(0);
+  };
+  exchange();
+  EXPECT_EQ(server.reliable_consumers(), 2);
+  // worker 1 counts seq 0 as done from the start: the window of 2 reaches seq 1 for worker 0
+  EXPECT_TRUE(server.MayPublish(1));
+  EXPECT_FALSE(server.MayPublish(2));
+  for (int64_t seq = 0; seq < 5; ++seq) {
+    ASSERT_TRUE(server.MayPublish(seq)) << seq;
+    server.Publish(seq, EncodedScene(0, seq));
+    bus.HandleFor(0);
+    exchange();
+  }
+  EXPECT_EQ(stored[0], (std::vector<int64_t>{0, 2, 4}));
+  // worker 1 lacks its seq 3: the generator may not go past 3 + window 2
+  EXPECT_FALSE(server.MayPublish(5));
+  EXPECT_EQ(clients[1]->counters().lost, 1);
+  // worker 1 asked for its seq 3 only; nobody asked for an even seq
+  EXPECT_EQ(asked, std::vector<int64_t>{3});
+  lost.clear();
+  exchange();
+  bus.HandleFor(0);
+  exchange();
+  EXPECT_EQ(stored[1], (std::vector<int64_t>{1, 3}));
+  ASSERT_TRUE(server.MayPublish(5));
+  server.Publish(5, EncodedScene(0, 5));
+  bus.HandleFor(0);
+  exchange();
+  EXPECT_EQ(stored[1], (std::vector<int64_t>{1, 3, 5}));
+  EXPECT_EQ(clients[0]->StoredThrough(0), 5);
+  EXPECT_EQ(clients[1]->StoredThrough(0), 6);
+  EXPECT_TRUE(server.AllStoredThrough(5));
+  for (auto& client : clients) {
+    EXPECT_EQ(client->counters().lost, 0);
+    EXPECT_EQ(client->counters().received, 3);
+  }
+  EXPECT_THROW(
+      {
+        SceneClientOptions options = Client(2);
+        options.shard_index = 2;
+        options.shard_count = 2;
+        SceneClient bad(&bus, options);
+      },
+      std::invalid_argument);
+}
+
+// a consumer given a list of generators credits those by name from the start and sends no
+// wildcard credit, so another generator never registers it and is never held back by it.
+TEST(ShardedDeliveryTest, GeneratorListSendsNoWildcard) {
+  Bus bus("memq://");
+  const auto server_for = [&](int32_t id) {
+    SceneServerOptions options;
+    options.generator_id = id;
+    return std::make_unique<SceneServer>(
+        &bus, options, [id](int64_t seq) { return EncodedScene(id, seq); },
+        [](const std::string&) {});
+  };
+  auto listed = server_for(3);
+  auto other = server_for(5);
+  SceneClientOptions options = Client(1);
+  options.generator_ids = {3};
+  SceneClient client(&bus, options);
+  std::set<int32_t> credited;
+  bus.Subscribe<credit>(
+      kCreditChannel, [&](const credit& message) { credited.insert(message.header.generator_id); });
+  client.Service();
+  listed->Service(0);
+  other->Service(0);
+  EXPECT_EQ(credited, std::set<int32_t>{3});
+  EXPECT_EQ(listed->reliable_consumers(), 1);
+  EXPECT_EQ(other->reliable_consumers(), 0);
+  EXPECT_FALSE(listed->MayPublish(1));
+  EXPECT_TRUE(other->MayPublish(1000));
+  EXPECT_FALSE(client.Received(5, 0));
+  EXPECT_TRUE(client.Received(3, 0));
+  EXPECT_EQ(client.counters().received, 1);
+}
+
+// a learner (join_where_heard) registers with a generator only once it hears it: one that has
+// run for a while is taken from the scene heard, with nothing of its history resent and no
+// wildcard credit; one heard within its first window of seqs is taken from seq 0
+TEST(ShardedDeliveryTest, LearnerJoinsWhereItHears) {
+  Bus bus("memq://");
+  SceneServerOptions server_options;
+  server_options.tail_resend_s = 0;
+  SceneServer server(
+      &bus, server_options, [](int64_t seq) { return EncodedScene(0, seq); },
+      [](const std::string&) {});
+  SceneClientOptions options = Client(4);
+  options.join_where_heard = true;
+  SceneClient learner(&bus, options);
+  std::vector<int64_t> stored;
+  std::set<int32_t> credited;
+  bus.Subscribe<credit>(
+      kCreditChannel, [&](const credit& message) { credited.insert(message.header.generator_id); });
+  bool listening = false;
+  bus.Subscribe<scene>(kSceneChannel, [&](const scene& message) {
+    if (!listening) return;
+    if (learner.Received(message.header.generator_id, message.header.seq)) {
+      stored.push_back(message.header.seq);
+      learner.Stored(message.header.generator_id, message.header.seq);
+    }
+  });
+  // the generator runs alone for 20 scenes (the learner is not listening yet)
+  learner.Service();
+  server.Service(0);
+  EXPECT_EQ(server.reliable_consumers(), 0);
+  EXPECT_TRUE(credited.empty());
+  for (int64_t seq = 0; seq < 20; ++seq) server.Publish(seq, EncodedScene(0, seq));
+  bus.HandleFor(0);
+  // the learner starts listening, hears seq 20 and joins there
+  listening = true;
+  server.Publish(20, EncodedScene(0, 20));
+  bus.HandleFor(0);
+  for (int round = 0; round < 3; ++round) {
+    learner.Service();
+    server.Service(0);
+    bus.HandleFor(0);
+  }
+  EXPECT_EQ(stored, std::vector<int64_t>{20});
+  EXPECT_EQ(learner.StoredThrough(0), 20);
+  EXPECT_EQ(server.reliable_consumers(), 1);
+  EXPECT_EQ(server.resent() + server.regenerated(), 0);
+  EXPECT_EQ(credited, std::set<int32_t>{0});
+  EXPECT_TRUE(server.MayPublish(24));
+  EXPECT_FALSE(server.MayPublish(25));
+
+  // a generator first heard at seq 2 started with the learner: seqs 0 and 1 are asked for
+  SceneClient fresh(&bus, options);
+  EXPECT_TRUE(fresh.Received(3, 2));
+  fresh.Stored(3, 2);
+  EXPECT_EQ(fresh.StoredThrough(3), -1);
+  EXPECT_EQ(fresh.counters().lost, 2);
+}
+
 // a drop fraction outside [0, 1) is refused with the flag named.
 TEST(DropFractionTest, ParsesAndRefuses) {
   EXPECT_DOUBLE_EQ(ParseDropFraction("--fault-drop", "0.1"), 0.1);

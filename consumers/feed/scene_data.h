@@ -1,0 +1,107 @@
+#pragma once
+
+// What a learner needs from a scene message, in C++ so that the Python feed is fast: the checks
+// that every field agrees with the others before a scene is handed out, image decoding into
+// arrays, and COCO RLE decoding into masks. Consumers do not link gen/, hence the small RLE
+// decoder here (the writer's one only counts runs).
+
+#include <condition_variable>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+#include <stackgen/scene.hpp>
+
+namespace stackgen::feed {
+
+/// A scene or a stream that cannot be used; the text names the scene, field, file or URL.
+class FeedError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// The runs of a COCO compressed RLE string (cocoapi maskApi.c rleFrString: 5 bits per char,
+/// '0'..'o', counts from the third on stored as the difference to the one two before), starting
+/// with a run of zeros. Throws std::runtime_error on a malformed string.
+std::vector<uint32_t> ParseRle(const std::string& counts);
+
+/// Sets to 1 the pixels of the mask `counts` (compressed RLE over `height` x `width` pixels,
+/// column-major as COCO) in `out`, a row-major height x width byte array that the caller has
+/// zeroed. Returns the pixels set. Throws std::runtime_error if the runs do not cover exactly
+/// height * width pixels or the string is malformed.
+int64_t DecodeRleInto(const std::string& counts, int height, int width, uint8_t* out);
+
+/// DecodeRleInto for the window of `window_width` x `window_height` pixels at (x0, y0) of the
+/// mask only: `out` is that window, row-major, zeroed by the caller. Returns the pixels set in
+/// the window. Throws as DecodeRleInto.
+int64_t DecodeRleWindow(const std::string& counts, int height, int width, int x0, int y0,
+                        int window_width, int window_height, uint8_t* out);
+
+/// The image of `field` ("color", "depth", "instance_map") decoded: RGB8 as CV_8UC3 in R, G, B
+/// order, GRAY8 as CV_8UC1, DEPTH16 and INSTANCE16 as CV_16UC1. A RAW image is not copied: the
+/// matrix points into `message.data`, which must outlive it. Throws FeedError naming the field
+/// if the data does not decode to the size and format the message declares.
+cv::Mat DecodeImage(const image& message, const std::string& field);
+
+/// Checks that a decoded scene message is one a learner can use: camera size and intrinsics,
+/// images (colour and instance map present, depth optional; sizes, formats and encoded headers),
+/// instance ids (1..65535, distinct), class ids (>= 1), finite poses and fractions, boxes inside
+/// the image, pixel counts and both RLE masks of every instance (each covering the image and
+/// holding px_count_visib resp. px_count_all pixels). Returns false with a one-line reason
+/// naming the field in `*why`.
+bool CheckScene(const scene& message, std::string* why);
+
+/// One scene handed to a learner: the message, and its images decoded once, when first asked
+/// for (by the stream's thread or by the caller). Thread-safe.
+class FeedScene {
+ public:
+  explicit FeedScene(scene message) : message_(std::move(message)) {}
+  FeedScene(const FeedScene&) = delete;
+  FeedScene& operator=(const FeedScene&) = delete;
+
+  const scene& message() const { return message_; }
+
+  /// The colour (RGB, CV_8UC3) or gray (CV_8UC1) image. Throws FeedError if it does not decode.
+  cv::Mat Color();
+  /// The depth image as stored (CV_16UC1; mm = value * camera.depth_scale_mm). Throws FeedError
+  /// if the scene has none or it does not decode.
+  cv::Mat Depth();
+  /// The instance map (CV_16UC1, 0 = background, else the instance_id). Throws FeedError.
+  cv::Mat InstanceMap();
+  /// Whether the scene carries a depth image.
+  bool has_depth() const { return message_.depth.size > 0; }
+
+  /// How many times the stream handed this same scene out before (a recording that repeats a
+  /// scene for each use; 0 otherwise).
+  int64_t occurrence = 0;
+
+  /// Decodes the images asked for (those already decoded are kept) and marks the scene
+  /// prepared: ready when they decoded, failed with the reason otherwise. Never throws.
+  void Prepare(bool color, bool depth, bool instance_map);
+  /// Marks the scene failed with `why` (it will not be prepared).
+  void Fail(const std::string& why);
+  /// Waits until Prepare (or Fail) has run; true when the scene is ready, false (the reason in
+  /// `*why`) when an image did not decode.
+  bool WaitPrepared(std::string* why);
+
+ private:
+  cv::Mat Decoded(std::optional<cv::Mat>* slot, const image& message, const std::string& field);
+
+  scene message_;
+  std::mutex mutex_;
+  std::optional<cv::Mat> color_;
+  std::optional<cv::Mat> depth_;
+  std::optional<cv::Mat> instance_map_;
+  // Prepare's outcome: 0 not yet, 1 ready, 2 failed (`failure` says why)
+  std::mutex prepared_mutex_;
+  std::condition_variable prepared_changed_;
+  int prepared_ = 0;
+  std::string failure_;
+};
+
+}  // namespace stackgen::feed

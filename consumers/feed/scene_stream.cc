@@ -1,0 +1,584 @@
+#include "consumers/feed/scene_stream.h"
+
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdio>
+#include <deque>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <set>
+#include <thread>
+#include <tuple>
+#include <utility>
+
+#include <stackgen/scene.hpp>
+#include <stackgen/status.hpp>
+
+#include "bus/bounded_decode.h"
+#include "bus/bus.h"
+#include "bus/channels.h"
+#include "bus/delivery.h"
+#include "bus/log.h"
+
+namespace stackgen::feed {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using SceneKey = std::pair<int32_t, int64_t>;  // generator_id, seq
+
+// the ids a scene may carry (as bus/delivery.h tracks them)
+constexpr int32_t kMaxGeneratorId = 65535;
+constexpr int64_t kMaxSeq = 999999998;
+// problems reported one by one on stderr; later ones are only counted
+constexpr int kMaxReported = 10;
+// best effort: scene keys remembered to recognise a repeat (a resend for a reliable consumer)
+constexpr size_t kRecentKeys = 4096;
+// the most scenes a queue may hold
+constexpr int kMaxQueue = 100000;
+
+// thrown inside the log reader to stop reading
+struct StopReading {};
+
+// the big-endian unsigned number in `size` bytes at `bytes`
+uint64_t ReadBigEndian(const uint8_t* bytes, int size) {
+  uint64_t value = 0;
+  for (int k = 0; k < size; ++k) value = (value << 8) | bytes[k];
+  return value;
+}
+
+int64_t UnixMicros() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+std::string DefaultName(const SceneStreamOptions& options) {
+  char host[256] = "localhost";
+  gethostname(host, sizeof(host) - 1);
+  std::string name = "stackgen-feed@" + std::string(host) + ":" + std::to_string(getpid());
+  if (options.shard_count > 1) {
+    name +=
+        "/shard" + std::to_string(options.shard_index) + "of" + std::to_string(options.shard_count);
+  }
+  return name;
+}
+
+}  // namespace
+
+std::string LogPathOfUrl(const std::string& url) {
+  const std::string scheme = "file://";
+  if (url.rfind(scheme, 0) != 0) return "";
+  const std::string rest = url.substr(scheme.size());
+  return rest.substr(0, rest.find('?'));
+}
+
+struct SceneStream::Impl {
+  SceneStreamOptions options;
+  std::string url;
+  std::string name;
+  std::string log_path;  // empty: a live bus
+  pid_t pid = 0;
+
+  // live: the bus and, when reliable, the delivery client; used by the thread only
+  std::unique_ptr<Bus> bus;
+  std::unique_ptr<SceneClient> client;
+  std::thread thread;
+  std::atomic<bool> stop{false};
+
+  // shared between the thread and Next, under `mutex`
+  mutable std::mutex mutex;
+  std::condition_variable changed;
+  std::deque<std::shared_ptr<FeedScene>> queue;
+  // reliable: scenes queued or handed out but not yet marked stored in the client, which would
+  // still take a resent copy of them for new
+  std::set<SceneKey> taken_keys;
+  std::vector<SceneKey> handed_pending;   // handed out, not yet credited
+  std::vector<SceneKey> skipped_pending;  // did not decode, not yet told to the client
+  // scenes queued whose images the decoder threads are to decode, oldest first
+  std::deque<std::shared_ptr<FeedScene>> to_decode;
+  std::condition_variable decode_wanted;
+  std::vector<std::thread> decoders;
+  bool decoders_stop = false;
+  StreamCounters counters;
+  std::exception_ptr error;
+  bool ended = false;
+  bool closed = false;
+
+  // thread-only state
+  std::set<SceneKey> recent_keys;
+  std::deque<SceneKey> recent_order;
+  std::atomic<int> reported{0};
+
+  bool Wanted(int32_t generator_id, int64_t seq) const {
+    const std::vector<int32_t>& ids = options.generator_ids;
+    if (!ids.empty() && std::find(ids.begin(), ids.end(), generator_id) == ids.end()) {
+      return false;
+    }
+    return seq % options.shard_count == options.shard_index;
+  }
+
+  void Report(const std::string& text) {
+    if (++reported <= kMaxReported) {
+      std::fprintf(stderr, "stackgen-feed: skipped a scene: %s%s\n", text.c_str(),
+                   reported == kMaxReported ? " (later ones are only counted)" : "");
+    }
+  }
+
+  void CountBad() {
+    const std::lock_guard<std::mutex> lock(mutex);
+    ++counters.bad_messages;
+  }
+
+  // checks a scene and has its images decoded ahead; nullptr (counted, reported) when it is
+  // not usable
+  std::shared_ptr<FeedScene> Prepare(scene message) {
+    const std::string scene_name = "scene " + std::to_string(message.header.generator_id) + "/" +
+                                   std::to_string(message.header.seq);
+    std::string why;
+    if (!CheckScene(message, &why)) {
+      CountBad();
+      Report(scene_name + ": " + why);
+      return nullptr;
+    }
+    auto prepared = std::make_shared<FeedScene>(std::move(message));
+    if (options.decode_color || options.decode_instance_map || options.decode_depth) {
+      {
+        const std::lock_guard<std::mutex> lock(mutex);
+        to_decode.push_back(prepared);
+      }
+      decode_wanted.notify_one();
+    } else {
+      prepared->Prepare(false, false, false);
+    }
+    return prepared;
+  }
+
+  // a decoder thread: decodes the images of queued scenes, oldest first
+  void RunDecoder() {
+    while (true) {
+      std::shared_ptr<FeedScene> next;
+      {
+        std::unique_lock<std::mutex> lock(mutex);
+        decode_wanted.wait(lock, [this] { return decoders_stop || !to_decode.empty(); });
+        if (decoders_stop) return;
+        next = std::move(to_decode.front());
+        to_decode.pop_front();
+      }
+      next->Prepare(options.decode_color, options.decode_depth, options.decode_instance_map);
+    }
+  }
+
+  // a scene from the live bus (the thread, inside HandleFor)
+  void OnLiveScene(const scene& message) {
+    const int32_t generator_id = message.header.generator_id;
+    const int64_t seq = message.header.seq;
+    if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) {
+      CountBad();
+      Report("scene " + std::to_string(generator_id) + "/" + std::to_string(seq) +
+             ": generator_id or seq out of range");
+      return;
+    }
+    if (!Wanted(generator_id, seq)) {
+      // another shard's scene still shows the client how far the generator has got
+      if (client) client->Received(generator_id, seq);
+      return;
+    }
+    const SceneKey key{generator_id, seq};
+    {
+      const std::lock_guard<std::mutex> lock(mutex);
+      ++counters.received;
+      const bool enough = options.count > 0 &&
+                          counters.handed + static_cast<int64_t>(queue.size()) >= options.count;
+      if (enough) return;
+    }
+    if (client) {
+      bool repeat = !client->Received(generator_id, seq);
+      {
+        const std::lock_guard<std::mutex> lock(mutex);
+        repeat = repeat || taken_keys.count(key) != 0;
+        if (repeat) ++counters.duplicates;
+      }
+      if (repeat) return;
+    } else {
+      if (!recent_keys.insert(key).second) {
+        const std::lock_guard<std::mutex> lock(mutex);
+        ++counters.duplicates;
+        return;
+      }
+      recent_order.push_back(key);
+      if (recent_order.size() > kRecentKeys) {
+        recent_keys.erase(recent_order.front());
+        recent_order.pop_front();
+      }
+    }
+    std::shared_ptr<FeedScene> prepared = Prepare(message);
+    if (!prepared) {
+      if (client) client->Skipped(generator_id, seq);
+      return;
+    }
+    {
+      const std::lock_guard<std::mutex> lock(mutex);
+      // best effort keeps the newest scenes: the learner never holds a generator back
+      if (!client && static_cast<int>(queue.size()) >= options.queue) {
+        // (and its images need no decoding any more)
+        const auto waiting = std::find(to_decode.begin(), to_decode.end(), queue.front());
+        if (waiting != to_decode.end()) to_decode.erase(waiting);
+        queue.pop_front();
+        ++counters.dropped_behind;
+      }
+      queue.push_back(std::move(prepared));
+      if (client) taken_keys.insert(key);
+    }
+    changed.notify_all();
+  }
+
+  void PublishStatus(int64_t handed, double rate_hz) {
+    status message{};
+    message.header.seq = handed;
+    message.header.generator_id = -1;
+    message.header.utime = UnixMicros();
+    message.process = "stackgen-feed";
+    message.name = name;
+    message.scenes = handed;
+    message.rate_hz = rate_hz;
+    const StreamCounters now = Counters();
+    message.received = now.received;
+    message.duplicates = now.duplicates;
+    message.lost = now.lost;
+    message.reasked = now.reasked;
+    message.bad_messages = now.bad_messages;
+    message.fault_dropped = now.fault_dropped;
+    bus->Publish(kStatusChannel, message);
+  }
+
+  StreamCounters Counters() const {
+    StreamCounters copy;
+    {
+      const std::lock_guard<std::mutex> lock(mutex);
+      copy = counters;
+      copy.queued = static_cast<int64_t>(queue.size());
+    }
+    return copy;
+  }
+
+  // the thread on a live bus: handle messages, credit what was handed out, publish status
+  void RunLive() {
+    auto last_status = Clock::now();
+    int64_t handed_at_last_status = 0;
+    const auto credit_handed = [&] {
+      std::vector<SceneKey> handed;
+      {
+        const std::lock_guard<std::mutex> lock(mutex);
+        handed.swap(handed_pending);
+      }
+      std::vector<SceneKey> skipped;
+      {
+        const std::lock_guard<std::mutex> lock(mutex);
+        skipped.swap(skipped_pending);
+      }
+      if (!client) return;
+      for (const auto& [generator_id, seq] : handed) client->Stored(generator_id, seq);
+      for (const auto& [generator_id, seq] : skipped) client->Skipped(generator_id, seq);
+      client->Service();
+      const DeliveryCounters delivery = client->counters();
+      const std::lock_guard<std::mutex> lock(mutex);
+      for (const SceneKey& key : handed) taken_keys.erase(key);
+      for (const SceneKey& key : skipped) taken_keys.erase(key);
+      counters.lost = delivery.lost;
+      counters.reasked = delivery.reasked;
+    };
+    while (!stop) {
+      bus->HandleFor(20);
+      credit_handed();
+      {
+        const std::lock_guard<std::mutex> lock(mutex);
+        counters.fault_dropped = bus->fault_dropped();
+      }
+      const auto now = Clock::now();
+      if (options.publish_status && now - last_status >= std::chrono::seconds(1)) {
+        const int64_t handed = Counters().handed;
+        const double seconds = std::chrono::duration<double>(now - last_status).count();
+        PublishStatus(handed, (handed - handed_at_last_status) / seconds);
+        last_status = now;
+        handed_at_last_status = handed;
+      }
+    }
+    // generators stop waiting for this stream
+    credit_handed();
+    if (options.publish_status) PublishStatus(Counters().handed, 0);
+    if (client) client->Leave();
+  }
+
+  // the thread on a log: every scene event in file order, waiting while the queue is full
+  void RunLog() {
+    std::map<std::string, int64_t> other_channels;
+    std::map<std::tuple<int32_t, int64_t, int64_t>, int64_t> seen;
+    int64_t scene_events = 0;
+    LogSummary summary;
+    try {
+      summary = ReadLog(log_path, [&](const LogEvent& event) {
+        if (stop) throw StopReading{};
+        if (event.channel != options.channel) {
+          ++other_channels[event.channel];
+          return;
+        }
+        ++scene_events;
+        // another shard's scene is skipped before it is decoded: the header's seq and
+        // generator_id follow the fingerprint (big-endian int64 and int32)
+        if (event.size >= 20 &&
+            ReadBigEndian(event.data, 8) == static_cast<uint64_t>(scene::getHash())) {
+          const int64_t peeked_seq = static_cast<int64_t>(ReadBigEndian(event.data + 8, 8));
+          const int32_t peeked_id = static_cast<int32_t>(ReadBigEndian(event.data + 16, 4));
+          if (peeked_seq < 0 || !Wanted(peeked_id, peeked_seq)) return;
+        }
+        scene message;
+        std::string why;
+        if (!DecodeBounded(event.data, event.size, DecodeLimits{}, &message, &why)) {
+          throw FeedError(log_path + ": event " + std::to_string(event.number) + " on " +
+                          options.channel + " is not a stackgen.scene of this build: " + why);
+        }
+        const int32_t generator_id = message.header.generator_id;
+        const int64_t seq = message.header.seq;
+        if (seq < 0 || !Wanted(generator_id, seq)) return;
+        const int64_t occurrence = seen[{generator_id, seq, message.header.seed}]++;
+        {
+          const std::lock_guard<std::mutex> lock(mutex);
+          ++counters.received;
+          if (occurrence > 0 && !options.repeats) {
+            ++counters.duplicates;
+            return;
+          }
+        }
+        std::shared_ptr<FeedScene> prepared = Prepare(std::move(message));
+        if (!prepared) return;
+        prepared->occurrence = occurrence;
+        std::unique_lock<std::mutex> lock(mutex);
+        changed.wait(lock, [&] { return stop || static_cast<int>(queue.size()) < options.queue; });
+        if (stop) throw StopReading{};
+        queue.push_back(std::move(prepared));
+        const bool enough = options.count > 0 &&
+                            counters.handed + static_cast<int64_t>(queue.size()) >= options.count;
+        lock.unlock();
+        changed.notify_all();
+        if (enough) throw StopReading{};
+      });
+    } catch (const StopReading&) {
+      return;
+    }
+    if (scene_events == 0) {
+      std::string found;
+      for (const auto& [channel, events] : other_channels) {
+        found += (found.empty() ? "" : ", ") + channel + " x" + std::to_string(events);
+      }
+      throw FeedError(log_path + " holds no events on channel " + options.channel +
+                      (found.empty() ? "" : " (it has " + found + ")"));
+    }
+    if (summary.truncated_bytes > 0) {
+      std::fprintf(stderr, "stackgen-feed: %s ends with a torn event of %lld bytes (skipped)\n",
+                   log_path.c_str(), static_cast<long long>(summary.truncated_bytes));
+    }
+  }
+
+  void Run() {
+    try {
+      if (log_path.empty()) {
+        RunLive();
+      } else {
+        RunLog();
+      }
+    } catch (...) {
+      const std::lock_guard<std::mutex> lock(mutex);
+      error = std::current_exception();
+    }
+    {
+      const std::lock_guard<std::mutex> lock(mutex);
+      ended = true;
+    }
+    changed.notify_all();
+  }
+};
+
+SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_unique<Impl>()) {
+  Impl& impl = *impl_;
+  impl.options = options;
+  impl.pid = getpid();
+  if (options.window < 1 || options.window > 10000) {
+    throw FeedError("window must be 1..10000 scenes, got " + std::to_string(options.window));
+  }
+  if (options.queue < 1 || options.queue > kMaxQueue) {
+    throw FeedError("queue must be 1.." + std::to_string(kMaxQueue) + " scenes, got " +
+                    std::to_string(options.queue));
+  }
+  if (options.count < 0)
+    throw FeedError("count must be >= 0, got " + std::to_string(options.count));
+  if (options.shard_count < 1 || options.shard_count > kMaxShards) {
+    throw FeedError("a stream splits between 1.." + std::to_string(kMaxShards) + " workers, not " +
+                    std::to_string(options.shard_count));
+  }
+  if (options.decode_threads < 1 || options.decode_threads > 16) {
+    throw FeedError("decode_threads must be 1..16, got " + std::to_string(options.decode_threads));
+  }
+
+  if (options.shard_index < 0 || options.shard_index >= options.shard_count) {
+    throw FeedError("shard " + std::to_string(options.shard_index) + " is not one of 0.." +
+                    std::to_string(options.shard_count - 1));
+  }
+  for (const int32_t generator_id : options.generator_ids) {
+    if (generator_id < 0 || generator_id > kMaxGeneratorId) {
+      throw FeedError("generator id " + std::to_string(generator_id) + " is outside 0.." +
+                      std::to_string(kMaxGeneratorId));
+    }
+  }
+  if (!(options.fault_drop >= 0 && options.fault_drop < 1)) {
+    throw FeedError("fault_drop must be in [0, 1), got " + std::to_string(options.fault_drop));
+  }
+  impl.url = ResolveLcmUrl(options.url);
+  impl.name = options.name.empty() ? DefaultName(options) : options.name;
+  impl.log_path = LogPathOfUrl(impl.url);
+
+  if (!impl.log_path.empty()) {
+    // a log: refuse what is not one before the thread starts
+    std::error_code error;
+    if (impl.log_path.empty() || !std::filesystem::exists(impl.log_path, error)) {
+      throw FeedError("cannot open the log " + impl.log_path + " (" + impl.url + "): no such file");
+    }
+    if (std::filesystem::is_directory(impl.log_path, error)) {
+      throw FeedError(impl.log_path + " is a folder, not an LCM log");
+    }
+    if (!IsLcmLog(impl.log_path)) {
+      throw FeedError(impl.log_path + " is not an LCM log (it does not start with an LCM event)");
+    }
+  } else {
+    BusOptions bus_options;
+    bus_options.drop_receive_fraction = options.fault_drop;
+    bus_options.fault_seed = 0xFEED;
+    try {
+      impl.bus = std::make_unique<Bus>(impl.url, bus_options);
+    } catch (const std::exception& error) {
+      throw FeedError(error.what());
+    }
+    if (options.reliable) {
+      SceneClientOptions client_options;
+      client_options.name = impl.name;
+      client_options.window = options.window;
+      client_options.max_scenes = options.count;
+      client_options.generator_ids = options.generator_ids;
+      client_options.shard_index = options.shard_index;
+      client_options.shard_count = options.shard_count;
+      // a learner joins running generators where it hears them (see SceneClientOptions)
+      client_options.join_where_heard = true;
+      impl.client = std::make_unique<SceneClient>(impl.bus.get(), client_options);
+    }
+    Impl* raw = impl_.get();
+    impl.bus->Subscribe<scene>(
+        options.channel, [raw](const scene& message) { raw->OnLiveScene(message); },
+        // a reliable window per generator, or the best-effort queue, plus room for resends
+        std::max(64, 4 * std::max(options.window, options.queue)),
+        [raw](const std::string& text) {
+          raw->CountBad();
+          raw->Report(text);
+        });
+  }
+  for (int k = 0; k < options.decode_threads; ++k) {
+    impl.decoders.emplace_back([raw = impl_.get()] { raw->RunDecoder(); });
+  }
+  impl.thread = std::thread([raw = impl_.get()] { raw->Run(); });
+}
+
+SceneStream::~SceneStream() {
+  // a copy inherited by a forked process has no thread to stop: leave it alone
+  if (impl_ && impl_->pid != getpid()) {
+    impl_.release();
+    return;
+  }
+  Close();
+}
+
+std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
+                                             const std::function<bool()>& interrupted) {
+  Impl& impl = *impl_;
+  if (impl.pid != getpid()) {
+    throw FeedError(
+        "this stream was opened in process " + std::to_string(impl.pid) + " and is read in " +
+        std::to_string(getpid()) +
+        ": a stream cannot be shared between processes (DataLoader workers); open one in each "
+        "(stackgen.torch.StreamDataset does)");
+  }
+  const auto start = Clock::now();
+  std::unique_lock<std::mutex> lock(impl.mutex);
+  while (true) {
+    if (impl.options.count > 0 && impl.counters.handed >= impl.options.count) return nullptr;
+    if (!impl.queue.empty()) {
+      std::shared_ptr<FeedScene> next = std::move(impl.queue.front());
+      impl.queue.pop_front();
+      lock.unlock();
+      impl.changed.notify_all();
+      // its images, decoded in order of the queue by the decoder threads
+      std::string why;
+      const bool ready = next->WaitPrepared(&why);
+      const SceneKey key{next->message().header.generator_id, next->message().header.seq};
+      lock.lock();
+      if (!ready) {
+        ++impl.counters.bad_messages;
+        if (impl.client) impl.skipped_pending.push_back(key);
+        lock.unlock();
+        impl.Report(why);
+        lock.lock();
+        continue;
+      }
+      if (impl.client) impl.handed_pending.push_back(key);
+      ++impl.counters.handed;
+      return next;
+    }
+    if (impl.error) std::rethrow_exception(impl.error);
+    if (impl.ended || impl.closed) return nullptr;
+    const double waited = std::chrono::duration<double>(Clock::now() - start).count();
+    if (timeout_s >= 0 && waited >= timeout_s) {
+      throw FeedTimeout("no scene on " + impl.options.channel + " of " + impl.url + " for " +
+                        std::to_string(static_cast<int>(timeout_s + 0.5)) +
+                        " s: is a generator publishing there?");
+    }
+    double slice = 0.1;
+    if (timeout_s >= 0) slice = std::min(slice, timeout_s - waited);
+    impl.changed.wait_for(lock, std::chrono::duration<double>(std::max(slice, 0.0)));
+    if (interrupted && impl.queue.empty()) {
+      lock.unlock();
+      const bool stop = interrupted();
+      lock.lock();
+      if (stop) return nullptr;
+    }
+  }
+}
+
+void SceneStream::Close() {
+  Impl& impl = *impl_;
+  {
+    const std::lock_guard<std::mutex> lock(impl.mutex);
+    if (impl.closed) return;
+    impl.closed = true;
+  }
+  impl.stop = true;
+  impl.changed.notify_all();
+  if (impl.thread.joinable()) impl.thread.join();
+  {
+    const std::lock_guard<std::mutex> lock(impl.mutex);
+    impl.decoders_stop = true;
+  }
+  impl.decode_wanted.notify_all();
+  for (std::thread& decoder : impl.decoders) decoder.join();
+  // nothing waits for images that will not be decoded now
+  for (const std::shared_ptr<FeedScene>& left : impl.to_decode) left->Fail("the stream closed");
+  impl.to_decode.clear();
+}
+
+StreamCounters SceneStream::counters() const { return impl_->Counters(); }
+const std::string& SceneStream::url() const { return impl_->url; }
+const std::string& SceneStream::name() const { return impl_->name; }
+bool SceneStream::is_log() const { return !impl_->log_path.empty(); }
+
+}  // namespace stackgen::feed

@@ -1,0 +1,250 @@
+"""stackgen for learners: scenes from the bus, or from a recorded LCM log, as numpy arrays.
+
+    import stackgen
+    with stackgen.Stream(lcm_url="udpm://239.255.76.67:7667?ttl=0", reliable=True) as stream:
+        for scene in stream:
+            scene.rgb              # (H, W, 3) uint8, or scene.gray (H, W) for a gray camera
+            scene.depth_mm         # (H, W) float32 millimetres, 0 = no depth
+            scene.instance_map     # (H, W) uint16, 0 = background, else the instance_id
+            scene.masks_visib()    # (N, H, W) uint8 0/1 visible masks, decoded on demand
+            scene.camera_from_object, scene.bbox_visib, scene.visib_fract, scene.K, ...
+
+`stackgen.torch.StreamDataset` turns the stream into (image, target) pairs for torchvision's
+detection models, with exact augmentation (`stackgen.augment`). The LCM message types of the bus
+(`stackgen.scene`, `stackgen.status`, ...; made by lcm-gen) are here too, for users who bring
+their own LCM: `stackgen.scene.decode(data)`.
+
+The stream runs in C++ (`stackgen._native`): the same bounded decoding, credits and resend as
+the C++ dataset writers, in a thread of its own, outside the GIL.
+"""
+
+import os as _os
+
+import numpy as _np
+
+# the LCM message types, as lcm-gen's package __init__ binds them
+from ._lcmtypes import *  # noqa: F401,F403
+from . import _native
+from ._native import DEFAULT_LCM_URL, StreamError, StreamTimeout, decode_rle, resolve_lcm_url
+
+SCENE_CHANNEL = "STACKGEN_SCENE"
+STATUS_CHANNEL = "STACKGEN_STATUS"
+
+# the scenes a Stream hands out: the C++ class, with a few conveniences added here
+Scene = _native.Scene
+
+
+def _rgb(scene):
+    return None if scene.is_gray else scene.color
+
+
+def _gray(scene):
+    return scene.color if scene.is_gray else None
+
+
+def _depth_mm(scene):
+    return scene.depth.astype(_np.float32) * _np.float32(scene.depth_scale_mm)
+
+
+def _instances(scene):
+    return [Instance(scene, k) for k in range(scene.num_instances)]
+
+
+def _scene_repr(scene):
+    return "<stackgen.Scene generator %d seq %d: %dx%d, %d instances>" % (
+        scene.generator_id, scene.seq, scene.width, scene.height, scene.num_instances)
+
+
+Scene.rgb = property(_rgb, doc="(H, W, 3) uint8 RGB image, None for a gray camera (no copy).")
+Scene.gray = property(_gray, doc="(H, W) uint8 gray image, None for a colour camera (no copy).")
+Scene.depth_mm = property(
+    _depth_mm, doc="(H, W) float32 depth along the camera z axis in millimetres, 0 = no depth "
+                   "(`depth` is the stored uint16, mm = value * depth_scale_mm).")
+Scene.instances = property(_instances, doc="One `Instance` per labelled object of the scene.")
+Scene.__repr__ = _scene_repr
+
+
+class Instance:
+    """One object instance of a scene (a view: the values come from the scene's arrays)."""
+
+    def __init__(self, scene, index):
+        self._scene = scene
+        self.index = index
+        self.instance_id = int(scene.instance_ids[index])
+        self.class_id = int(scene.class_ids[index])
+        self.class_name = scene.class_names[index]
+        self.bbox_obj = scene.bbox_obj[index]
+        self.bbox_visib = scene.bbox_visib[index]
+        self.camera_from_object = scene.camera_from_object[index]
+        self.world_from_object = scene.world_from_object[index]
+        self.posture_deg = scene.posture_deg[index]
+        self.resting_face = int(scene.resting_face[index])
+        self.px_count_all = int(scene.px_count_all[index])
+        self.px_count_visib = int(scene.px_count_visib[index])
+        self.visib_fract = float(scene.visib_fract[index])
+        self.annotated = bool(scene.annotated[index])
+        self.ignored = bool(scene.ignored[index])
+
+    def mask_visib(self):
+        """(H, W) uint8 0/1: the visible pixels (decoded from the message's RLE)."""
+        return self._scene.masks_visib([self.index])[0]
+
+    def mask_obj(self):
+        """(H, W) uint8 0/1: the pixels the object would cover with nothing in front (amodal)."""
+        return self._scene.masks_obj([self.index])[0]
+
+    def __repr__(self):
+        return "<stackgen.Instance %d (%s) visib_fract %.3f%s>" % (
+            self.instance_id, self.class_name, self.visib_fract,
+            " annotated" if self.annotated else " ignored" if self.ignored else "")
+
+
+def _check_int(name, value, low, high):
+    if isinstance(value, bool) or not isinstance(value, (int, _np.integer)) or \
+            not low <= value <= high:
+        raise ValueError("%s must be a whole number in %d..%d, got %r" % (name, low, high, value))
+    return int(value)
+
+
+class Stream:
+    """Scenes from a generator bus or an LCM log, one at a time.
+
+    lcm_url: the bus (udpm://..., memq://) or a log, file://PATH (any ?query is ignored: a log
+        is read in file order, as fast as scenes are taken). None: $STACKGEN_LCM_URL, else
+        stackgen.DEFAULT_LCM_URL.
+    reliable: on a live bus, a reliable consumer: it credits each scene once it has been handed
+        out and asks for the ones it missed, so it misses nothing and holds generators within
+        `window` scenes of what it took; it stores nothing on disk. It takes a generator from
+        seq 0 when it first hears it within its first `window` seqs (they started together),
+        else from the first scene it hears (it joins a running generator without making it
+        resend its history). False: best effort: it sends nothing, never holds a generator back,
+        and keeps only the newest `queue` scenes when the caller falls behind.
+    window: reliable: scenes a generator may run ahead of what was handed out (1..10000).
+    generator_ids: take scenes of these generators only (default: all).
+    timeout: seconds to wait for a scene before StreamTimeout is raised; None: wait forever.
+    count: end after this many scenes (0: no end; a log ends at its end).
+    shard: (index, count): take only the seqs with seq % count == index, so several streams
+        (DataLoader workers) split one bus or log between them without sharing a scene.
+    queue: scenes kept waiting for the caller (best effort drops older ones; a log waits).
+    instance_map, depth: decode these images ahead, beside the colour image (default: the
+        instance map yes, depth no); others are decoded when first asked for.
+    decode_threads: threads that decode images ahead while scenes wait in the queue (1..16,
+        default 2); scenes are handed out in their order all the same.
+    repeats: a log only: hand out repeated events too, with `scene.occurrence` counting them
+        (StreamDataset recordings repeat a scene for each use); False: each scene once.
+    channel, name: the scenes' channel; the consumer's name in credits and status (default
+        "stackgen-feed@<host>:<pid>").
+    fault_drop: drop this fraction of received messages on purpose, [0, 1) (tests, demos).
+    status: publish the stream's counters on STACKGEN_STATUS every second (live bus).
+
+    Raises StreamError (one line naming the URL, file or value) for a bus that cannot be opened
+    (a bad URL, no multicast route), a missing log or one that is not an LCM log, a log event on
+    the channel that is not a stackgen.scene of this build, a log without scenes, and a stream
+    used in another process than the one that opened it (a DataLoader worker must open its own).
+    A scene that fails its checks (sizes, images, masks, ids) is skipped and counted in
+    `counters["bad_messages"]`, with a line on stderr for the first ten.
+    """
+
+    def __init__(self, lcm_url=None, reliable=True, window=8, generator_ids=None, timeout=None,
+                 count=0, shard=(0, 1), queue=16, instance_map=True, depth=False, repeats=False,
+                 decode_threads=2, channel=SCENE_CHANNEL, name=None, fault_drop=0.0,
+                 status=True):
+        if lcm_url is not None and (not isinstance(lcm_url, str) or lcm_url == ""):
+            raise ValueError("lcm_url must be a non-empty URL string or None, got %r" % (lcm_url,))
+        if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
+            raise ValueError("timeout must be a number of seconds > 0 or None, got %r" % (timeout,))
+        try:
+            shard_index, shard_count = shard
+        except (TypeError, ValueError):
+            raise ValueError("shard must be (index, count), got %r" % (shard,)) from None
+        shard_count = _check_int("shard count", shard_count, 1, 256)
+        shard_index = _check_int("shard index", shard_index, 0, shard_count - 1)
+        ids = [] if generator_ids is None else [
+            _check_int("generator id", g, 0, 65535) for g in generator_ids]
+        if not isinstance(fault_drop, (int, float)) or not 0 <= fault_drop < 1:
+            raise ValueError("fault_drop must be in [0, 1), got %r" % (fault_drop,))
+        self.timeout = timeout
+        self._native = _native.Stream(
+            url=lcm_url or "", channel=channel, reliable=bool(reliable),
+            window=_check_int("window", window, 1, 10000), generator_ids=ids,
+            shard_index=shard_index, shard_count=shard_count,
+            count=_check_int("count", count, 0, 2 ** 62), queue=_check_int("queue", queue, 1, 100000),
+            repeats=bool(repeats), decode_instance_map=bool(instance_map),
+            decode_depth=bool(depth),
+            decode_threads=_check_int("decode_threads", decode_threads, 1, 16), name=name or "",
+            fault_drop=float(fault_drop), publish_status=bool(status))
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        scene = self._native.next(self.timeout)
+        if scene is None:
+            raise StopIteration
+        return scene
+
+    def next(self, timeout=None):
+        """The next scene, waiting up to `timeout` seconds (None: as long as it takes); None once
+        the stream has ended. Raises StreamTimeout when the time runs out."""
+        return self._native.next(timeout)
+
+    def close(self):
+        """Stops reading; a reliable stream tells the generators it is leaving."""
+        self._native.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @property
+    def counters(self):
+        """dict: received, handed, duplicates, lost, reasked, bad_messages, dropped_behind,
+        fault_dropped, queued."""
+        return self._native.counters
+
+    @property
+    def url(self):
+        return self._native.url
+
+    @property
+    def name(self):
+        return self._native.name
+
+    @property
+    def is_log(self):
+        return self._native.is_log
+
+
+class StatusMonitor:
+    """The latest STACKGEN_STATUS of every process on a bus (generators: rate_hz, scenes,
+    held_back_s, ...), heard in a thread of its own. Sends nothing."""
+
+    def __init__(self, lcm_url=None):
+        self._native = _native.StatusMonitor(lcm_url or "")
+
+    def latest(self, process=None):
+        """A list of status dicts, one per process heard (only those named `process`, e.g.
+        "stackgen" for generators, when given)."""
+        return [s for s in self._native.latest() if process is None or s["process"] == process]
+
+
+class LogRecorder:
+    """Appends scenes to an LCM log on STACKGEN_SCENE that several processes may share (one
+    write per event, O_APPEND). The log is what `Stream(lcm_url="file://PATH", repeats=True)`
+    reads back in the same order, and what stackgen-coco, stackgen-stats and tools/spy read."""
+
+    def __init__(self, path, channel=SCENE_CHANNEL):
+        self._native = _native.LogAppender(_os.fspath(path))
+        self.channel = channel
+
+    def append(self, scene, utime=None):
+        import time
+        self._native.append(self.channel, scene.encoded(),
+                            int(time.time() * 1e6) if utime is None else int(utime))
+
+
+__all__ = ["Stream", "Scene", "Instance", "StatusMonitor", "LogRecorder", "StreamError",
+           "StreamTimeout", "decode_rle", "resolve_lcm_url", "DEFAULT_LCM_URL", "SCENE_CHANNEL",
+           "STATUS_CHANNEL"]

@@ -1,0 +1,333 @@
+"""PyTorch on the stream: `StreamDataset` yields (image, target) pairs in torchvision's detection
+format straight from the bus (or a log), for a live training loop.
+
+    from torch.utils.data import DataLoader
+    import stackgen.torch as sgt
+
+    dataset = sgt.StreamDataset(lcm_url=URL, reliable=True, reuse=4, augment=True, seed=0)
+    loader = DataLoader(dataset, batch_size=2, num_workers=2, collate_fn=sgt.collate)
+    for images, targets in loader:
+        losses = model(list(images), [sgt.without_ignore_regions(t) for t in targets])
+
+Each DataLoader worker opens its own stream and takes one shard of the seqs (seq % workers), so no
+scene reaches two workers; a reliable stream misses none. See StreamDataset for the target.
+"""
+
+import os
+
+import cv2
+import numpy as np
+import torch
+from torch.utils.data import IterableDataset, get_worker_info
+
+import stackgen
+from stackgen.augment import Augment, exact_labels
+
+__all__ = ["StreamDataset", "collate", "without_ignore_regions", "ReuseMeter", "Augment"]
+
+# the most workers one stream splits between (bus/delivery.h kMaxShards)
+MAX_WORKERS = 256
+
+_SEED_MASK = (1 << 64) - 1
+
+
+def collate(batch):
+    """The detection collate: a tuple of images and a tuple of targets (sizes may differ)."""
+    return tuple(zip(*batch))
+
+
+def without_ignore_regions(target):
+    """The target without its ignore regions (iscrowd 1), as torchvision's detection models
+    want it for training: they have no notion of an ignore region."""
+    keep = target["iscrowd"] == 0
+    return {key: (value[keep] if _per_instance(key) else value) for key, value in target.items()}
+
+
+_PER_INSTANCE = ("boxes", "labels", "masks", "iscrowd", "area", "visib_fract", "px_count_all",
+                 "px_count_visib", "instance_ids", "camera_from_object", "world_from_object")
+
+
+def _per_instance(key):
+    return key in _PER_INSTANCE
+
+
+class ReuseMeter:
+    """Counts what a training loop took: samples, distinct scenes, and the reuse factor achieved
+    (samples per distinct scene). Feed it each batch's targets."""
+
+    def __init__(self):
+        self.samples = 0
+        self._scenes = set()
+
+    def update(self, targets):
+        for target in targets:
+            generator_id, seq, _ = (int(v) for v in target["scene"])
+            self.samples += 1
+            self._scenes.add((generator_id, seq))
+
+    @property
+    def scenes(self):
+        return len(self._scenes)
+
+    @property
+    def factor(self):
+        return self.samples / max(1, len(self._scenes))
+
+
+class StreamDataset(IterableDataset):
+    """(image, target) pairs from a live stackgen bus or a log, for torchvision detection models.
+
+    image: float32 (3, H, W) in [0, 1] (RGB; a gray camera's image repeated), or (1, H, W) with
+        grayscale=True (a colour image converted), the paper's option for monochrome parts.
+    target (torch tensors; M instances: those the generator annotated or kept as ignore regions
+        that still have a visible pixel):
+        boxes (M, 4) float32 XYXY of the visible pixels; labels (M,) int64 class ids; masks
+        (M, H, W) uint8 visible masks; iscrowd (M,) int64 (1: an ignore region); area (M,)
+        float32 visible pixels; visib_fract (M,) float32; px_count_all, px_count_visib,
+        instance_ids (M,) int64; camera_from_object, world_from_object (M, 4, 4) float64
+        (millimetres, OpenCV camera frame); K (3, 3) float64 (A @ K after augmentation);
+        image_id () int64 (generator_id * 10^9 + seq + 1, as stackgen-coco); scene (3,) int64
+        (generator_id, seq, use); with depth=True also depth_mm (H, W) float32.
+    Torchvision's models want the ignore regions out: without_ignore_regions(target).
+
+    lcm_url, reliable, window, generator_ids, timeout, queue, fault_drop, name: as
+        stackgen.Stream.
+    decode_threads: threads that decode PNG images ahead (stackgen.Stream). None (default):
+        one per core in the training process, less one for the augmentation when augmenting (at
+        most 4); one in each DataLoader worker (the workers are the parallelism there). count: scenes in all (split between the workers), 0: no end.
+    reuse: each scene is used up to `reuse` times (default 1: once). A new scene is always taken
+        first; when none is waiting, a scene of the last `reuse_buffer` (default 32) that has
+        been used fewer times is drawn at random instead, so a learner faster than the
+        generators stays busy. The factor achieved: ReuseMeter, or target["scene"][2] (the use).
+    augment: None or False (default): none; True: Augment() with its defaults; or an Augment.
+    min_visib_fract: an annotated object less visible than this after augmentation becomes an
+        ignore region (default 0.3, the paper's threshold).
+    seed: augmentation is drawn from (seed, generator_id, seq, use, scene seed): the same log
+        and seed give the same samples, whichever worker makes them.
+    record: a path: every sample's scene is appended to this LCM log (STACKGEN_SCENE, one event
+        per use, in the order each worker hands them out); the file must not exist.
+    replay: the URL is a log made with `record`: every event is one sample, the n-th repeat of
+        a scene its n-th use (reuse must be 1). With the same workers, batch size and seed a
+        training run sees the same batches as the recorded one.
+    depth: add depth_mm to the target.
+
+    Usable with DataLoader(num_workers=k) (k <= 256): each worker opens its own stream on one
+    shard of the seqs. Raises stackgen.StreamError as the stream does, ValueError for bad
+    arguments.
+    """
+
+    def __init__(self, lcm_url=None, *, reliable=True, window=8, generator_ids=None,
+                 timeout=None, count=0, reuse=1, reuse_buffer=32, grayscale=False, augment=None,
+                 min_visib_fract=0.3, seed=0, record=None, replay=False, depth=False, queue=16,
+                 decode_threads=None, fault_drop=0.0, name=None):
+        super().__init__()
+        if isinstance(reuse, bool) or not isinstance(reuse, int) or reuse < 1:
+            raise ValueError("reuse must be a whole number >= 1, got %r" % (reuse,))
+        if isinstance(reuse_buffer, bool) or not isinstance(reuse_buffer, int) or reuse_buffer < 1:
+            raise ValueError("reuse_buffer must be a whole number >= 1, got %r" % (reuse_buffer,))
+        if not isinstance(min_visib_fract, (int, float)) or not 0 <= min_visib_fract <= 1:
+            raise ValueError("min_visib_fract must be in [0, 1], got %r" % (min_visib_fract,))
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ValueError("seed must be a whole number >= 0, got %r" % (seed,))
+        if augment is True:
+            augment = Augment()
+        elif augment is False:
+            augment = None
+        if augment is not None and not callable(augment):
+            raise ValueError("augment must be None, True, False or an Augment, got %r" % (augment,))
+        url = stackgen.resolve_lcm_url(lcm_url or "")
+        if replay:
+            if not url.startswith("file://"):
+                raise ValueError("replay reads a recorded log: lcm_url must be file://PATH, got %r"
+                                 % (url,))
+            if reuse != 1:
+                raise ValueError("a replay repeats what the recording repeated: reuse must be 1")
+        if record is not None:
+            record = os.fspath(record)
+            # refuse an existing file, create it empty for the workers to append to
+            try:
+                os.close(os.open(record, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+            except FileExistsError:
+                raise stackgen.StreamError("record: %s exists already; give another file" %
+                                           record) from None
+            except OSError as error:
+                raise stackgen.StreamError("record: cannot create %s: %s" %
+                                           (record, error.strerror)) from None
+        # a bad URL, no multicast route, a missing log or a log that is not one is refused here,
+        # not later in each worker (a best-effort look that sends nothing)
+        stackgen.Stream(url, reliable=False, count=1, status=False).close()
+        self.lcm_url = url
+        self.reliable = reliable
+        self.window = window
+        self.generator_ids = generator_ids
+        self.timeout = timeout
+        self.count = count
+        self.reuse = reuse
+        self.reuse_buffer = reuse_buffer
+        self.grayscale = grayscale
+        self.augment = augment
+        self.min_visib_fract = float(min_visib_fract)
+        self.seed = seed
+        self.record = record
+        self.replay = bool(replay)
+        self.depth = bool(depth)
+        self.queue = queue
+        self.decode_threads = decode_threads
+        self.fault_drop = fault_drop
+        self.name = name
+
+    def _open(self, worker, workers):
+        if workers > MAX_WORKERS:
+            raise stackgen.StreamError(
+                "a stream splits between at most %d DataLoader workers, not %d" %
+                (MAX_WORKERS, workers))
+        count = 0
+        if self.count > 0:
+            count = self.count // workers + (1 if worker < self.count % workers else 0)
+            if count == 0:
+                return None
+        name = self.name
+        if name and workers > 1:
+            name = "%s/shard%dof%d" % (name, worker, workers)
+        return stackgen.Stream(
+            self.lcm_url, reliable=self.reliable, window=self.window,
+            generator_ids=self.generator_ids, timeout=self.timeout, count=count,
+            shard=(worker, workers), queue=self.queue, depth=self.depth, repeats=self.replay,
+            # only augmentation reads the instance map; the masks come from the RLE otherwise
+            instance_map=self.augment is not None, decode_threads=self._decode_threads(workers),
+            fault_drop=self.fault_drop, name=name)
+
+    def _decode_threads(self, workers):
+        if self.decode_threads is not None:
+            return self.decode_threads
+        if get_worker_info() is not None:
+            return 1
+        cores = os.cpu_count() or 1
+        return max(1, min(4, cores - (1 if self.augment is not None else 0)))
+
+    def __iter__(self):
+        info = get_worker_info()
+        worker, workers = (info.id, info.num_workers) if info is not None else (0, 1)
+        if info is not None:
+            # one core per worker: no thread pools fighting over it
+            cv2.setNumThreads(1)
+        stream = self._open(worker, workers)
+        if stream is None:
+            return
+        recorder = stackgen.LogRecorder(self.record) if self.record else None
+        picker = np.random.default_rng([self.seed, worker, 0x5EED])
+        buffer = []  # [scene, uses] of recent scenes, oldest first
+        ended = False
+        try:
+            while True:
+                fresh = None
+                if not ended:
+                    reusable = self.reuse > 1 and any(uses < self.reuse for _, uses in buffer)
+                    if reusable:
+                        try:
+                            fresh = stream.next(0.0)
+                        except stackgen.StreamTimeout:
+                            fresh = False  # nothing new right now
+                    else:
+                        fresh = stream.next(self.timeout)
+                    if fresh is None:
+                        ended = True
+                if fresh:
+                    scene, use = fresh, (fresh.occurrence if self.replay else 0)
+                    if self.reuse > 1:
+                        buffer.append([scene, 1])
+                        if len(buffer) > self.reuse_buffer:
+                            buffer.pop(0)
+                elif ended:
+                    break
+                else:
+                    eligible = [entry for entry in buffer if entry[1] < self.reuse]
+                    entry = eligible[int(picker.integers(len(eligible)))]
+                    scene, use = entry[0], entry[1]
+                    entry[1] += 1
+                if recorder is not None:
+                    recorder.append(scene)
+                yield self.sample(scene, use)
+        finally:
+            stream.close()
+
+    def _scene_labels(self, scene, candidates):
+        # not augmented: the scene's own labels, the masks decoded from its RLE (as exact_labels
+        # would compute them from the instance map, only faster)
+        keep = np.flatnonzero(scene.px_count_visib[candidates] > 0)
+        chosen = candidates[keep]
+        x, y, w, h = scene.bbox_visib[chosen].T.astype(np.float32)
+        visib = scene.visib_fract[chosen]
+        good = scene.annotated[chosen] & (visib >= self.min_visib_fract)
+        return {
+            "keep": keep,
+            "masks": scene.masks_visib(chosen.tolist()),
+            "boxes": np.stack([x, y, x + w, y + h], axis=1).reshape(-1, 4),
+            "px_count_visib": scene.px_count_visib[chosen].astype(np.int64),
+            "px_count_all": scene.px_count_all[chosen].astype(np.int64),
+            "visib_fract": visib,
+            "iscrowd": (~good).astype(np.int64),
+        }
+
+    def sample(self, scene, use=0):
+        """The (image, target) pair of `scene` for its use number `use` (augmented with the
+        draws of (seed, generator_id, seq, use, scene seed))."""
+        rng = np.random.default_rng(
+            [self.seed, scene.generator_id, scene.seq, use, scene.seed & _SEED_MASK])
+        annotated = scene.annotated
+        ignored = scene.ignored
+        candidates = np.flatnonzero(annotated | ignored)
+        image = scene.color
+        if image.ndim == 2:
+            image = image[:, :, None]
+        if self.grayscale and image.shape[2] == 3:
+            image = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)[:, :, None]
+        sample = {
+            "image": image,
+            "instance_map": scene.instance_map,
+            "depth": scene.depth if self.depth else None,
+            "K": scene.K,
+            "instance_ids": scene.instance_ids[candidates],
+            "px_count_all": scene.px_count_all[candidates],
+            "annotated": annotated[candidates],
+            "ignored": ignored[candidates],
+            "bbox_obj": scene.bbox_obj[candidates],
+            "bbox_visib": scene.bbox_visib[candidates],
+            "boxed_masks_obj": lambda: scene.boxed_masks_obj(candidates.tolist()),
+        }
+        if self.augment is not None:
+            sample = self.augment(sample, rng)
+            labels = exact_labels(sample["instance_map"], sample["instance_ids"],
+                                  sample["px_count_all"], sample["annotated"], sample["ignored"],
+                                  self.min_visib_fract, sample["regions"])
+        else:
+            labels = self._scene_labels(scene, candidates)
+        chosen = candidates[labels["keep"]]
+
+        # (C, H, W) float32 in [0, 1], in one pass (a new array: the scene's image stays as is)
+        image = torch.from_numpy(
+            np.ascontiguousarray(sample["image"].transpose(2, 0, 1), dtype=np.float32))
+        image.div_(255.0)
+        if not self.grayscale and image.shape[0] == 1:
+            image = image.expand(3, -1, -1).contiguous()
+        target = {
+            "boxes": torch.from_numpy(labels["boxes"]),
+            "labels": torch.from_numpy(scene.class_ids[chosen].astype(np.int64)),
+            "masks": torch.from_numpy(labels["masks"]),
+            "iscrowd": torch.from_numpy(labels["iscrowd"]),
+            "area": torch.from_numpy(labels["px_count_visib"].astype(np.float32)),
+            "visib_fract": torch.from_numpy(labels["visib_fract"].astype(np.float32)),
+            "px_count_all": torch.from_numpy(labels["px_count_all"]),
+            "px_count_visib": torch.from_numpy(labels["px_count_visib"]),
+            "instance_ids": torch.from_numpy(scene.instance_ids[chosen].astype(np.int64)),
+            "camera_from_object": torch.from_numpy(scene.camera_from_object[chosen]),
+            "world_from_object": torch.from_numpy(scene.world_from_object[chosen]),
+            "K": torch.from_numpy(np.asarray(sample["K"], dtype=np.float64)),
+            "image_id": torch.tensor(scene.generator_id * 1000000000 + scene.seq + 1,
+                                     dtype=torch.int64),
+            "scene": torch.tensor([scene.generator_id, scene.seq, use], dtype=torch.int64),
+        }
+        if self.depth:
+            depth = sample["depth"].astype(np.float32) * np.float32(scene.depth_scale_mm)
+            target["depth_mm"] = torch.from_numpy(depth)
+        return image, target

@@ -1,0 +1,62 @@
+#include "consumers/feed/status_monitor.h"
+
+#include <unistd.h>
+
+#include <atomic>
+#include <mutex>
+#include <thread>
+
+#include "bus/bus.h"
+#include "bus/channels.h"
+#include "consumers/feed/scene_data.h"
+
+namespace stackgen::feed {
+
+struct StatusMonitor::Impl {
+  std::unique_ptr<Bus> bus;
+  mutable std::mutex mutex;
+  std::map<std::string, status> latest;
+  std::atomic<bool> stop{false};
+  std::thread thread;
+  pid_t pid = 0;
+};
+
+StatusMonitor::StatusMonitor(const std::string& url) : impl_(std::make_unique<Impl>()) {
+  Impl* impl = impl_.get();
+  impl->pid = getpid();
+  try {
+    impl->bus = std::make_unique<Bus>(ResolveLcmUrl(url));
+  } catch (const std::exception& error) {
+    throw FeedError(error.what());
+  }
+  impl->bus->Subscribe<status>(
+      kStatusChannel,
+      [impl](const status& message) {
+        const std::lock_guard<std::mutex> lock(impl->mutex);
+        impl->latest[message.name] = message;
+      },
+      256, [](const std::string&) {});
+  impl->thread = std::thread([impl] {
+    try {
+      while (!impl->stop) impl->bus->HandleFor(50);
+    } catch (const std::exception&) {
+      // a failing bus only ends the monitoring
+    }
+  });
+}
+
+StatusMonitor::~StatusMonitor() {
+  if (impl_->pid != getpid()) {
+    impl_.release();
+    return;
+  }
+  impl_->stop = true;
+  if (impl_->thread.joinable()) impl_->thread.join();
+}
+
+std::map<std::string, status> StatusMonitor::Latest() const {
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->latest;
+}
+
+}  // namespace stackgen::feed

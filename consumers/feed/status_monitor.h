@@ -1,0 +1,31 @@
+#pragma once
+
+#include <map>
+#include <memory>
+#include <string>
+
+#include <stackgen/status.hpp>
+
+namespace stackgen::feed {
+
+/// Listens to STACKGEN_STATUS in a thread of its own and keeps the latest status of every process
+/// (by status.name), so a training loop can show how fast the generators produce. A best-effort
+/// listener: it sends nothing. Messages that do not decode are skipped.
+class StatusMonitor {
+ public:
+  /// Opens the bus at `url` (empty: ResolveLcmUrl("")); throws FeedError naming it if it cannot.
+  explicit StatusMonitor(const std::string& url);
+  /// Stops the thread (a copy inherited by a forked process, which has no thread, is left).
+  ~StatusMonitor();
+  StatusMonitor(const StatusMonitor&) = delete;
+  StatusMonitor& operator=(const StatusMonitor&) = delete;
+
+  /// The latest status of each process heard, by name.
+  std::map<std::string, status> Latest() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace stackgen::feed

@@ -1,0 +1,96 @@
+"""Helpers of the Python feed's tests: paths, free multicast URLs, real processes.
+
+CTest runs these files with Debian's /usr/bin/python3 -m pytest and sets STACKGEN_SOURCE_DIR,
+STACKGEN_BIN_DIR and PYTHONPATH (the build's python/ folder)."""
+
+import os
+import socket
+import subprocess
+import time
+
+import pytest
+
+SOURCE = os.environ.get("STACKGEN_SOURCE_DIR",
+                        os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(
+                            os.path.abspath(__file__))))))
+BIN = os.environ.get("STACKGEN_BIN_DIR", os.path.join(SOURCE, "build", "bin"))
+# 6 connectors, 160 x 120: small and quick scenes
+TINY_CONFIG = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.pbtxt")
+# 4 scenes of that config (generator 2, seed 11), recorded by tools/make-fixture-logs
+TINY_LOG = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.lcmlog")
+
+
+def free_url():
+    """A multicast URL on this host only, on a port nothing is bound to."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("", 0))
+        port = probe.getsockname()[1]
+    return "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % port
+
+
+class Process:
+    """A program running as a real process, its output in files."""
+
+    def __init__(self, argv, log_prefix):
+        self.out_path = log_prefix + ".out"
+        self.err_path = log_prefix + ".err"
+        self._out = open(self.out_path, "w")
+        self._err = open(self.err_path, "w")
+        self.popen = subprocess.Popen(argv, stdout=self._out, stderr=self._err)
+
+    def wait(self, timeout):
+        """The exit status; fails the test if it runs past `timeout` seconds."""
+        try:
+            return self.popen.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.popen.kill()
+            self.popen.wait()
+            pytest.fail("%s still ran after %g s; stderr: %s" % (
+                self.popen.args[0], timeout, self.stderr()))
+
+    def wait_for_output(self, text, timeout):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if text in self.stdout():
+                return True
+            if self.popen.poll() is not None:
+                return text in self.stdout()
+            time.sleep(0.02)
+        return False
+
+    def stdout(self):
+        with open(self.out_path) as file:
+            return file.read()
+
+    def stderr(self):
+        with open(self.err_path) as file:
+            return file.read()
+
+    def kill(self):
+        if self.popen.poll() is None:
+            self.popen.kill()
+            self.popen.wait()
+        self._out.close()
+        self._err.close()
+
+
+@pytest.fixture
+def processes(tmp_path):
+    """Starts programs (argv, name) and kills those still running at the end of the test."""
+    started = []
+
+    def start(argv, name):
+        process = Process([str(a) for a in argv], str(tmp_path / name))
+        started.append(process)
+        return process
+
+    yield start
+    for process in started:
+        process.kill()
+
+
+def generator_argv(url, count, cache_dir, *extra, generator_id=0, seed=5):
+    """The command line of a generator of the tiny config."""
+    return [os.path.join(BIN, "stackgen"), "--config", TINY_CONFIG, "--count", str(count),
+            "--seed", str(seed), "--generator-id", str(generator_id), "--lcm-url", url,
+            "--cache-dir", str(cache_dir), "--consumer-timeout", "5", *extra]

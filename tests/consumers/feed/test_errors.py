@@ -1,0 +1,175 @@
+"""Bad input to the Python feed gets one clear line naming the URL, file, event or value, and the
+lcm-gen Python types shipped in the package decode what the generator writes."""
+
+import multiprocessing
+import os
+import struct
+
+import pytest
+
+import stackgen
+import stackgen.torch as sgt
+from conftest import TINY_LOG, free_url
+
+URL = "file://" + TINY_LOG
+
+
+def one_line(error):
+    text = str(error.value)
+    assert "\n" not in text
+    return text
+
+
+def log_events(path):
+    """(channel, data) of every event of an LCM log, read with the format alone."""
+    events = []
+    with open(path, "rb") as file:
+        data = file.read()
+    offset = 0
+    while offset + 28 <= len(data):
+        magic, _, _, channel_length, data_length = struct.unpack_from(">IqqII", data, offset)
+        assert magic == 0xEDA1DA01
+        offset += 28
+        channel = data[offset:offset + channel_length].decode()
+        offset += channel_length
+        events.append((channel, data[offset:offset + data_length]))
+        offset += data_length
+    return events
+
+
+# a missing log, a folder, and a file that is not an LCM log are refused when the stream opens
+def test_missing_or_junk_log(tmp_path):
+    with pytest.raises(stackgen.StreamError) as error:
+        stackgen.Stream("file://%s/missing.lcmlog" % tmp_path)
+    assert "missing.lcmlog" in one_line(error) and "no such file" in one_line(error)
+    with pytest.raises(stackgen.StreamError) as error:
+        stackgen.Stream("file://%s" % tmp_path)
+    assert "is a folder" in one_line(error)
+    junk = tmp_path / "junk.lcmlog"
+    junk.write_bytes(b"not a log at all" * 100)
+    with pytest.raises(stackgen.StreamError) as error:
+        stackgen.Stream("file://%s?speed=0" % junk)
+    assert str(junk) in one_line(error) and "not an LCM log" in one_line(error)
+    # the dataset refuses it in the training process, before any DataLoader worker starts
+    with pytest.raises(stackgen.StreamError):
+        sgt.StreamDataset("file://%s" % junk)
+
+
+# a log whose scene channel carries another type (or another build's scene) stops the stream
+# with the file, the event and both types named; a log without scenes says what it holds
+def test_scene_type_mismatch_and_log_without_scenes(tmp_path):
+    labels = stackgen.labels()
+    labels.header = stackgen.header()
+    labels.camera = stackgen.camera_info()
+    labels.camera.world_from_camera = stackgen.pose()
+    wrong = tmp_path / "wrong.lcmlog"
+    stackgen._native.LogAppender(str(wrong)).append("STACKGEN_SCENE", labels.encode(), 0)
+    with pytest.raises(stackgen.StreamError) as error:
+        list(stackgen.Stream("file://%s" % wrong))
+    text = one_line(error)
+    assert str(wrong) in text and "event 0" in text and "stackgen.labels" in text
+
+    only_labels = tmp_path / "labels.lcmlog"
+    appender = stackgen._native.LogAppender(str(only_labels))
+    for _ in range(2):
+        appender.append("STACKGEN_LABELS", labels.encode(), 0)
+    with pytest.raises(stackgen.StreamError) as error:
+        list(stackgen.Stream("file://%s" % only_labels))
+    assert "no events on channel STACKGEN_SCENE (it has STACKGEN_LABELS x2)" in one_line(error)
+
+
+# a bus URL that names no bus, or no multicast group, is refused with the URL named
+def test_unusable_bus():
+    for url in ("bogus://x", "udpm://10.1.2.3:7667?ttl=0"):
+        with pytest.raises(stackgen.StreamError) as error:
+            stackgen.Stream(url)
+        assert url.split("?")[0] in one_line(error)
+
+
+# nothing on the bus: StreamTimeout (also a TimeoutError) names the channel and URL
+def test_timeout_names_the_bus():
+    url = free_url()
+    with stackgen.Stream(url, reliable=False, status=False) as stream:
+        with pytest.raises(stackgen.StreamTimeout) as error:
+            stream.next(timeout=0.3)
+    assert isinstance(error.value, TimeoutError)
+    assert "STACKGEN_SCENE" in one_line(error) and url in one_line(error)
+
+
+def _read_in_child(stream, queue):
+    try:
+        stream.next(timeout=1)
+        queue.put("no error")
+    except stackgen.StreamError as error:
+        queue.put(str(error))
+
+
+# a stream opened in one process cannot be read in another (a DataLoader worker that inherited
+# it would share its socket and its scenes): the worker gets one line saying to open its own
+def test_stream_cannot_be_shared_between_processes():
+    stream = stackgen.Stream(URL)
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_read_in_child, args=(stream, queue))
+    child.start()
+    child.join(30)
+    text = queue.get(timeout=5)
+    assert "cannot be shared between processes" in text and "StreamDataset" in text
+    assert stream.next(timeout=5) is not None  # the parent's stream still works
+    stream.close()
+
+
+# values out of range are refused by name before anything opens; so is a worker count beyond
+# what a stream can be split into
+def test_bad_arguments(tmp_path):
+    for kwargs, name in ((dict(window=0), "window"), (dict(timeout=-1), "timeout"),
+                         (dict(shard=(0, 300)), "shard count"), (dict(shard=(2, 2)), "shard index"),
+                         (dict(generator_ids=[70000]), "generator id"),
+                         (dict(fault_drop=1.0), "fault_drop"), (dict(lcm_url=""), "lcm_url")):
+        with pytest.raises(ValueError) as error:
+            stackgen.Stream(**dict(dict(lcm_url=URL), **kwargs))
+        assert name in one_line(error)
+    with pytest.raises(stackgen.StreamError) as error:
+        sgt.StreamDataset(URL)._open(0, 300)
+    assert "at most 256 DataLoader workers, not 300" in one_line(error)
+    with pytest.raises(ValueError):
+        sgt.StreamDataset(free_url(), replay=True)
+    existing = tmp_path / "taken.lcmlog"
+    existing.write_bytes(b"")
+    with pytest.raises(stackgen.StreamError) as error:
+        sgt.StreamDataset(URL, record=existing)
+    assert str(existing) in one_line(error) and "exists" in one_line(error)
+
+
+# the lcm-gen Python types in the package decode the bytes of the recorded log as the C++
+# stream does
+def test_python_message_types_decode_the_log():
+    raw = [data for channel, data in log_events(TINY_LOG) if channel == "STACKGEN_SCENE"]
+    streamed = list(stackgen.Stream(URL))
+    assert len(raw) == len(streamed) == 4
+    for data, scene in zip(raw, streamed):
+        message = stackgen.scene.decode(data)
+        assert (message.header.generator_id, message.header.seq) == (scene.generator_id, scene.seq)
+        assert message.camera.width == scene.width
+        assert [i.instance_id for i in message.instances] == scene.instance_ids.tolist()
+        assert [i.visib_fract for i in message.instances] == scene.visib_fract.tolist()
+        assert message.encode() == scene.encoded() == data
+
+
+# a scene whose PNG does not decode (cut short) is skipped and counted, the scenes around it
+# are handed out in order
+def test_scene_that_does_not_decode_is_skipped(tmp_path, capfd):
+    raw = [data for channel, data in log_events(TINY_LOG) if channel == "STACKGEN_SCENE"]
+    broken = stackgen.scene.decode(raw[1])
+    broken.color.data = broken.color.data[:len(broken.color.data) // 2]
+    broken.color.size = len(broken.color.data)
+    log = tmp_path / "broken.lcmlog"
+    appender = stackgen._native.LogAppender(str(log))
+    for data in (raw[0], broken.encode(), raw[2]):
+        appender.append("STACKGEN_SCENE", data, 0)
+    with stackgen.Stream("file://%s" % log) as stream:
+        seqs = [scene.seq for scene in stream]
+        counters = stream.counters
+    assert seqs == [0, 2]
+    assert counters["bad_messages"] == 1 and counters["handed"] == 2
+    assert "scene 2/1: color does not decode" in capfd.readouterr().err

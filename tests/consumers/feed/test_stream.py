@@ -1,0 +1,173 @@
+"""The Python feed end to end: real generators (stackgen) and stackgen-coco as separate processes,
+over real UDP multicast on a port of the test's own, read by stackgen.Stream and
+stackgen.torch.StreamDataset."""
+
+import collections
+import json
+import os
+
+import cv2
+import numpy as np
+from torch.utils.data import DataLoader
+
+import stackgen
+import stackgen.torch as sgt
+from conftest import BIN, TINY_LOG, free_url, generator_argv
+
+
+# the scenes a reliable stream hands out are the ones stackgen-coco stores for the same run:
+# images, visible and full masks, boxes, poses and visibility bit for bit; and the torch
+# target of a scene (no augmentation) holds exactly those labels
+def test_stream_equals_what_stackgen_coco_stores(tmp_path, processes):
+    url, count = free_url(), 6
+    coco = processes([os.path.join(BIN, "stackgen-coco"), "--out", tmp_path / "coco", "--count",
+                      count, "--lcm-url", url], "coco")
+    assert coco.wait_for_output("listening", 10), coco.stderr()
+    with stackgen.Stream(url, reliable=True, count=count, timeout=60, depth=True) as stream:
+        generator = processes(generator_argv(url, count, tmp_path / "cache"), "stackgen")
+        scenes = list(stream)
+    assert generator.wait(60) == 0, generator.stderr()
+    assert coco.wait(60) == 0, coco.stderr()
+    assert sorted((s.generator_id, s.seq) for s in scenes) == [(0, k) for k in range(count)]
+
+    with open(tmp_path / "coco" / "annotations.json") as file:
+        dataset = json.load(file)
+    images = {image["id"]: image for image in dataset["images"]}
+    annotations = collections.defaultdict(dict)
+    for annotation in dataset["annotations"]:
+        annotations[annotation["image_id"]][annotation["instance_id"]] = annotation
+    torch_view = sgt.StreamDataset("file://" + TINY_LOG)
+    compared = 0
+    for scene in scenes:
+        image_id = scene.generator_id * 1000000000 + scene.seq + 1
+        stored = cv2.imread(str(tmp_path / "coco" / "images" / images[image_id]["file_name"]),
+                            cv2.IMREAD_COLOR)
+        assert np.array_equal(cv2.cvtColor(stored, cv2.COLOR_BGR2RGB), scene.rgb)
+        assert scene.depth_mm.dtype == np.float32
+        assert np.all(scene.depth_mm[scene.instance_map > 0] > 0)
+        masks_visib = scene.masks_visib()
+        masks_obj = scene.masks_obj()
+        height, width = scene.height, scene.width
+        for k, instance_id in enumerate(scene.instance_ids):
+            annotation = annotations[image_id].get(int(instance_id))
+            labelled = scene.annotated[k] or scene.ignored[k]
+            assert (annotation is not None) == labelled
+            if annotation is None:
+                continue
+            assert np.array_equal(masks_visib[k], stackgen.decode_rle(
+                annotation["segmentation"]["counts"], height, width))
+            assert np.array_equal(masks_obj[k], stackgen.decode_rle(
+                annotation["amodal_segmentation"]["counts"], height, width))
+            assert np.array_equal(masks_visib[k], (scene.instance_map == instance_id))
+            assert annotation["bbox"] == scene.bbox_visib[k].tolist()
+            assert annotation["amodal_bbox"] == scene.bbox_obj[k].tolist()
+            pose = scene.camera_from_object[k]
+            assert annotation["cam_R_m2c"] == pose[:3, :3].ravel().tolist()
+            assert annotation["cam_t_m2c"] == pose[:3, 3].tolist()
+            assert annotation["world_t_m2w"] == scene.world_from_object[k][:3, 3].tolist()
+            assert annotation["visib_fract"] == scene.visib_fract[k]
+            assert annotation["iscrowd"] == int(scene.ignored[k])
+            assert annotation["category_id"] == scene.class_ids[k]
+            compared += 1
+        # the torch target, not augmented, holds the same labels
+        _, target = torch_view.sample(scene)
+        for row, instance_id in enumerate(target["instance_ids"].tolist()):
+            k = int(np.flatnonzero(scene.instance_ids == instance_id)[0])
+            x, y, w, h = scene.bbox_visib[k]
+            assert target["boxes"][row].tolist() == [x, y, x + w, y + h]
+            assert np.array_equal(target["masks"][row].numpy(), masks_visib[k])
+            assert target["iscrowd"][row] == int(scene.ignored[k])
+            assert target["visib_fract"][row] == np.float32(scene.visib_fract[k])
+            assert np.array_equal(target["camera_from_object"][row].numpy(),
+                                  scene.camera_from_object[k])
+    assert compared == len(dataset["annotations"]) > 0
+
+
+# a reliable stream that drops 10 % of what it receives (and a generator that drops 10 % of the
+# credits and resend requests) still gets every scene, exactly once
+def test_reliable_stream_misses_nothing_under_loss(tmp_path, processes):
+    url, count = free_url(), 16
+    with stackgen.Stream(url, reliable=True, count=count, timeout=60, fault_drop=0.1) as stream:
+        generator = processes(generator_argv(url, count, tmp_path / "cache", "--fault-drop", "0.1"),
+                              "stackgen")
+        seqs = [scene.seq for scene in stream]
+        counters = stream.counters
+    assert generator.wait(60) == 0, generator.stderr()
+    assert sorted(seqs) == list(range(count))
+    assert counters["fault_dropped"] > 0
+    assert counters["reasked"] > 0
+    assert counters["lost"] == 0
+
+
+# a best-effort stream whose reader stops reading never holds the generator back: the generator
+# finishes on its own, held back 0 s, while the stream drops what its reader is too slow for
+def test_best_effort_stream_never_holds_the_generator(tmp_path, processes):
+    url, count = free_url(), 10
+    with stackgen.Stream(url, reliable=False, queue=2, timeout=60) as stream:
+        generator = processes(generator_argv(url, count, tmp_path / "cache"), "stackgen")
+        first = stream.next(timeout=60)
+        assert generator.wait(60) == 0, generator.stderr()
+        counters = stream.counters
+    assert first is not None
+    assert "held back 0.0 s by reliable consumers" in generator.stdout()
+    assert counters["dropped_behind"] > 0
+    assert counters["queued"] <= 2
+
+
+# two DataLoader workers on one live bus split it: every scene reaches the training loop exactly
+# once (a scene that reached both workers would come out twice)
+def test_two_workers_never_see_the_same_scene(tmp_path, processes):
+    url, count = free_url(), 12
+    dataset = sgt.StreamDataset(url, count=count, timeout=60, window=4)
+    loader = DataLoader(dataset, batch_size=1, num_workers=2, collate_fn=sgt.collate)
+    batches = iter(loader)
+    generator = processes(generator_argv(url, count, tmp_path / "cache"), "stackgen")
+    keys = [tuple(target["scene"][:2].tolist()) for _, targets in batches for target in targets]
+    assert generator.wait(60) == 0, generator.stderr()
+    assert sorted(keys) == [(0, seq) for seq in range(count)]
+
+
+# with reuse, a learner faster than the generator uses scenes again while it waits for new ones:
+# each scene at most `reuse` times, its uses numbered 0, 1, ..., and the factor above 1
+def test_reuse_keeps_a_fast_learner_busy(tmp_path, processes):
+    url, count, reuse = free_url(), 4, 3
+    dataset = sgt.StreamDataset(url, count=count, reuse=reuse, timeout=60)
+    generator = processes(generator_argv(url, count, tmp_path / "cache"), "stackgen")
+    meter = sgt.ReuseMeter()
+    uses = collections.defaultdict(list)
+    for _, target in dataset:
+        meter.update([target])
+        generator_id, seq, use = target["scene"].tolist()
+        uses[(generator_id, seq)].append(use)
+    assert generator.wait(60) == 0, generator.stderr()
+    assert sorted(uses) == [(0, seq) for seq in range(count)]
+    for key, numbers in uses.items():
+        assert numbers == list(range(len(numbers))) and len(numbers) <= reuse, (key, numbers)
+    assert meter.scenes == count
+    assert meter.factor > 1
+
+
+# a reliable stream that attaches to a generator which has been running for a while takes it
+# from the scene it first hears, lossless from there on; the generator is not made to go back
+# over its history (a writer would collect it from seq 0, regenerating what left its ring)
+def test_reliable_stream_joins_a_running_generator(tmp_path, processes):
+    import signal
+    import time
+
+    url = free_url()
+    monitor = stackgen.StatusMonitor(url)
+    generator = processes(generator_argv(url, 0, tmp_path / "cache"), "stackgen")
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        published = [s["seq"] for s in monitor.latest("stackgen")]
+        if published and published[0] > 20:
+            break
+        time.sleep(0.1)
+    with stackgen.Stream(url, reliable=True, count=6, timeout=60) as stream:
+        seqs = [scene.seq for scene in stream]
+    assert seqs[0] > 20
+    assert seqs == list(range(seqs[0], seqs[0] + 6))
+    time.sleep(1.5)  # a status of the generator after the stream left
+    generator.popen.send_signal(signal.SIGINT)
+    assert generator.wait(30) == 0, generator.stderr()
+    assert " 0 regenerated" in generator.stdout()

@@ -1,0 +1,377 @@
+"""tools/train-live: trains torchvision's Mask R-CNN live on scenes from stackgen generators.
+
+Run through tools/train-live (which builds what is needed and uses Debian's /usr/bin/python3);
+`tools/train-live --help` lists the flags. It starts generators on a bus of its own (or attaches
+to running ones), reads their scenes through stackgen.torch.StreamDataset in DataLoader workers
+(a reliable stream: no scene is lost, generators stay within the window), and prints the loss, the
+scenes per second the generators produce and the learner consumes, and the reuse factor.
+--record LOG keeps every sample's scene, in order, in an LCM log (and the run's settings in
+LOG.train.json); --replay LOG trains again on exactly those samples, with the same batches and,
+on the same machine and device, the same losses.
+"""
+
+import argparse
+import json
+import math
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import zlib
+
+# OpenMP threads that spin while they wait starve the generators on a small machine; set before
+# torch loads its OpenMP runtime
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+PROGRAM = "train-live"
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+# settings recorded beside a log and taken again by --replay
+REPLAYED = ("workers", "batch_size", "seed", "reuse", "reuse_buffer", "augment", "gray",
+            "backbone", "num_classes", "rois", "lr", "threads", "min_visib_fract")
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message):
+        sys.stderr.write("%s: error: %s (see --help)\n" % (PROGRAM, message))
+        sys.exit(2)
+
+
+def fail(message):
+    sys.stderr.write("%s: error: %s\n" % (PROGRAM, message))
+    sys.exit(1)
+
+
+def whole_number(minimum):
+    """An argparse type: a whole number >= minimum."""
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError("wants a whole number, got %r" % text) from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError("wants a whole number >= %d, got %r" %
+                                             (minimum, text))
+        return value
+    return parse
+
+
+positive_int = whole_number(1)
+non_negative_int = whole_number(0)
+
+
+def positive_float(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("wants a number, got %r" % text) from None
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError("wants a number > 0, got %r" % text)
+    return value
+
+
+def parse_args(argv):
+    parser = Parser(
+        prog="tools/train-live",
+        description="Trains torchvision's Mask R-CNN (weights=None) live on stackgen scenes.",
+        epilog="Exit status: 0 done, 1 error, 2 bad command line.")
+    source = parser.add_argument_group("where scenes come from")
+    source.add_argument("--generators", type=non_negative_int, default=1,
+                        help="generators to start, ids 0..N-1 (default 1); 0 with --attach")
+    source.add_argument("--attach", action="store_true",
+                        help="start none: train on the generators already on --lcm-url")
+    source.add_argument("--config", default=os.path.join(ROOT, "config", "default.pbtxt"),
+                        help="generator config (default config/default.pbtxt)")
+    source.add_argument("--scene-seed", type=non_negative_int, default=0,
+                        help="the generators' base seed (default 0)")
+    source.add_argument("--lcm-url", default=None,
+                        help="the bus (default: a free port of its own when starting generators,"
+                             " $STACKGEN_LCM_URL or the default bus with --attach)")
+    source.add_argument("--best-effort", action="store_true",
+                        help="a best-effort stream: never hold the generators back, skip what "
+                             "the learner is too slow for (default: reliable)")
+    source.add_argument("--window", type=positive_int, default=8,
+                        help="reliable: scenes a generator may run ahead (default 8)")
+    source.add_argument("--record", metavar="LOG",
+                        help="keep every sample's scene in this LCM log (must not exist)")
+    source.add_argument("--replay", metavar="LOG",
+                        help="train on a log made with --record instead of generators")
+    source.add_argument("--stackgen", default=os.path.join(ROOT, "build", "bin", "stackgen"),
+                        help=argparse.SUPPRESS)
+    training = parser.add_argument_group("training")
+    training.add_argument("--iterations", type=positive_int, default=100,
+                          help="optimiser steps (default 100)")
+    training.add_argument("--batch-size", type=positive_int, default=2,
+                          help="images per step (default 2)")
+    training.add_argument("--workers", type=non_negative_int, default=1,
+                          help="DataLoader workers, each with its own shard (default 1)")
+    training.add_argument("--reuse", type=positive_int, default=4,
+                          help="use each scene up to R times while no new one waits (default 4)")
+    training.add_argument("--reuse-buffer", type=positive_int, default=32,
+                          help="recent scenes reuse draws from, per worker (default 32)")
+    training.add_argument("--no-augment", dest="augment", action="store_false",
+                          help="no augmentation (default: stackgen.augment.Augment())")
+    training.add_argument("--gray", action="store_true",
+                          help="train on gray images (1 channel in, as the paper found good "
+                               "enough for monochrome parts)")
+    training.add_argument("--min-visib-fract", type=float, default=0.3,
+                          help="objects less visible after augmentation become ignore regions "
+                               "(default 0.3)")
+    training.add_argument("--backbone", choices=("resnet50", "resnet18"), default="resnet50",
+                          help="ResNet-FPN backbone, random init (default resnet50)")
+    training.add_argument("--num-classes", type=positive_int, default=8,
+                          help="classes including background; class ids must be below "
+                               "(default 8)")
+    training.add_argument("--rois", type=positive_int, default=64,
+                          help="RoIs sampled per image for the box and mask heads (torchvision's "
+                               "default 512 is for 100 objects; a bin of 12 parts needs far "
+                               "fewer, and the mask head's cost grows with them; default 64)")
+    training.add_argument("--lr", type=positive_float, default=0.01,
+                          help="SGD learning rate after a linear warm-up (default 0.01)")
+    training.add_argument("--seed", type=non_negative_int, default=0,
+                          help="model init and augmentation seed (default 0)")
+    training.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:1, ...")
+    training.add_argument("--threads", type=positive_int, default=os.cpu_count() or 1,
+                          help="torch CPU threads (default: the cores)")
+    output = parser.add_argument_group("output")
+    output.add_argument("--print-every", type=positive_int, default=10,
+                        help="a progress line every N iterations (default 10)")
+    output.add_argument("--loss-csv", metavar="FILE",
+                        help="write per step: iteration, loss, a CRC-32 of the batch (images, "
+                             "boxes, labels, masks) and each loss term, to FILE")
+    output.add_argument("--save", metavar="FILE", help="save the model's state_dict at the end")
+    args = parser.parse_args(argv)
+    given = {action.dest for action in parser._actions
+             if any(option in argv or any(a.startswith(option + "=") for a in argv)
+                    for option in action.option_strings)}
+    if args.record and args.replay:
+        parser.error("--record and --replay exclude each other")
+    if args.replay and args.attach:
+        parser.error("--replay and --attach exclude each other")
+    if not args.attach and not args.replay and args.generators == 0:
+        parser.error("--generators 0 needs --attach")
+    if not 0 <= args.min_visib_fract <= 1:
+        parser.error("--min-visib-fract wants a number in [0, 1], got %r" % args.min_visib_fract)
+    return args, given
+
+
+def free_udp_port():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("", 0))
+        return probe.getsockname()[1]
+
+
+def build_model(args, channels, height, width):
+    import torch
+    from torchvision.models.detection import MaskRCNN, maskrcnn_resnet50_fpn
+    from torchvision.models.detection.backbone_utils import resnet_fpn_backbone
+
+    torch.manual_seed(args.seed)
+    mean, std = ([0.485, 0.456, 0.406], [0.229, 0.224, 0.225]) if channels == 3 else ([0.45], [0.25])
+    # the images' own size: no resizing in the model
+    common = dict(num_classes=args.num_classes, min_size=min(height, width),
+                  box_batch_size_per_image=args.rois, rpn_post_nms_top_n_train=1000,
+                  max_size=max(height, width), image_mean=mean, image_std=std)
+    if args.backbone == "resnet50":
+        model = maskrcnn_resnet50_fpn(weights=None, weights_backbone=None, **common)
+    else:
+        backbone = resnet_fpn_backbone(backbone_name="resnet18", weights=None, trainable_layers=5)
+        model = MaskRCNN(backbone, **common)
+    if channels == 1:
+        body = model.backbone.body
+        body.conv1 = torch.nn.Conv2d(1, 64, kernel_size=7, stride=2, padding=3, bias=False)
+    return model
+
+
+def main(argv):
+    args, given = parse_args(argv)
+    import numpy as np
+    import torch
+    from torch.utils.data import DataLoader
+
+    import stackgen
+    import stackgen.torch as sgt
+
+    # --replay takes the recorded run's settings unless given again
+    if args.replay:
+        sidecar = args.replay + ".train.json"
+        if os.path.exists(sidecar):
+            with open(sidecar) as file:
+                recorded = json.load(file)
+            for key in REPLAYED:
+                if key not in recorded:
+                    continue
+                if key in given and getattr(args, key) != recorded[key]:
+                    print("%s: warning: --%s %s differs from the recording's %s: the batches "
+                          "or losses will differ" % (PROGRAM, key.replace("_", "-"),
+                                                     getattr(args, key), recorded[key]))
+                elif key not in given:
+                    setattr(args, key, recorded[key])
+    if args.device.startswith("cuda") and not torch.cuda.is_available():
+        fail("--device %s: torch has no CUDA device here (torch %s)" % (args.device,
+                                                                       torch.__version__))
+    try:
+        device = torch.device(args.device)
+    except RuntimeError as error:
+        fail("--device %s: %s" % (args.device, error))
+    torch.set_num_threads(args.threads)
+    torch.use_deterministic_algorithms(True, warn_only=True)
+
+    generators = []
+    logs = tempfile.mkdtemp(prefix="stackgen-train-live.")
+    url = args.lcm_url
+    try:
+        if args.replay:
+            url = "file://" + os.path.abspath(args.replay)
+        elif not args.attach:
+            if not os.path.exists(args.config):
+                fail("--config %s: no such file" % args.config)
+            if not os.access(args.stackgen, os.X_OK):
+                fail("%s is not built: run tools/train-live (it builds it)" % args.stackgen)
+            url = url or "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % free_udp_port()
+        url = stackgen.resolve_lcm_url(url or "")
+
+        augment = sgt.Augment() if args.augment else None
+        dataset = sgt.StreamDataset(
+            url, reliable=not args.best_effort, window=args.window, reuse=1 if args.replay else
+            args.reuse, reuse_buffer=args.reuse_buffer, grayscale=args.gray, augment=augment,
+            min_visib_fract=args.min_visib_fract, seed=args.seed, record=args.record,
+            replay=bool(args.replay), timeout=None if args.replay else 120,
+            name="train-live")
+        if args.record:
+            settings = {key: getattr(args, key) for key in REPLAYED}
+            with open(args.record + ".train.json", "w") as file:
+                json.dump(settings, file, indent=1, sort_keys=True)
+
+        # the generators, after the bus and the record file were found good
+        for generator_id in range(0 if args.replay or args.attach else args.generators):
+            log = open(os.path.join(logs, "stackgen%d.log" % generator_id), "w")
+            generators.append((subprocess.Popen(
+                [args.stackgen, "--config", args.config, "--seed", str(args.scene_seed),
+                 "--generator-id", str(generator_id), "--lcm-url", url],
+                stdout=log, stderr=subprocess.STDOUT), log.name))
+        monitor = None if args.replay else stackgen.StatusMonitor(url)
+        print("%s: %s, %s stream, %d workers, batch %d, reuse up to %d, %s, %s backbone, %s" % (
+            PROGRAM, "replaying " + args.replay if args.replay else "%d generators on %s" % (
+                len(generators), url) if generators else "attached to " + url,
+            "best-effort" if args.best_effort else "reliable", args.workers, args.batch_size,
+            1 if args.replay else args.reuse, "augmented" if augment else "not augmented",
+            args.backbone, "gray" if args.gray else "rgb"), flush=True)
+
+        loader = DataLoader(dataset, batch_size=args.batch_size, num_workers=args.workers,
+                            collate_fn=sgt.collate,
+                            persistent_workers=False)
+        meter = sgt.ReuseMeter()
+        model = optimizer = None
+        losses = []
+        csv = open(args.loss_csv, "w") if args.loss_csv else None
+        start = last_time = time.monotonic()
+        last_scenes = 0
+        last_produced = None
+        warmup = min(50, args.iterations)
+        iteration = 0
+        for images, targets in loader:
+            for process, log in generators:
+                if process.poll() is not None:
+                    with open(log) as file:
+                        lines = file.read().strip().splitlines()
+                    fail("a generator stopped (exit %d): %s" % (process.returncode,
+                                                                lines[-1] if lines else log))
+            meter.update(targets)
+            targets = [sgt.without_ignore_regions(t) for t in targets]
+            for target in targets:
+                if len(target["labels"]) and int(target["labels"].max()) >= args.num_classes:
+                    fail("class id %d seen: pass --num-classes %d or more" % (
+                        int(target["labels"].max()), int(target["labels"].max()) + 1))
+            if model is None:
+                channels, height, width = images[0].shape
+                model = build_model(args, channels, height, width).to(device)
+                model.train()
+                parameters = [p for p in model.parameters() if p.requires_grad]
+                optimizer = torch.optim.SGD(parameters, lr=args.lr, momentum=0.9,
+                                            weight_decay=1e-4)
+            # linear warm-up, then the set rate
+            for group in optimizer.param_groups:
+                group["lr"] = args.lr * min(1.0, 0.001 + (1 - 0.001) * iteration / warmup)
+            # a digest of the batch, so that two runs can be compared step by step
+            digest = 0
+            if csv:
+                for image, target in zip(images, targets):
+                    digest = zlib.crc32(image.numpy().tobytes(), digest)
+                    for key in ("boxes", "labels", "masks"):
+                        digest = zlib.crc32(target[key].numpy().tobytes(), digest)
+            images = [image.to(device) for image in images]
+            targets = [{k: v.to(device) for k, v in t.items()
+                        if k in ("boxes", "labels", "masks")} for t in targets]
+            loss_dict = model(images, targets)
+            loss = sum(loss_dict.values())
+            optimizer.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(parameters, 10.0)
+            optimizer.step()
+            iteration += 1
+            value = float(loss)
+            if not math.isfinite(value):
+                fail("the loss is %s at iteration %d: lower --lr" % (value, iteration))
+            losses.append(value)
+            if csv:
+                csv.write("%d,%.9g,%08x,%s\n" % (iteration, value, digest, ",".join(
+                    "%s=%.9g" % (k, float(v)) for k, v in sorted(loss_dict.items()))))
+            if iteration % args.print_every == 0 or iteration == args.iterations:
+                now = time.monotonic()
+                seconds = max(now - last_time, 1e-9)
+                produced = ""
+                if monitor is not None:
+                    total = sum(s["scenes"] for s in monitor.latest("stackgen"))
+                    if last_produced is not None:
+                        produced = "produced %.2f scenes/s, " % ((total - last_produced) / seconds)
+                    last_produced = total
+                parts = " ".join("%s %.3f" % (k.replace("loss_", ""), float(v))
+                                 for k, v in sorted(loss_dict.items()))
+                print("iter %d/%d loss %.4f (%s) | %sconsumed %.2f scenes/s, reuse %.2f | "
+                      "%.2f s/iter" % (iteration, args.iterations, value, parts, produced,
+                                       (meter.scenes - last_scenes) / seconds, meter.factor,
+                                       seconds / args.print_every), flush=True)
+                last_time, last_scenes = now, meter.scenes
+            if iteration >= args.iterations:
+                break
+        if csv:
+            csv.close()
+        if not losses:
+            fail("no batch arrived" + (" (the log holds no scenes)" if args.replay else ""))
+        elapsed = time.monotonic() - start
+        first = losses[:10]
+        last = losses[-10:]
+        print("%s: %d iterations in %.1f s; %d samples of %d distinct scenes (reuse %.2f); "
+              "loss first %d mean %.4f, last %d mean %.4f" % (
+                  PROGRAM, iteration, elapsed, meter.samples, meter.scenes, meter.factor,
+                  len(first), float(np.mean(first)), len(last), float(np.mean(last))), flush=True)
+        if args.record:
+            print("%s: recorded %s; train on it again: tools/train-live --replay %s" %
+                  (PROGRAM, args.record, args.record))
+        if args.save:
+            torch.save(model.state_dict(), args.save)
+        return 0
+    except stackgen.StreamError as error:
+        fail(str(error))
+    except KeyboardInterrupt:
+        print("%s: interrupted" % PROGRAM)
+        return 1
+    finally:
+        for process, _ in generators:
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        for process, _ in generators:
+            try:
+                process.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                process.kill()
+        shutil.rmtree(logs, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -99,6 +99,7 @@ LogSummary ReadLog(const std::string& path, const std::function<void(const LogEv
     if (!file) throw std::runtime_error("cannot read " + path);
     event.data = buffer.data();
     event.size = buffer.size();
+    event.offset = offset;
     offset += kLogHeaderBytes + channel_length + data_length;
     ++summary.events;
     handler(event);
@@ -168,6 +169,10 @@ void LogAppender::AppendBytes(const std::string& channel, const uint8_t* data, s
     throw std::runtime_error("cannot append an event of " + std::to_string(size) +
                              " bytes on channel \"" + channel + "\" to " + path_);
   }
+  if (!failed_.empty()) {
+    throw std::runtime_error("cannot append to " + path_ + ": an earlier event was cut short (" +
+                             failed_ + ")");
+  }
   // the whole event in one buffer: header (big-endian), channel, data
   std::vector<uint8_t> event(static_cast<size_t>(kLogHeaderBytes) + channel.size() + size);
   const auto put = [&event](size_t offset, uint64_t value, int bytes) {
@@ -186,7 +191,9 @@ void LogAppender::AppendBytes(const std::string& channel, const uint8_t* data, s
   const ssize_t written = write(fd_, event.data(), event.size());
   if (written != static_cast<ssize_t>(event.size())) {
     const std::string why = written < 0 ? std::strerror(errno) : "short write";
-    // a short write leaves a torn last event, which readers skip; say so
+    // a short write leaves a torn last event, which readers skip at the end of the file only:
+    // nothing may follow it
+    if (written > 0) failed_ = why;
     throw std::runtime_error("cannot append to " + path_ + ": " + why);
   }
   ++next_event_;

@@ -25,8 +25,11 @@ bool IsLcmLog(const std::string& path);
 
 /// One event of a log: valid only during the call that receives it.
 struct LogEvent {
-  /// Event number, as written by the logger (0, 1, ...).
+  /// Event number, as written by the logger (0, 1, ...; not unique in a log several
+  /// LogAppenders wrote).
   int64_t number = 0;
+  /// Where the event starts in the file (bytes): unique, for messages about it.
+  int64_t offset = 0;
   /// Receive time, microseconds since the Unix epoch.
   int64_t utime = 0;
   std::string channel;
@@ -111,7 +114,9 @@ class LogAppender {
   LogAppender& operator=(const LogAppender&) = delete;
 
   /// Appends `size` bytes as one event on `channel` received at `utime` (microseconds since the
-  /// Unix epoch). Throws std::runtime_error naming the file and the system's reason.
+  /// Unix epoch). Throws std::runtime_error naming the file and the system's reason. After a
+  /// write that failed part way (a full disk) the log ends in a torn event, which readers skip
+  /// only at the end of a file: the appender then refuses every later event.
   void AppendBytes(const std::string& channel, const uint8_t* data, size_t size, int64_t utime);
 
   /// The path given.
@@ -121,6 +126,7 @@ class LogAppender {
   std::string path_;
   int fd_ = -1;
   int64_t next_event_ = 0;
+  std::string failed_;  // why an earlier write failed part way; empty while none has
 };
 
 }  // namespace stackgen

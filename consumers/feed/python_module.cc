@@ -414,18 +414,25 @@ PYBIND11_MODULE(_native, m) {
           "next",
           [](SceneStream& stream, std::optional<double> timeout_s) {
             py::gil_scoped_release release;
-            // Ctrl-C in the learner stops the wait (then KeyboardInterrupt is raised)
+            // Ctrl-C in the learner stops the wait; the error its signal handler raised
+            // (KeyboardInterrupt, or whatever a handler of the caller's raised) is kept and raised
             bool interrupted = false;
-            std::shared_ptr<FeedScene> next =
-                stream.Next(timeout_s ? *timeout_s : -1.0, [&interrupted] {
-                  py::gil_scoped_acquire acquire;
-                  interrupted = PyErr_CheckSignals() != 0;
-                  if (interrupted) PyErr_Clear();
-                  return interrupted;
-                });
+            PyObject* error_type = nullptr;
+            PyObject* error_value = nullptr;
+            PyObject* error_trace = nullptr;
+            std::shared_ptr<FeedScene> next = stream.Next(timeout_s ? *timeout_s : -1.0, [&] {
+              py::gil_scoped_acquire acquire;
+              interrupted = PyErr_CheckSignals() != 0;
+              if (interrupted) PyErr_Fetch(&error_type, &error_value, &error_trace);
+              return interrupted;
+            });
             if (interrupted) {
               py::gil_scoped_acquire acquire;
-              PyErr_SetNone(PyExc_KeyboardInterrupt);
+              if (error_type == nullptr) {
+                PyErr_SetNone(PyExc_KeyboardInterrupt);
+              } else {
+                PyErr_Restore(error_type, error_value, error_trace);
+              }
               throw py::error_already_set();
             }
             return next;

@@ -15,6 +15,9 @@ namespace {
 
 // the largest instance id an INSTANCE16 map can hold
 constexpr int32_t kMaxInstanceId = 65535;
+// the most mask pixels one scene may hold (instances x width x height): 4 Gi, a bound
+// against a message that would make the full masks fill memory
+constexpr int64_t kMaxMaskPixels = int64_t{1} << 32;
 
 bool Refuse(const std::string& reason, std::string* why) {
   if (why != nullptr) *why = reason;
@@ -83,7 +86,8 @@ std::vector<uint32_t> ParseRle(const std::string& counts) {
     int k = 0;
     bool more = true;
     while (more) {
-      if (p >= counts.size() || k >= 7) throw std::runtime_error("a number is cut short");
+      if (p >= counts.size()) throw std::runtime_error("a number is cut short");
+      if (k >= 7) throw std::runtime_error("a number runs past 7 characters");
       const int c = static_cast<unsigned char>(counts[p]) - 48;
       if (c < 0 || c > 63) throw std::runtime_error("a char outside '0'..'o'");
       x |= static_cast<int64_t>(c & 0x1f) << (5 * k);
@@ -173,7 +177,7 @@ bool CheckScene(const scene& message, std::string* why) {
   // the camera
   const camera_info& camera = message.camera;
   const int width = camera.width, height = camera.height;
-  if (width <= 0 || height <= 0) {
+  if (width <= 0 || height <= 0 || int64_t{width} * height > DecodeLimits{}.max_image_pixels) {
     return Refuse("camera is " + std::to_string(width) + "x" + std::to_string(height), why);
   }
   const double intrinsics[5] = {camera.fx, camera.fy, camera.cx, camera.cy, camera.depth_scale_mm};
@@ -205,6 +209,13 @@ bool CheckScene(const scene& message, std::string* why) {
                   why);
   }
   const int64_t area = int64_t{width} * height;
+  // the full masks of every instance, decoded (N x H x W bytes), must fit in memory
+  if (static_cast<int64_t>(message.instances.size()) * area > kMaxMaskPixels) {
+    return Refuse(std::to_string(message.instances.size()) + " instances of " +
+                      std::to_string(width) + "x" + std::to_string(height) +
+                      " pixels: more mask pixels than " + std::to_string(kMaxMaskPixels),
+                  why);
+  }
   std::set<int32_t> ids;
   for (size_t k = 0; k < message.instances.size(); ++k) {
     const instance& object = message.instances[k];

@@ -38,6 +38,8 @@ constexpr int64_t kMaxSeq = 999999998;
 constexpr int kMaxReported = 10;
 // best effort: scene keys remembered to recognise a repeat (a resend for a reliable consumer)
 constexpr size_t kRecentKeys = 4096;
+// reliable: a seq is given up (skipped) after this many copies of it failed the checks
+constexpr int kBadCopies = 3;
 // the most scenes a queue may hold
 constexpr int kMaxQueue = 100000;
 
@@ -112,6 +114,7 @@ struct SceneStream::Impl {
   // thread-only state
   std::set<SceneKey> recent_keys;
   std::deque<SceneKey> recent_order;
+  std::map<SceneKey, int> bad_copies;  // reliable: copies of a seq that failed the checks
   std::atomic<int> reported{0};
 
   bool Wanted(int32_t generator_id, int64_t seq) const {
@@ -134,17 +137,18 @@ struct SceneStream::Impl {
     ++counters.bad_messages;
   }
 
-  // checks a scene and has its images decoded ahead; nullptr (counted, reported) when it is
-  // not usable
-  std::shared_ptr<FeedScene> Prepare(scene message) {
-    const std::string scene_name = "scene " + std::to_string(message.header.generator_id) + "/" +
-                                   std::to_string(message.header.seq);
+  // whether a scene passes CheckScene; one that does not is counted and reported
+  bool Check(const scene& message) {
     std::string why;
-    if (!CheckScene(message, &why)) {
-      CountBad();
-      Report(scene_name + ": " + why);
-      return nullptr;
-    }
+    if (CheckScene(message, &why)) return true;
+    CountBad();
+    Report("scene " + std::to_string(message.header.generator_id) + "/" +
+           std::to_string(message.header.seq) + ": " + why);
+    return false;
+  }
+
+  // a checked scene, its images to be decoded ahead by the decoder threads
+  std::shared_ptr<FeedScene> Prepare(scene message) {
     auto prepared = std::make_shared<FeedScene>(std::move(message));
     if (options.decode_color || options.decode_instance_map || options.decode_depth) {
       {
@@ -183,12 +187,32 @@ struct SceneStream::Impl {
              ": generator_id or seq out of range");
       return;
     }
-    if (!Wanted(generator_id, seq)) {
-      // another shard's scene still shows the client how far the generator has got
-      if (client) client->Received(generator_id, seq);
+    const bool wanted = Wanted(generator_id, seq);
+    if (!wanted) {
+      // another shard's scene still shows the client how far the generator has got, when it
+      // is a scene (that shard counts and reports a bad one)
+      std::string why;
+      if (client && CheckScene(message, &why)) client->Received(generator_id, seq);
       return;
     }
     const SceneKey key{generator_id, seq};
+    // a copy that fails the checks tells the client nothing: it neither sets where a learner
+    // joins a generator nor marks its seq done, so a stranger's or a damaged copy cannot hide
+    // the real scene (asked for again). A seq whose copies keep failing (a generator that
+    // publishes a bad scene, resends included) is given up after kBadCopies of them.
+    if (!Check(message)) {
+      if (!client) return;
+      if (bad_copies.size() > kRecentKeys) bad_copies.clear();
+      if (++bad_copies[key] < kBadCopies) return;
+      bad_copies.erase(key);
+      bool taken;
+      {
+        const std::lock_guard<std::mutex> lock(mutex);
+        taken = taken_keys.count(key) != 0;
+      }
+      if (!taken && client->Received(generator_id, seq)) client->Skipped(generator_id, seq);
+      return;
+    }
     {
       const std::lock_guard<std::mutex> lock(mutex);
       ++counters.received;
@@ -204,6 +228,7 @@ struct SceneStream::Impl {
         if (repeat) ++counters.duplicates;
       }
       if (repeat) return;
+      bad_copies.erase(key);
     } else {
       if (!recent_keys.insert(key).second) {
         const std::lock_guard<std::mutex> lock(mutex);
@@ -217,10 +242,6 @@ struct SceneStream::Impl {
       }
     }
     std::shared_ptr<FeedScene> prepared = Prepare(message);
-    if (!prepared) {
-      if (client) client->Skipped(generator_id, seq);
-      return;
-    }
     {
       const std::lock_guard<std::mutex> lock(mutex);
       // best effort keeps the newest scenes: the learner never holds a generator back
@@ -339,8 +360,9 @@ struct SceneStream::Impl {
         scene message;
         std::string why;
         if (!DecodeBounded(event.data, event.size, DecodeLimits{}, &message, &why)) {
-          throw FeedError(log_path + ": event " + std::to_string(event.number) + " on " +
-                          options.channel + " is not a stackgen.scene of this build: " + why);
+          throw FeedError(log_path + ": the event at byte " + std::to_string(event.offset) +
+                          " on " + options.channel +
+                          " is not a stackgen.scene of this build: " + why);
         }
         const int32_t generator_id = message.header.generator_id;
         const int64_t seq = message.header.seq;
@@ -354,18 +376,25 @@ struct SceneStream::Impl {
             return;
           }
         }
+        if (!Check(message)) return;
+        // room in the queue, and fewer than `count` scenes handed out or queued (one that then
+        // fails to decode makes room for the next)
+        {
+          std::unique_lock<std::mutex> lock(mutex);
+          changed.wait(lock, [&] {
+            const int64_t held = counters.handed + static_cast<int64_t>(queue.size());
+            return stop || (static_cast<int>(queue.size()) < options.queue &&
+                            (options.count == 0 || held < options.count));
+          });
+          if (stop) throw StopReading{};
+        }
         std::shared_ptr<FeedScene> prepared = Prepare(std::move(message));
-        if (!prepared) return;
         prepared->occurrence = occurrence;
-        std::unique_lock<std::mutex> lock(mutex);
-        changed.wait(lock, [&] { return stop || static_cast<int>(queue.size()) < options.queue; });
-        if (stop) throw StopReading{};
-        queue.push_back(std::move(prepared));
-        const bool enough = options.count > 0 &&
-                            counters.handed + static_cast<int64_t>(queue.size()) >= options.count;
-        lock.unlock();
+        {
+          const std::lock_guard<std::mutex> lock(mutex);
+          queue.push_back(std::move(prepared));
+        }
         changed.notify_all();
-        if (enough) throw StopReading{};
       });
     } catch (const StopReading&) {
       return;
@@ -441,10 +470,13 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
   impl.name = options.name.empty() ? DefaultName(options) : options.name;
   impl.log_path = LogPathOfUrl(impl.url);
 
+  if (impl.url.rfind("file://", 0) == 0 && impl.log_path.empty()) {
+    throw FeedError(impl.url + " names no log: use file:///path/to/scenes.lcmlog");
+  }
   if (!impl.log_path.empty()) {
     // a log: refuse what is not one before the thread starts
     std::error_code error;
-    if (impl.log_path.empty() || !std::filesystem::exists(impl.log_path, error)) {
+    if (!std::filesystem::exists(impl.log_path, error)) {
       throw FeedError("cannot open the log " + impl.log_path + " (" + impl.url + "): no such file");
     }
     if (std::filesystem::is_directory(impl.log_path, error)) {
@@ -512,6 +544,7 @@ std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
   const auto start = Clock::now();
   std::unique_lock<std::mutex> lock(impl.mutex);
   while (true) {
+    if (impl.closed) return nullptr;
     if (impl.options.count > 0 && impl.counters.handed >= impl.options.count) return nullptr;
     if (!impl.queue.empty()) {
       std::shared_ptr<FeedScene> next = std::move(impl.queue.front());
@@ -523,6 +556,7 @@ std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
       const bool ready = next->WaitPrepared(&why);
       const SceneKey key{next->message().header.generator_id, next->message().header.seq};
       lock.lock();
+      if (!ready && impl.closed) return nullptr;
       if (!ready) {
         ++impl.counters.bad_messages;
         if (impl.client) impl.skipped_pending.push_back(key);
@@ -557,12 +591,15 @@ std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
 
 void SceneStream::Close() {
   Impl& impl = *impl_;
+  // a copy inherited by a forked process has no threads to stop (and its locks may be held)
+  if (impl.pid != getpid()) return;
   {
+    // under the mutex: the log reader checks `stop` in its wait
     const std::lock_guard<std::mutex> lock(impl.mutex);
     if (impl.closed) return;
     impl.closed = true;
+    impl.stop = true;
   }
-  impl.stop = true;
   impl.changed.notify_all();
   if (impl.thread.joinable()) impl.thread.join();
   {
@@ -576,7 +613,11 @@ void SceneStream::Close() {
   impl.to_decode.clear();
 }
 
-StreamCounters SceneStream::counters() const { return impl_->Counters(); }
+StreamCounters SceneStream::counters() const {
+  // in a forked process the counters are the parent's, and its lock may be held
+  if (impl_->pid != getpid()) return StreamCounters{};
+  return impl_->Counters();
+}
 const std::string& SceneStream::url() const { return impl_->url; }
 const std::string& SceneStream::name() const { return impl_->name; }
 bool SceneStream::is_log() const { return !impl_->log_path.empty(); }

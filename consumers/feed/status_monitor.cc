@@ -11,11 +11,19 @@
 #include "consumers/feed/scene_data.h"
 
 namespace stackgen::feed {
+namespace {
+
+// the most processes whose latest status is kept
+constexpr size_t kMaxProcesses = 1024;
+
+}  // namespace
 
 struct StatusMonitor::Impl {
   std::unique_ptr<Bus> bus;
   mutable std::mutex mutex;
   std::map<std::string, status> latest;
+  std::map<std::string, int64_t> heard;  // when each was last heard (counting messages)
+  int64_t messages = 0;
   std::atomic<bool> stop{false};
   std::thread thread;
   pid_t pid = 0;
@@ -33,7 +41,17 @@ StatusMonitor::StatusMonitor(const std::string& url) : impl_(std::make_unique<Im
       kStatusChannel,
       [impl](const status& message) {
         const std::lock_guard<std::mutex> lock(impl->mutex);
+        // names a stranger could vary without end are bounded: the oldest news goes first
+        if (impl->latest.size() >= kMaxProcesses && impl->latest.count(message.name) == 0) {
+          auto oldest = impl->heard.begin();
+          for (auto it = impl->heard.begin(); it != impl->heard.end(); ++it) {
+            if (it->second < oldest->second) oldest = it;
+          }
+          impl->latest.erase(oldest->first);
+          impl->heard.erase(oldest);
+        }
         impl->latest[message.name] = message;
+        impl->heard[message.name] = ++impl->messages;
       },
       256, [](const std::string&) {});
   impl->thread = std::thread([impl] {

@@ -20,7 +20,8 @@ class StatusMonitor {
   StatusMonitor(const StatusMonitor&) = delete;
   StatusMonitor& operator=(const StatusMonitor&) = delete;
 
-  /// The latest status of each process heard, by name.
+  /// The latest status of each process heard, by name (at most 1024: past that, the process
+  /// heard from least recently is dropped).
   std::map<std::string, status> Latest() const;
 
  private:

@@ -1,8 +1,10 @@
 #include "bus/log.h"
 
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <csignal>
 #include <cstdint>
 #include <map>
 #include <string>
@@ -62,6 +64,53 @@ TEST(LogAppenderTest, TwoProcessesAppendWholeEvents) {
   EXPECT_EQ(summary.truncated_bytes, 0);
   EXPECT_EQ(next["WORKER_A"], kEvents);
   EXPECT_EQ(next["WORKER_B"], kEvents);
+}
+
+// a write that stops part way (here the file size limit, as a full disk would) leaves a torn
+// last event; the appender then refuses every later event, so nothing follows the torn one and
+// readers still read every whole event before it
+TEST(LogAppenderTest, NothingFollowsATornEvent) {
+  testing::ScratchDir dir;
+  const std::string path = dir.path() + "/full.lcmlog";
+  const std::vector<uint8_t> bytes(100, 7);
+  const int64_t event_bytes = 28 + 8 + 100;  // header, channel, data
+  const pid_t pid = fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    signal(SIGXFSZ, SIG_IGN);
+    const rlimit limit{static_cast<rlim_t>(2 * event_bytes + 40),
+                       static_cast<rlim_t>(2 * event_bytes + 40)};
+    if (setrlimit(RLIMIT_FSIZE, &limit) != 0) _exit(10);
+    LogAppender log(path);
+    log.AppendBytes("CHANNEL1", bytes.data(), bytes.size(), 0);
+    log.AppendBytes("CHANNEL1", bytes.data(), bytes.size(), 1);
+    int code = 11;
+    try {
+      log.AppendBytes("CHANNEL1", bytes.data(), bytes.size(), 2);  // 40 of its bytes fit
+    } catch (const std::runtime_error& error) {
+      code = std::string(error.what()).find("short write") != std::string::npos ? 0 : 12;
+    }
+    if (code != 0) _exit(code);
+    const rlimit none{RLIM_INFINITY, RLIM_INFINITY};
+    setrlimit(RLIMIT_FSIZE, &none);
+    try {
+      log.AppendBytes("CHANNEL1", bytes.data(), bytes.size(), 3);  // room again, still refused
+      _exit(13);
+    } catch (const std::runtime_error& error) {
+      _exit(std::string(error.what()).find("cut short") != std::string::npos ? 0 : 14);
+    }
+  }
+  int status = 0;
+  waitpid(pid, &status, 0);
+  ASSERT_TRUE(WIFEXITED(status)) << status;
+  ASSERT_EQ(WEXITSTATUS(status), 0);
+  int64_t events = 0;
+  const LogSummary summary = ReadLog(path, [&](const LogEvent& event) {
+    EXPECT_EQ(event.offset, events * event_bytes);
+    ++events;
+  });
+  EXPECT_EQ(summary.events, 2);
+  EXPECT_EQ(summary.truncated_bytes, 40);
 }
 
 // a folder or a file it may not write is one error naming it

@@ -142,6 +142,9 @@ class StreamDataset(IterableDataset):
                                  % (url,))
             if reuse != 1:
                 raise ValueError("a replay repeats what the recording repeated: reuse must be 1")
+        # a bad URL, no multicast route, a missing log or a log that is not one is refused here,
+        # not later in each worker (a best-effort look that sends nothing)
+        stackgen.Stream(url, reliable=False, count=1, status=False).close()
         if record is not None:
             record = os.fspath(record)
             # refuse an existing file, create it empty for the workers to append to
@@ -153,9 +156,6 @@ class StreamDataset(IterableDataset):
             except OSError as error:
                 raise stackgen.StreamError("record: cannot create %s: %s" %
                                            (record, error.strerror)) from None
-        # a bad URL, no multicast route, a missing log or a log that is not one is refused here,
-        # not later in each worker (a best-effort look that sends nothing)
-        stackgen.Stream(url, reliable=False, count=1, status=False).close()
         self.lcm_url = url
         self.reliable = reliable
         self.window = window
@@ -214,6 +214,7 @@ class StreamDataset(IterableDataset):
         stream = self._open(worker, workers)
         if stream is None:
             return
+
         recorder = stackgen.LogRecorder(self.record) if self.record else None
         picker = np.random.default_rng([self.seed, worker, 0x5EED])
         buffer = []  # [scene, uses] of recent scenes, oldest first

@@ -67,7 +67,7 @@ def test_scene_type_mismatch_and_log_without_scenes(tmp_path):
     with pytest.raises(stackgen.StreamError) as error:
         list(stackgen.Stream("file://%s" % wrong))
     text = one_line(error)
-    assert str(wrong) in text and "event 0" in text and "stackgen.labels" in text
+    assert str(wrong) in text and "the event at byte 0" in text and "stackgen.labels" in text
 
     only_labels = tmp_path / "labels.lcmlog"
     appender = stackgen._native.LogAppender(str(only_labels))
@@ -96,6 +96,32 @@ def test_timeout_names_the_bus():
     assert "STACKGEN_SCENE" in one_line(error) and url in one_line(error)
 
 
+class _Deadline(Exception):
+    pass
+
+
+# a signal handler that raises while the stream waits (a learner's own time limit) stops the
+# wait, and its exception, not a KeyboardInterrupt, reaches the caller; the stream stays usable
+def test_signal_handler_error_reaches_the_caller():
+    import signal
+
+    def on_alarm(signum, frame):
+        raise _Deadline()
+
+    url = free_url()
+    previous = signal.signal(signal.SIGALRM, on_alarm)
+    try:
+        with stackgen.Stream(url, reliable=False, status=False) as stream:
+            signal.setitimer(signal.ITIMER_REAL, 0.3)
+            with pytest.raises(_Deadline):
+                stream.next(timeout=20)
+            with pytest.raises(stackgen.StreamTimeout):
+                stream.next(timeout=0.2)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 def _read_in_child(stream, queue):
     try:
         stream.next(timeout=1)
@@ -117,6 +143,29 @@ def test_stream_cannot_be_shared_between_processes():
     assert "cannot be shared between processes" in text and "StreamDataset" in text
     assert stream.next(timeout=5) is not None  # the parent's stream still works
     stream.close()
+
+
+def _close_in_child(stream, queue):
+    stream.close()
+    queue.put(stream.counters["handed"])
+
+
+# a forked process that inherited a stream (and dropped it on the way out) neither stops the
+# parent's threads nor waits on its locks: close is a no-op there and counters are empty
+def test_stream_closed_in_a_forked_process():
+    stream = stackgen.Stream(URL)
+    assert stream.next(timeout=5) is not None
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_close_in_child, args=(stream, queue))
+    child.start()
+    child.join(30)
+    assert child.exitcode == 0
+    assert queue.get(timeout=5) == 0
+    assert stream.next(timeout=5) is not None  # the parent's stream still works
+    assert stream.counters["handed"] == 2
+    stream.close()
+    assert stream.next(timeout=5) is None  # a closed stream hands out nothing more
 
 
 # values out of range are refused by name before anything opens; so is a worker count beyond
@@ -173,3 +222,6 @@ def test_scene_that_does_not_decode_is_skipped(tmp_path, capfd):
     assert seqs == [0, 2]
     assert counters["bad_messages"] == 1 and counters["handed"] == 2
     assert "scene 2/1: color does not decode" in capfd.readouterr().err
+    # with a count, the scene that did not decode makes room for the next one
+    with stackgen.Stream("file://%s" % log, count=2) as stream:
+        assert [scene.seq for scene in stream] == [0, 2]

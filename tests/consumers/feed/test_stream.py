@@ -171,3 +171,62 @@ def test_reliable_stream_joins_a_running_generator(tmp_path, processes):
     generator.popen.send_signal(signal.SIGINT)
     assert generator.wait(30) == 0, generator.stderr()
     assert " 0 regenerated" in generator.stdout()
+
+
+# a training loop that stops early ends its DataLoader workers in the middle of their stream:
+# the worker's reliable stream is closed on the way out and tells the generator it leaves, so
+# the generator stops waiting for it at once instead of after --consumer-timeout
+def test_worker_that_ends_early_leaves(tmp_path, processes):
+    import time
+
+    url = free_url()
+    monitor = stackgen.StatusMonitor(url)
+    generator = processes(generator_argv(url, 0, tmp_path / "cache", "--consumer-timeout", "60"),
+                          "stackgen")
+    loader = DataLoader(sgt.StreamDataset(url, timeout=60), batch_size=1, num_workers=1,
+                        collate_fn=sgt.collate)
+
+    def consumers():
+        return [s["reliable_consumers"] for s in monitor.latest("stackgen")]
+
+    batches = iter(loader)
+    for _ in range(3):
+        next(batches)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and consumers() != [1]:
+        time.sleep(0.1)
+    assert consumers() == [1]
+    del batches  # the worker process ends
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and consumers() != [0]:
+        time.sleep(0.1)
+    assert consumers() == [0]
+    assert generator.popen.poll() is None
+
+
+# a copy of a scene that fails the checks (a stranger's, or damaged) tells a reliable stream
+# nothing: here a bad scene 5/500 arrives first and must not make the stream join generator 5 at
+# seq 500 (counting 0..499 as done), so the real scenes 0.. are still taken
+def test_bad_copy_does_not_move_where_a_stream_joins(tmp_path, processes):
+    import subprocess
+    import time
+
+    from test_errors import log_events
+
+    url = free_url()
+    raw = [data for channel, data in log_events(TINY_LOG) if channel == "STACKGEN_SCENE"]
+    stranger = stackgen.scene.decode(raw[0])
+    stranger.header.generator_id = 5
+    stranger.header.seq = 500
+    stranger.instances[0].class_id = 0
+    log = tmp_path / "stranger.lcmlog"
+    stackgen._native.LogAppender(str(log)).append("STACKGEN_SCENE", stranger.encode(), 0)
+    with stackgen.Stream(url, reliable=True, count=3, timeout=60) as stream:
+        subprocess.run(["lcm-logplayer", "-l", url, str(log)], check=True, timeout=30)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and stream.counters["bad_messages"] == 0:
+            time.sleep(0.05)
+        assert stream.counters["bad_messages"] == 1
+        processes(generator_argv(url, 3, tmp_path / "cache", generator_id=5), "stackgen")
+        seqs = [scene.seq for scene in stream]
+    assert seqs == [0, 1, 2]

@@ -39,6 +39,7 @@ struct Object {
   double alpha = 0.0, beta = 0.0, gamma = 0.0;  // posture, degrees
   int resting_face = -1;
   bool annotated = true;
+  Eigen::Vector3d position_mm{0.0, 0.0, 10.0};  // in the bin frame
 };
 using Scene = std::vector<Object>;
 
@@ -64,6 +65,9 @@ std::vector<Scene> MakeScenes(int count, int shape) {
         object.resting_face = i % 5 == 0 ? 1 : 0;
       }
       object.annotated = k % 4 != 3;
+      // shape 1 lies higher and nearer the bin's centre line
+      object.position_mm = shape == 0 ? Eigen::Vector3d(30.0 + 5 * k, -20.0, 10.0 + 4 * k)
+                                      : Eigen::Vector3d(3.0 * k, 2.0, 50.0 + 4 * k);
       scene.push_back(object);
     }
     scenes.push_back(scene);
@@ -91,14 +95,15 @@ void WriteCoco(const std::vector<Scene>& scenes, const std::string& path) {
         for (int c = 0; c < 3; ++c) row_major.push_back(rotation(r, c));
       }
       const Eigen::Vector3d posture = PostureAnglesDeg(rotation);
-      annotations.push_back({{"id", 1000 * (s + 1) + k + 1},
-                             {"image_id", s + 1},
-                             {"category_id", id},
-                             {"visib_fract", 0.9},
-                             {"posture_deg", {posture[0], posture[1], posture[2]}},
-                             {"resting_face", object.resting_face},
-                             {"world_R_m2w", row_major},
-                             {"world_t_m2w", {0.0, 0.0, 10.0}}});
+      annotations.push_back(
+          {{"id", 1000 * (s + 1) + k + 1},
+           {"image_id", s + 1},
+           {"category_id", id},
+           {"visib_fract", 0.9},
+           {"posture_deg", {posture[0], posture[1], posture[2]}},
+           {"resting_face", object.resting_face},
+           {"world_R_m2w", row_major},
+           {"world_t_m2w", {object.position_mm[0], object.position_mm[1], object.position_mm[2]}}});
     }
   }
   for (const auto& [name, id] : class_ids) {
@@ -124,6 +129,7 @@ stackgen::labels LabelsOf(const Scene& scene, int64_t seq) {
         RotationFromPostureDeg(Eigen::Vector3d(object.alpha, object.beta, object.gamma));
     Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
     pose.linear() = rotation;
+    pose.translation() = object.position_mm;
     instance.world_from_object = ToPoseMessage(pose);
     instance.camera_from_object = ToPoseMessage(pose);
     const Eigen::Vector3d posture = PostureAnglesDeg(rotation);
@@ -200,9 +206,9 @@ TEST(StatsMainTest, HelpListsEveryFlag) {
   const ScratchDir scratch;
   const Result result = RunStats({"--help"}, scratch.path() + "/help");
   EXPECT_EQ(result.code, 0);
-  for (const char* text :
-       {"--out", "--alpha", "default 0.05", "--frame CLASS=RZ,RY,RX", "--class", "--all-instances",
-        "--help", "origin", "exact", "asymptotic", "Exit status"}) {
+  for (const char* text : {"--out", "--alpha", "default 0.05", "--frame CLASS=RZ,RY,RX", "--class",
+                           "--all-instances", "--help", "origin", "--permutations", "default 999",
+                           "--seed", "--calibrate", "Holm", "permutation", "Exit status"}) {
     EXPECT_NE(result.out.find(text), std::string::npos) << text << " missing from\n" << result.out;
   }
 }
@@ -221,7 +227,9 @@ TEST(StatsMainTest, BadCommandLineExits2) {
         {coco, "--out", dir + "/plots", "--frame", "corner_connector=90,0"},
         {coco, "--out", dir + "/plots", "--frame", "90,0,0"},
         {coco, "--out", dir + "/plots", "--bogus"},
-        {coco, coco, coco, "--out", dir + "/plots"}}) {
+        {coco, coco, coco, "--out", dir + "/plots"},
+        {coco, "--out", dir + "/plots", "--permutations", "5"},
+        {coco, coco, "--out", dir + "/plots", "--calibrate", "10"}}) {
     const Result result = RunStats(args, dir + "/bad");
     EXPECT_EQ(result.code, 2) << args.back();
     EXPECT_EQ(std::count(result.err.begin(), result.err.end(), '\n'), 1) << result.err;
@@ -266,7 +274,19 @@ TEST(StatsMainTest, BadInputExits2) {
   EXPECT_FALSE(fs::exists(dir + "/plots"));
 }
 
-// A dataset compared with itself: the four lines in order and format, D = 0, p = 1, "same".
+// the test lines of a dataset compared with itself, then the verdict
+const std::vector<std::string> kIdenticalLines = {
+    "alpha: D=0 p=1 holm=1 same",
+    "beta: D=0 p=1 holm=1 same",
+    "gamma: D=0 p=1 holm=1 same",
+    "heading: V=0 p=1 holm=1 same",
+    "face: chi2=0 dof=3 p=1 holm=1 same",
+    "height: D=0 p=1 holm=1 same",
+    "radius: D=0 p=1 holm=1 same",
+    "verdict: same (0 of 7 tests reject at 0.05 after Holm's correction)"};
+
+// A dataset compared with itself: the seven test lines in order and format, each statistic 0,
+// p = 1, "same", and the verdict.
 TEST(StatsMainTest, IdenticalDatasetsAreSame) {
   const ScratchDir scratch;
   const std::string dir = scratch.path();
@@ -275,19 +295,22 @@ TEST(StatsMainTest, IdenticalDatasetsAreSame) {
       RunStats({dir + "/a.json", dir + "/a.json", "--out", dir + "/plots"}, dir + "/run");
   ASSERT_EQ(result.code, 0) << result.err;
   const std::vector<std::string> lines = Lines(result.out);
-  ASSERT_GE(lines.size(), 4u) << result.out;
-  const std::regex angle_line(R"((alpha|beta|gamma): D=\S+ p=\S+ (same|different))");
-  const std::regex face_line(R"(face: chi2=\S+ dof=\d+ p=\S+ (same|different))");
-  EXPECT_TRUE(std::regex_match(lines[0], angle_line)) << lines[0];
-  EXPECT_TRUE(std::regex_match(lines[3], face_line)) << lines[3];
-  EXPECT_EQ(lines[0], "alpha: D=0 p=1 same");
-  EXPECT_EQ(lines[1], "beta: D=0 p=1 same");
-  EXPECT_EQ(lines[2], "gamma: D=0 p=1 same");
-  EXPECT_EQ(lines[3], "face: chi2=0 dof=3 p=1 same");
+  ASSERT_GE(lines.size(), kIdenticalLines.size()) << result.out;
+  const std::regex test_line(
+      R"((alpha|beta|gamma|heading|face|height|radius): (D|V|chi2)=\S+( dof=\d+)? p=\S+ )"
+      R"(holm=\S+ (same|different))");
+  for (size_t k = 0; k < kIdenticalLines.size(); ++k) {
+    if (k + 1 < kIdenticalLines.size()) {
+      EXPECT_TRUE(std::regex_match(lines[k], test_line)) << lines[k];
+    }
+    EXPECT_EQ(lines[k], kIdenticalLines[k]);
+  }
   // the paper's reproduction lines and the counts follow
   EXPECT_NE(result.out.find("paper alpha: D=0 Z=0 p=1\n"), std::string::npos) << result.out;
   EXPECT_NE(result.out.find("formula (4)"), std::string::npos);
-  EXPECT_NE(result.out.find("heading: V=0 p=1 same"), std::string::npos) << result.out;
+  EXPECT_NE(result.out.find("999 random reassignments of whole scenes (10 of A, 10 of B)"),
+            std::string::npos)
+      << result.out;
   EXPECT_NE(result.out.find("50 instances of 10 images"), std::string::npos) << result.out;
 }
 
@@ -302,14 +325,13 @@ TEST(StatsMainTest, DifferentDatasetsAreDifferent) {
       {dir + "/a.json", dir + "/b.json", "--out", dir + "/plots", "--alpha", "0.01"}, dir + "/run");
   ASSERT_EQ(result.code, 0) << result.err;
   const std::vector<std::string> lines = Lines(result.out);
-  ASSERT_GE(lines.size(), 4u) << result.out;
-  for (size_t k = 0; k < 4; ++k) {
+  ASSERT_GE(lines.size(), 8u) << result.out;
+  for (const size_t k : {0, 1, 2, 4, 5, 6}) {  // all but the heading, which both spread
     EXPECT_NE(lines[k].find(" different"), std::string::npos) << lines[k];
-    EXPECT_LT(ValueOf(lines[k], "p"), 0.01) << lines[k];
+    EXPECT_LT(ValueOf(lines[k], "holm"), 0.01) << lines[k];
   }
   EXPECT_GT(ValueOf(lines[0], "D"), 0.5) << lines[0];
-  // 50 x 50 angles: the exact p-value
-  EXPECT_NE(result.out.find("KS p-values exact"), std::string::npos) << result.out;
+  EXPECT_EQ(lines[7].rfind("verdict: different (", 0), 0u) << lines[7];
 }
 
 // The five figures exist, decode and have sensible sizes; temporary files are gone.
@@ -357,6 +379,21 @@ TEST(StatsMainTest, OneDatasetSummary) {
   EXPECT_NEAR(ValueOf(lines[1], "mean"), 20.0, 1.0) << lines[1];
   EXPECT_EQ(result.out.find(" D="), std::string::npos) << result.out;
   EXPECT_NE(result.out.find("face: 0:"), std::string::npos) << result.out;
+
+  // --calibrate: halves of the one dataset compared, how often "different" comes first
+  const Result calibrated =
+      RunStats({dir + "/b.json", "--out", dir + "/plots", "--calibrate", "20"}, dir + "/cal");
+  ASSERT_EQ(calibrated.code, 0) << calibrated.err;
+  const std::vector<std::string> calibration = Lines(calibrated.out);
+  ASSERT_GE(calibration.size(), 3u);
+  EXPECT_EQ(calibration[0].rfind("calibration: 20 random splits of the 10 scenes into halves: "
+                                 "\"different\" in ",
+                                 0),
+            0u)
+      << calibration[0];
+  EXPECT_EQ(calibration[1].rfind("calibration per test (different): alpha ", 0), 0u)
+      << calibration[1];
+  EXPECT_EQ(calibration[2], lines[0]);
 }
 
 // An LCM log of labels (some scenes also on STACKGEN_SCENE, other channels mixed in) gives the
@@ -374,11 +411,8 @@ TEST(StatsMainTest, LcmLogReadsLikeCoco) {
       RunStats({dir + "/a.log", dir + "/a.json", "--out", dir + "/plots"}, dir + "/r");
   ASSERT_EQ(both.code, 0) << both.err;
   const std::vector<std::string> lines = Lines(both.out);
-  ASSERT_GE(lines.size(), 4u);
-  EXPECT_EQ(lines[0], "alpha: D=0 p=1 same");
-  EXPECT_EQ(lines[1], "beta: D=0 p=1 same");
-  EXPECT_EQ(lines[2], "gamma: D=0 p=1 same");
-  EXPECT_EQ(lines[3], "face: chi2=0 dof=3 p=1 same");
+  ASSERT_GE(lines.size(), kIdenticalLines.size());
+  for (size_t k = 0; k < kIdenticalLines.size(); ++k) EXPECT_EQ(lines[k], kIdenticalLines[k]);
   EXPECT_NE(both.out.find("(LCM log): 50 instances of 10 scenes, 10 not annotated left out, 2 "
                           "repeated scene messages skipped"),
             std::string::npos)

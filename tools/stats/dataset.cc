@@ -57,7 +57,8 @@ Eigen::Matrix3d RotationFromRowMajor(const double* values, const std::string& wh
 
 // adds one instance to `dataset`, or counts why it is left out
 void AddInstance(const std::string& class_name, const Eigen::Matrix3d& world_R_object,
-                 int resting_face, const ReadOptions& options, Dataset* dataset) {
+                 const Eigen::Vector3d& world_position_mm, int resting_face, int64_t scene,
+                 const ReadOptions& options, Dataset* dataset) {
   if (!options.class_name.empty() && class_name != options.class_name) {
     ++dataset->other_class;
     return;
@@ -65,6 +66,8 @@ void AddInstance(const std::string& class_name, const Eigen::Matrix3d& world_R_o
   PostureSample sample = PostureOf(world_R_object, ReferenceOf(options, class_name));
   sample.class_name = class_name;
   sample.resting_face = resting_face;
+  sample.scene = scene;
+  sample.world_position_mm = world_position_mm;
   dataset->samples.push_back(std::move(sample));
   ++dataset->class_counts[class_name];
 }
@@ -123,6 +126,17 @@ void ReadCoco(const std::string& path, const ReadOptions& options, Dataset* data
     }
   }
   dataset->scenes = static_cast<int64_t>(root["images"].size());
+  // scenes by image id, in file order
+  std::map<int64_t, int64_t> scene_of_image;
+  for (size_t k = 0; k < root["images"].size(); ++k) {
+    const std::string where = path + ": images[" + std::to_string(k) + "]";
+    const json& image = root["images"][k];
+    if (!image.is_object()) throw std::runtime_error(where + " is not an object");
+    const auto id = static_cast<int64_t>(NumberAt(image, "id", where));
+    if (!scene_of_image.emplace(id, static_cast<int64_t>(k)).second) {
+      throw std::runtime_error(where + ".id " + std::to_string(id) + " is repeated");
+    }
+  }
 
   // class names by category id
   std::map<int64_t, std::string> names;
@@ -167,13 +181,26 @@ void ReadCoco(const std::string& path, const ReadOptions& options, Dataset* data
     if (annotation.contains("resting_face")) {
       resting_face = static_cast<int>(NumberAt(annotation, "resting_face", where));
     }
-    AddInstance(name->second, world_R_object, resting_face, options, dataset);
+    Eigen::Vector3d position = Eigen::Vector3d::Constant(std::nan(""));
+    if (annotation.contains("world_t_m2w")) {
+      const std::vector<double> values = NumbersAt(annotation, "world_t_m2w", 3, where);
+      position = Eigen::Vector3d(values[0], values[1], values[2]);
+      if (!position.allFinite()) throw std::runtime_error(where + ".world_t_m2w is not finite");
+    }
+    const auto image_id = static_cast<int64_t>(NumberAt(annotation, "image_id", where));
+    const auto scene = scene_of_image.find(image_id);
+    if (scene == scene_of_image.end()) {
+      throw std::runtime_error(where + ".image_id " + std::to_string(image_id) +
+                               " is not in images");
+    }
+    AddInstance(name->second, world_R_object, position, resting_face, scene->second, options,
+                dataset);
   }
 }
 
 // the instances of one labels or scene message
-void AddMessageInstances(const std::vector<stackgen::instance>& instances, const std::string& where,
-                         const ReadOptions& options, Dataset* dataset) {
+void AddMessageInstances(const std::vector<stackgen::instance>& instances, int64_t scene,
+                         const std::string& where, const ReadOptions& options, Dataset* dataset) {
   for (size_t k = 0; k < instances.size(); ++k) {
     const stackgen::instance& instance = instances[k];
     if (!instance.annotated && !options.all_instances) {
@@ -183,7 +210,14 @@ void AddMessageInstances(const std::vector<stackgen::instance>& instances, const
     const Eigen::Matrix3d world_R_object = RotationFromRowMajor(
         instance.world_from_object.rotation,
         where + ".instances[" + std::to_string(k) + "].world_from_object.rotation");
-    AddInstance(instance.class_name, world_R_object, instance.resting_face, options, dataset);
+    const double* t = instance.world_from_object.translation_mm;
+    const Eigen::Vector3d position(t[0], t[1], t[2]);
+    if (!position.allFinite()) {
+      throw std::runtime_error(where + ".instances[" + std::to_string(k) +
+                               "].world_from_object.translation_mm is not finite");
+    }
+    AddInstance(instance.class_name, world_R_object, position, instance.resting_face, scene,
+                options, dataset);
   }
 }
 
@@ -206,14 +240,16 @@ void ReadLcmLog(const std::string& path, const ReadOptions& options, Dataset* da
           ++dataset->repeated_scenes;
           return;
         }
-        AddMessageInstances(labels.instances, where, options, dataset);
+        AddMessageInstances(labels.instances, static_cast<int64_t>(seen.size()) - 1, where, options,
+                            dataset);
       } else {
         const stackgen::scene scene = DecodeLogEvent<stackgen::scene>(event);
         if (!seen.emplace(scene.header.generator_id, scene.header.seq).second) {
           ++dataset->repeated_scenes;
           return;
         }
-        AddMessageInstances(scene.instances, where, options, dataset);
+        AddMessageInstances(scene.instances, static_cast<int64_t>(seen.size()) - 1, where, options,
+                            dataset);
       }
     });
     dataset->truncated_bytes = summary.truncated_bytes;

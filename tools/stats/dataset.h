@@ -4,6 +4,7 @@
 // log (lcm-logger) of STACKGEN_LABELS or STACKGEN_SCENE messages.
 
 #include <Eigen/Core>
+#include <cmath>
 #include <cstdint>
 #include <map>
 #include <string>
@@ -25,6 +26,12 @@ struct PostureSample {
   double heading_deg = 0.0;
   /// Index of the convex-hull face that points down (0 = largest); -1 when unknown.
   int resting_face = -1;
+  /// The scene (pile) it lies in: 0.. in the order scenes were first read. Instances of one
+  /// pile are not independent; the pile tests permute whole scenes.
+  int64_t scene = 0;
+  /// Where its origin is in the bin (world) frame, mm (origin at the centre of the inner floor,
+  /// z up); NaN when the dataset does not say (a COCO file without world_t_m2w).
+  Eigen::Vector3d world_position_mm = Eigen::Vector3d::Constant(std::nan(""));
 };
 
 /// What was read from one file.
@@ -32,7 +39,8 @@ struct Dataset {
   std::string path;
   /// "COCO" or "LCM log".
   std::string kind;
-  /// Images (COCO) or distinct scenes (log: by generator_id and seq) read.
+  /// Images (COCO) or distinct scenes (log: by generator_id and seq) read, with or without
+  /// instances used; PostureSample::scene counts them.
   int64_t scenes = 0;
   /// Log messages that repeated a scene already read (the same scene on STACKGEN_LABELS and
   /// STACKGEN_SCENE, or a resend).

@@ -1,18 +1,21 @@
 // stackgen-stats: the posture statistics of one dataset, or the comparison of two, with plots.
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <exception>
 #include <filesystem>
 #include <map>
+#include <random>
 #include <string>
 #include <vector>
 
 #include "bus/flags.h"
 #include "gen/annotate/pose.h"
 #include "tools/stats/dataset.h"
+#include "tools/stats/piles.h"
 #include "tools/stats/plots.h"
 #include "tools/stats/statistics.h"
 
@@ -32,16 +35,21 @@ struct Flags {
   std::vector<std::string> datasets;
   std::string out;
   double significance = 0.05;
+  int permutations = 999;
+  int64_t seed = 1;
+  int calibrate = 0;
   stackgen::stats::ReadOptions read;
 };
 
 void PrintHelp() {
   std::printf(
       "Usage: %s DATASET_A [DATASET_B] --out DIR [--alpha A] [--frame CLASS=RZ,RY,RX]...\n"
-      "                      [--class NAME] [--all-instances]\n"
+      "                      [--class NAME] [--all-instances] [--permutations N] [--seed S]\n"
+      "                      [--calibrate N]\n"
       "\n"
-      "The posture statistics of the instances of one dataset, or the comparison of two (the\n"
-      "paper's Figure 3 and section 4). A dataset is a COCO file written by stackgen-coco (or its\n"
+      "The pile and posture statistics of the instances of one dataset, or the comparison of two\n"
+      "(the paper's Figure 3 and section 4, done so that it can tell piles apart). A dataset is a "
+      "COCO file written by stackgen-coco (or its\n"
       "folder, holding annotations.json), or an LCM log recorded with lcm-logger holding\n"
       "STACKGEN_LABELS or STACKGEN_SCENE messages (a scene on both channels counts once); the\n"
       "kind is told by content.\n"
@@ -51,17 +59,25 @@ void PrintHelp() {
       "index of the part's convex-hull face that points down (0 = largest face).\n"
       "\n"
       "With two datasets it prints one line per test, first:\n"
-      "  alpha: D=<D> p=<p> same|different     two-sample Kolmogorov-Smirnov test per angle;\n"
-      "  beta: ..., gamma: ...                 p exact when n1*n2 <= 10000, else asymptotic\n"
-      "                                        (Kolmogorov distribution)\n"
-      "  face: chi2=<x> dof=<k> p=<p> same|different\n"
-      "                                        chi-square test of homogeneity of the resting\n"
-      "                                        faces (faces no instance rests on dropped)\n"
-      "  heading: V=<V> p=<p> same|different   the angle about the vertical (the turn left\n"
-      "                                        after the tilt) by Kuiper's test: no +-180 wrap\n"
-      "\"different\" means p < A: the hypothesis that both come from one distribution is\n"
-      "rejected at significance A. Then the paper's D and Z (formula (4)) on samples it\n"
-      "normalises (its p-values read the standard way), and the counts. With one dataset it\n"
+      "  alpha: D=<D> p=<p> holm=<q> same|different\n"
+      "  beta: ..., gamma: ...                 Kolmogorov-Smirnov distance per posture angle\n"
+      "  heading: V=<V> ...                    the angle about the vertical (the turn left\n"
+      "                                        after the tilt), Kuiper's V: no +-180 wrap\n"
+      "  face: chi2=<x> dof=<k> ...            chi-square of the resting faces (faces no\n"
+      "                                        instance rests on dropped)\n"
+      "  height: D=<D> ...                     z of each part's origin above the bin floor, mm\n"
+      "  radius: D=<D> ...                     its distance from the bin's vertical centre\n"
+      "                                        line, mm (height and radius need positions:\n"
+      "                                        logs, COCO files with world_t_m2w)\n"
+      "  verdict: same|different (K of M tests reject ...)\n"
+      "The parts of one pile lie on each other and are not independent draws, so each p is a\n"
+      "permutation p-value over whole scenes: the share of N random reassignments of the\n"
+      "scenes of A and B to two groups of their sizes whose statistic is at least the observed\n"
+      "one. holm is p corrected for the number of tests (Holm's step-down method); \"different\"\n"
+      "means holm < A: the hypothesis that both come from one distribution is rejected, and two\n"
+      "datasets of one config are called different by some test at most a share A of the time.\n"
+      "Then the paper's D and Z (formula (4)) on samples it normalises (its p-values read the\n"
+      "standard way, from the Kolmogorov distribution), and the counts. With one dataset it\n"
       "prints summaries of each angle (n, mean, sd, histogram peaks) and the face frequencies.\n"
       "It writes scatter_beta_alpha.png, scatter_beta_gamma.png, histograms.png, cumulative.png\n"
       "and faces.png into DIR.\n"
@@ -82,7 +98,15 @@ void PrintHelp() {
       "  --all-instances         also instances that are not annotated (too hidden): from a log\n"
       "                          every instance, from a COCO file its ignore regions (iscrowd\n"
       "                          1); a COCO file holds no dropped instances (default: annotated\n"
-      "                          only, so a log and the COCO file of one run agree).\n"
+      "                          only, so a log and the COCO file of one run agree). Use it on\n"
+      "                          logs to compare whole piles, the bottom parts too.\n"
+      "  --permutations N        random reassignments of whole scenes per comparison, 19..1e6\n"
+      "                          (default 999: p-values down to 0.001).\n"
+      "  --seed S                seed of the permutations, >= 0 (default 1): the same seed, the\n"
+      "                          same p-values.\n"
+      "  --calibrate N           with one dataset: split its scenes at random into halves N\n"
+      "                          times and compare the halves; prints how often the verdict is\n"
+      "                          \"different\", a false alarm each time (at most A is expected).\n"
       "  --help                  print this help and exit.\n"
       "\n"
       "Exit status: 0 done (whatever the verdict), 1 the plots cannot be written, 2 bad command\n"
@@ -127,7 +151,15 @@ Flags ParseFlags(int argc, char** argv) {
   parser.Custom("--frame", [&flags](const std::string& value) { ParseFrame(value, &flags.read); });
   parser.String("--class", &flags.read.class_name, "a class name");
   parser.Switch("--all-instances", &flags.read.all_instances);
-  parser.ParseOrExit(argc, argv, PrintHelp);
+  parser.Int("--permutations", &flags.permutations, 19, 1000000);
+  parser.Int("--seed", &flags.seed, 0, INT64_MAX);
+  parser.Int("--calibrate", &flags.calibrate, 1, 100000);
+  parser.ParseOrExit(argc, argv, PrintHelp, [&flags] {
+    if (flags.calibrate > 0 && flags.datasets.size() != 1) {
+      throw stackgen::UsageError("--calibrate takes one dataset, got " +
+                                 std::to_string(flags.datasets.size()));
+    }
+  });
   return flags;
 }
 
@@ -136,10 +168,6 @@ std::string Number(double value) {
   char text[32];
   std::snprintf(text, sizeof(text), "%.6g", value);
   return text;
-}
-
-const char* Verdict(double p, double significance) {
-  return p < significance ? "different" : "same";
 }
 
 std::vector<double> Values(const std::vector<PostureSample>& samples,
@@ -271,58 +299,52 @@ void PrintFaceTable(const std::vector<const Dataset*>& datasets) {
   }
 }
 
+// the pile tests of A against B: one line per test, then the verdict
+stackgen::stats::PileComparison ComparePiles(const Dataset& a, const Dataset& b,
+                                             const Flags& flags) {
+  stackgen::stats::PileOptions options;
+  options.permutations = flags.permutations;
+  options.seed = static_cast<uint64_t>(flags.seed);
+  options.significance = flags.significance;
+  return stackgen::stats::ComparePiles(a, b, options);
+}
+
 void CompareTwo(const Dataset& a, const Dataset& b, const Flags& flags) {
   namespace stats = stackgen::stats;
-  // the KS test per angle
-  stats::KsMethod method = stats::KsMethod::kExact;
-  for (const Angle& angle : kAngles) {
-    const stats::KsResult result =
-        stats::KolmogorovSmirnov2(Values(a.samples, angle.member), Values(b.samples, angle.member));
-    method = result.method;
-    std::printf("%s: D=%s p=%s %s\n", angle.name, Number(result.d).c_str(),
-                Number(result.p).c_str(), Verdict(result.p, flags.significance));
+  // the tests, each by permuting whole scenes, corrected for their number
+  const stats::PileComparison comparison = ComparePiles(a, b, flags);
+  int rejected = 0;
+  for (const stats::PileTest& test : comparison.tests) {
+    const std::string dof = test.statistic == "chi2" ? " dof=" + std::to_string(test.dof) : "";
+    std::printf("%s: %s=%s%s p=%s holm=%s %s\n", test.name.c_str(), test.statistic.c_str(),
+                Number(test.value).c_str(), dof.c_str(), Number(test.p).c_str(),
+                Number(test.p_holm).c_str(), test.different ? "different" : "same");
+    rejected += test.different ? 1 : 0;
   }
-
-  // the chi-square test on the resting faces
-  int64_t unknown_a = 0, unknown_b = 0;
-  const std::vector<int64_t> faces_a = FaceCounts(a.samples, &unknown_a);
-  const std::vector<int64_t> faces_b = FaceCounts(b.samples, &unknown_b);
-  double min_expected = kMinExpectedCount;
-  if (faces_a.empty() || faces_b.empty()) {
-    std::printf("face: n/a (no resting faces known in %s)\n",
-                faces_a.empty() ? (faces_b.empty() ? "A or B" : "A") : "B");
-  } else {
-    const stats::ChiSquareResult result = stats::ChiSquareHomogeneity(faces_a, faces_b);
-    min_expected = result.min_expected;
-    std::printf("face: chi2=%s dof=%d p=%s %s\n", Number(result.statistic).c_str(), result.dof,
-                Number(result.p).c_str(), Verdict(result.p, flags.significance));
-  }
-
-  // the wrap-free comparison of the angle about the vertical
-  const std::vector<double> heading_a = Values(a.samples, &PostureSample::heading_deg);
-  const std::vector<double> heading_b = Values(b.samples, &PostureSample::heading_deg);
-  if (!heading_a.empty() && !heading_b.empty()) {
-    const stats::KuiperResult result = stats::Kuiper2(heading_a, heading_b);
-    std::printf("heading: V=%s p=%s %s\n", Number(result.v).c_str(), Number(result.p).c_str(),
-                Verdict(result.p, flags.significance));
+  const std::string significance = Number(flags.significance);
+  std::printf("verdict: %s (%d of %zu tests reject at %s after Holm's correction)\n",
+              comparison.different ? "different" : "same", rejected, comparison.tests.size(),
+              significance.c_str());
+  for (const std::string& left_out : comparison.left_out) {
+    std::printf("note: %s, not tested\n", left_out.c_str());
   }
 
   // how to read the verdicts
-  const std::string significance = Number(flags.significance);
   std::printf(
-      "note: \"different\" means p < %s: the hypothesis that A and B come from one "
-      "distribution is rejected\n",
-      significance.c_str());
-  std::printf("note: KS p-values %s, n1=%zu n2=%zu; face: chi-square test\n",
-              method == stats::KsMethod::kExact ? "exact" : "asymptotic (Kolmogorov distribution)",
-              a.samples.size(), b.samples.size());
-  std::printf("note: heading: the angle about the vertical, by Kuiper's test (no +-180 wrap)\n");
-  if (min_expected < kMinExpectedCount) {
-    std::printf(
-        "note: face: the smallest expected count is %s (< 5); the chi-square p-value is "
-        "approximate\n",
-        Number(min_expected).c_str());
-  }
+      "note: p: the share of %d random reassignments of whole scenes (%lld of A, %lld of B) "
+      "whose\nnote: statistic is at least as large (seed %lld); the parts of one pile are not\n"
+      "note: independent, so scenes, not parts, are permuted\n",
+      flags.permutations, static_cast<long long>(comparison.scenes_a),
+      static_cast<long long>(comparison.scenes_b), static_cast<long long>(flags.seed));
+  std::printf(
+      "note: holm: p corrected for the %zu tests (Holm); \"different\" means holm < %s: the\n"
+      "note: hypothesis that A and B come from one distribution is rejected, and two datasets of\n"
+      "note: one config get \"different\" from some test at most %s of the time\n",
+      comparison.tests.size(), significance.c_str(), significance.c_str());
+  std::printf(
+      "note: D: Kolmogorov-Smirnov distance; heading (the angle about the vertical): Kuiper's V,\n"
+      "note: no +-180 wrap; face: chi-square of the resting faces; height: z of a part's origin\n"
+      "note: above the bin floor, radius: its distance from the bin's vertical centre line, mm\n");
 
   // the paper's procedure, for reproducing its table
   std::printf(
@@ -379,6 +401,67 @@ void SummariseOne(const Dataset& dataset) {
   std::printf("%s\n", line.c_str());
 }
 
+// the Wilson score interval (95 %) of a rate of `k` in `n`
+std::pair<double, double> WilsonInterval(int64_t k, int64_t n) {
+  const double z = 1.959963984540054, p = static_cast<double>(k) / n;
+  const double centre = (p + z * z / (2.0 * n)) / (1.0 + z * z / n);
+  const double half = z * std::sqrt(p * (1.0 - p) / n + z * z / (4.0 * n * n)) / (1.0 + z * z / n);
+  return {std::max(0.0, centre - half), std::min(1.0, centre + half)};
+}
+
+// how often the pile tests call two halves of one dataset "different": its scenes split at
+// random into halves `flags.calibrate` times. With the scenes independent draws of one config
+// that is a false alarm each time, which should happen at most at the significance level.
+void Calibrate(const Dataset& dataset, const Flags& flags) {
+  std::vector<int64_t> scenes;
+  for (const PostureSample& sample : dataset.samples) scenes.push_back(sample.scene);
+  std::sort(scenes.begin(), scenes.end());
+  scenes.erase(std::unique(scenes.begin(), scenes.end()), scenes.end());
+  if (scenes.size() < 4) {
+    throw std::runtime_error(dataset.path +
+                             ": --calibrate needs at least 4 scenes with parts, it has " +
+                             std::to_string(scenes.size()));
+  }
+  std::mt19937_64 engine(static_cast<uint64_t>(flags.seed));
+  std::map<std::string, int64_t> rejected_by_test;
+  std::vector<std::string> names;
+  int64_t rejected = 0;
+  auto last_progress = std::chrono::steady_clock::now();
+  for (int split = 0; split < flags.calibrate; ++split) {
+    std::shuffle(scenes.begin(), scenes.end(), engine);
+    std::vector<bool> first(static_cast<size_t>(dataset.scenes), false);
+    for (size_t k = 0; k < scenes.size() / 2; ++k) first[scenes[k]] = true;
+    const auto [one, other] = stackgen::stats::SplitScenes(dataset, first);
+    Flags split_flags = flags;
+    split_flags.seed = flags.seed + 1 + split;
+    const stackgen::stats::PileComparison comparison = ComparePiles(one, other, split_flags);
+    rejected += comparison.different ? 1 : 0;
+    for (const stackgen::stats::PileTest& test : comparison.tests) {
+      if (rejected_by_test.count(test.name) == 0) names.push_back(test.name);
+      rejected_by_test[test.name] += test.different ? 1 : 0;
+    }
+    // a progress line on long runs
+    const auto now = std::chrono::steady_clock::now();
+    if (now - last_progress > std::chrono::seconds(5)) {
+      std::fprintf(stderr, "%s: calibrating: %d of %d splits, %lld different\n", kProgram,
+                   split + 1, flags.calibrate, static_cast<long long>(rejected));
+      last_progress = now;
+    }
+  }
+  const auto [low, high] = WilsonInterval(rejected, flags.calibrate);
+  std::printf(
+      "calibration: %d random splits of the %zu scenes into halves: \"different\" in %lld "
+      "(%.1f%%, 95%% interval %.1f..%.1f%%); at most %s%% are expected\n",
+      flags.calibrate, scenes.size(), static_cast<long long>(rejected),
+      100.0 * rejected / flags.calibrate, 100.0 * low, 100.0 * high,
+      Number(100.0 * flags.significance).c_str());
+  std::string line = "calibration per test (different):";
+  for (const std::string& name : names) {
+    line += " " + name + " " + std::to_string(rejected_by_test[name]);
+  }
+  std::printf("%s\n", line.c_str());
+}
+
 int Run(const Flags& flags) {
   // read the datasets; any fault in them is an input error
   std::vector<Dataset> datasets;
@@ -402,6 +485,7 @@ int Run(const Flags& flags) {
   if (datasets.size() == 2) {
     CompareTwo(datasets[0], datasets[1], flags);
   } else {
+    if (flags.calibrate > 0) Calibrate(datasets[0], flags);
     SummariseOne(datasets[0]);
   }
   const char* letters[] = {"A", "B"};

@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <functional>
+#include <future>
 #include <iostream>
 #include <string>
 
@@ -62,6 +63,7 @@ credits: the generator never runs more than a consumer's window ahead of what it
 resends scenes a consumer missed (from the ring, else regenerated: scene k is always the same),
 and after --count scenes waits until every reliable consumer has stored them all.
 Best-effort listeners (stackgen-view, lcm-spy, lcm-logger) are never waited for.
+The pile of the next scene settles on a second thread while a scene is rendered and published.
 On exit and on SIGINT it prints the mean milliseconds per scene of each stage.
 )";
 
@@ -254,12 +256,24 @@ int Run(int argc, char** argv) {
     publish_periodic(false);
   };
 
+  // the pipeline: the pile of scene k + 1 settles on a second thread while scene k is rendered,
+  // labelled and published (each scene is the same either way: a pure function of its seq)
+  std::future<SettledPile> ahead;
+  const auto settle_ahead = [&](int64_t seq) {
+    if (count == 0 || seq < count) {
+      ahead = std::async(std::launch::async, [&generator, seq] { return generator.Settle(seq); });
+    }
+  };
+  settle_ahead(first_seq);
+
   publish_periodic(true);
   for (int64_t seq = first_seq; (count == 0 || seq < count) && !g_stop; ++seq) {
     // never more than a reliable consumer's window ahead of what it stored
     while (!server.MayPublish(seq) && !g_stop) wait_for_consumers(20);
     if (g_stop) break;
-    scene message = generator.Generate(seq, &times);
+    const SettledPile settled = ahead.get();
+    settle_ahead(seq + 1);
+    scene message = generator.Finish(settled, &times);
 
     // publish the scene and its labels.
     const Clock::time_point publish_start = Clock::now();
@@ -285,6 +299,8 @@ int Run(int argc, char** argv) {
       }
     }
   }
+  // a pile settled ahead for a scene that will not be published (stopped by a signal)
+  if (ahead.valid()) ahead.wait();
   // after the last scene, until every reliable consumer has stored it (or went silent)
   if (count > 0 && next_seq == count) {
     while (!server.AllStoredThrough(count - 1) && !g_stop) wait_for_consumers(20);

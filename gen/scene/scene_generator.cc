@@ -310,14 +310,20 @@ SceneGenerator::~SceneGenerator() = default;
 std::string SceneGenerator::Description() const { return impl_->description; }
 
 scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
+  return Finish(Settle(seq), times);
+}
+
+SettledPile SceneGenerator::Settle(int64_t seq) const {
   const config::GeneratorConfig& config = impl_->config();
-  StageTimes local;
+  SettledPile settled;
+  settled.seq = seq;
+  StageTimes& local = settled.times;
+  uint64_t& seed = settled.seed;
+  PileResult pile;
+  std::vector<int>& object_types = settled.object_types;
 
   // drop the parts; a drop that fails a check is redrawn with a derived seed.
-  Clock::time_point start = Clock::now();
-  uint64_t seed = 0;
-  PileResult pile;
-  std::vector<int> object_types;
+  const Clock::time_point start = Clock::now();
   for (int redraw = 0;; ++redraw) {
     if (redraw > config.physics().max_redraws()) {
       throw std::runtime_error("scene " + std::to_string(seq) + ": " + std::to_string(redraw) +
@@ -338,16 +344,27 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
     }
     pile = impl_->simulator->Simulate(object_types, pile_seed);
     // every check a published scene must pass
-    const bool settled = pile.settled;
+    const bool settled_ok = pile.settled;
     const bool inside = pile.num_outside == 0;
     const bool apart = pile.max_penetration_mm <= config.physics().max_penetration_mm();
-    if (settled && inside && apart) break;
+    if (settled_ok && inside && apart) break;
     ++local.redraws;
-    local.redraws_unsettled += settled ? 0 : 1;
+    local.redraws_unsettled += settled_ok ? 0 : 1;
     local.redraws_outside += inside ? 0 : 1;
     local.redraws_penetrating += apart ? 0 : 1;
   }
   local.physics_ms = MillisecondsSince(start);
+  settled.world_from_object = std::move(pile.world_from_object);
+  return settled;
+}
+
+scene SceneGenerator::Finish(const SettledPile& settled, StageTimes* times) {
+  const config::GeneratorConfig& config = impl_->config();
+  StageTimes local = settled.times;
+  const int64_t seq = settled.seq;
+  const uint64_t seed = settled.seed;
+  const std::vector<int>& object_types = settled.object_types;
+  Clock::time_point start;
 
   // the scene's look, each lever from its own engine: camera, lights, backgrounds, materials.
   std::mt19937_64 camera_engine = LeverEngine(seed, Lever::kCamera);
@@ -378,13 +395,13 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
   items.push_back(bin_item);
   // labelled objects get instance ids 1, 2, ...; unlabelled distractors draw as 0, like the bin
   std::vector<ObjectTruth> objects;
-  for (size_t i = 0; i < pile.world_from_object.size(); ++i) {
+  for (size_t i = 0; i < settled.world_from_object.size(); ++i) {
     const int t = object_types[i];
     const config::PartConfig& part = config.part(t);
     const TypeInScene& type = impl_->types[t];
     DrawItem part_item;
     part_item.mesh_id = type.mesh_id;
-    part_item.world_from_object = pile.world_from_object[i];
+    part_item.world_from_object = settled.world_from_object[i];
     part_item.material = type.material;
     part_item.use_mesh_materials = type.use_file_materials;
     part_item.gain = gains[t];
@@ -393,9 +410,9 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
       object.instance_id = static_cast<int>(objects.size() + 1);
       object.class_id = type.class_id;
       object.class_name = part.class_name();
-      object.world_from_object = pile.world_from_object[i];
+      object.world_from_object = settled.world_from_object[i];
       object.resting_face =
-          RestingFace(impl_->simulator->hull_faces(t), pile.world_from_object[i].linear());
+          RestingFace(impl_->simulator->hull_faces(t), settled.world_from_object[i].linear());
       objects.push_back(object);
       part_item.instance_id = static_cast<uint16_t>(object.instance_id);
     }

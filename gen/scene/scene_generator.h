@@ -3,9 +3,12 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <stackgen/labels.hpp>
 #include <stackgen/scene.hpp>
+
+#include <Eigen/Geometry>
 
 #include "gen/config/config.h"
 
@@ -31,8 +34,22 @@ struct StageTimes {
 /// `redraw` failed attempts: a SplitMix64 mix of all four, so nearby inputs give unrelated seeds.
 uint64_t SceneSeed(uint64_t base_seed, int32_t generator_id, int64_t seq, int redraw);
 
+/// The physics half of a scene: the settled pile of scene `seq` and what was drawn for it.
+struct SettledPile {
+  int64_t seq = 0;
+  /// The scene seed of the drop that settled (after redraws): every later draw derives from it.
+  uint64_t seed = 0;
+  /// The part type (config order) of each object.
+  std::vector<int> object_types;
+  /// Where each object settled, mm, its mesh frame in the bin (world) frame.
+  std::vector<Eigen::Isometry3d> world_from_object;
+  /// physics_ms and the redraws of this scene.
+  StageTimes times;
+};
+
 /// Makes scenes: drops the part into the bin, renders the settled pile and labels it. Every
-/// scene is a pure function of (config, base seed, generator id, seq).
+/// scene is a pure function of (config, base seed, generator id, seq). Generate is Settle then
+/// Finish; a pipeline settles scene k + 1 on another thread while scene k is finished.
 class SceneGenerator {
  public:
   /// Loads the part's meshes, prepares collision shapes (decompositions cached in `cache_dir`)
@@ -45,6 +62,16 @@ class SceneGenerator {
   /// Generates scene `seq` (header.utime is left 0 for the publisher to set). Adds the time of
   /// each stage to `times` when not null. Throws when max_redraws drops in a row fail.
   scene Generate(int64_t seq, StageTimes* times);
+
+  /// The physics of scene `seq`: drops and settles its pile, redrawing failed drops. Safe to
+  /// call from any thread, also while Finish or Generate runs on another. Throws when
+  /// max_redraws drops in a row fail.
+  SettledPile Settle(int64_t seq) const;
+
+  /// The rest of scene `pile.seq`: camera, lights and looks, render, labels, encoding. Call it
+  /// from the thread that made the generator (it owns the GL context). Adds this stage's times
+  /// and those in `pile.times` to `times` when not null.
+  scene Finish(const SettledPile& pile, StageTimes* times);
 
   /// Lines describing the collision shape and the renderer in use.
   std::string Description() const;

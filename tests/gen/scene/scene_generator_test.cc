@@ -2,9 +2,11 @@
 
 #include <gtest/gtest.h>
 
+#include <future>
 #include <opencv2/imgcodecs.hpp>
 #include <set>
 #include <string>
+#include <vector>
 
 #include "gen/annotate/rle.h"
 #include "tests/support/process.h"
@@ -105,6 +107,31 @@ TEST(SceneGeneratorTest, SceneIsConsistentAndRepeatable) {
   const labels small = LabelsOf(first);
   EXPECT_EQ(small.header.seed, first.header.seed);
   EXPECT_EQ(small.num_instances, first.num_instances);
+}
+
+// the pipeline: piles settled on a second thread while scenes are finished on this one give
+// the same scenes as Generate, byte for byte (labels and images)
+TEST(SceneGeneratorTest, PilesSettledOnAnotherThreadGiveTheSameScenes) {
+  const std::string cache = testing::MakeTempDir("stackgen-cache");
+  SceneGenerator generator(DefaultConfig(), 3, 7, cache);
+  std::vector<std::vector<uint8_t>> pipelined;
+  std::future<SettledPile> ahead =
+      std::async(std::launch::async, [&generator] { return generator.Settle(0); });
+  for (int64_t seq = 0; seq < 3; ++seq) {
+    const SettledPile settled = ahead.get();
+    EXPECT_EQ(settled.seq, seq);
+    ahead = std::async(std::launch::async, [&generator, seq] { return generator.Settle(seq + 1); });
+    scene message = generator.Finish(settled, nullptr);
+    pipelined.push_back(std::vector<uint8_t>(message.getEncodedSize()));
+    message.encode(pipelined.back().data(), 0, static_cast<int>(pipelined.back().size()));
+  }
+  ahead.wait();
+  for (int64_t seq = 0; seq < 3; ++seq) {
+    scene message = generator.Generate(seq, nullptr);
+    std::vector<uint8_t> bytes(message.getEncodedSize());
+    message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+    EXPECT_TRUE(bytes == pipelined[seq]) << "scene " << seq;
+  }
 }
 
 // a bin too small for the parts is refused before anything runs, naming the config.

@@ -14,10 +14,11 @@ namespace stackgen {
 
 /// The bin, millimetres: an open box on z = 0 whose inner floor is centred at the origin, z up.
 /// The inner floor is the plane z = 0 (the floor slab fills z in [-wall_mm, 0]) and the rim is at
-/// z = inner_height_mm, as in MakeOpenBinMesh. The bin stands on a table at z = -wall_mm that
-/// catches parts which fall out. With a `mesh` (a real tote, same frame), that mesh is the bin's
-/// collision shape instead of the box (a static triangle mesh), the table lies at its lowest
-/// point, and the inner sizes still say where parts are released and what counts as inside.
+/// z = inner_height_mm, as in MakeOpenBinMesh. Nothing is under the bin: a part whose centre
+/// of mass falls one part size below the bin's bottom (z = -max(wall_mm, 20)) has left it, and
+/// the drop stops there. With a `mesh` (a real tote, same frame), that mesh is the bin's
+/// collision shape instead of the box (a static triangle mesh), its lowest point is the bottom,
+/// and the inner sizes still say where parts are released and what counts as inside.
 struct BinSpec {
   double inner_length_mm;  // along x
   double inner_width_mm;   // along y

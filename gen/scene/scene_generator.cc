@@ -349,7 +349,8 @@ SettledPile SceneGenerator::Settle(int64_t seq) const {
     const bool apart = pile.max_penetration_mm <= config.physics().max_penetration_mm();
     if (settled_ok && inside && apart) break;
     ++local.redraws;
-    local.redraws_unsettled += settled_ok ? 0 : 1;
+    // (a drop stops when a part falls out of the bin: unsettled says nothing more then)
+    local.redraws_unsettled += settled_ok || !inside ? 0 : 1;
     local.redraws_outside += inside ? 0 : 1;
     local.redraws_penetrating += apart ? 0 : 1;
   }

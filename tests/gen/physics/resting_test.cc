@@ -261,15 +261,15 @@ TEST(RestingTest, ConnectorPilesSettleInsideAndPeakOnFlatFaces) {
     const PileResult pile = simulator.Simulate(12, static_cast<uint64_t>(seed));
     const std::string what = "seed " + std::to_string(seed);
     ASSERT_EQ(pile.world_from_object.size(), 12u);
-    EXPECT_TRUE(pile.settled) << what;
-    EXPECT_LT(pile.max_penetration_mm, kMaxPenetrationMm) << what;
-    deepest = std::max(deepest, pile.max_penetration_mm);
-    // a part that fell out of the bin makes the generator redraw the scene: count such piles
-    // and leave them out of the statistics
+    // a part that fell out of the bin makes the generator redraw the scene (and ends the drop
+    // there): count such piles and leave them out of the statistics
     if (pile.num_outside > 0) {
       ++piles_with_part_out;
       continue;
     }
+    EXPECT_TRUE(pile.settled) << what;
+    EXPECT_LT(pile.max_penetration_mm, kMaxPenetrationMm) << what;
+    deepest = std::max(deepest, pile.max_penetration_mm);
     overhanging += ExpectInsideBin(pile, vertices, kConnectorBin, what);
     for (const auto& world_from_object : pile.world_from_object) {
       const Rest rest = RestOf(faces, vertices, kConnectorBin, world_from_object);
@@ -283,7 +283,9 @@ TEST(RestingTest, ConnectorPilesSettleInsideAndPeakOnFlatFaces) {
             << " parts hanging over the rim in the others, deepest penetration " << deepest
             << " mm; resting faces of " << parts << " parts: " << Join(all)
             << "; within 10 deg of flat: " << Join(flat) << "\n";
-  EXPECT_LE(piles_with_part_out, kPiles / 10);
+  // the generator redraws about 9 % of its drops of this config: more than 8 of 40 piles (1 %
+  // likely at that rate) would mean a bin that loses parts
+  EXPECT_LE(piles_with_part_out, kPiles / 5);
 
   // a peak: a face lies within 10 degrees of flat at least 4 times as often as uniformly random
   // orientations would have it (a 10 degree cap is (1 - cos 10 deg) / 2 = 0.76 % of them;

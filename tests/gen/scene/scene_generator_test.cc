@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "gen/annotate/pose.h"
 #include "gen/annotate/rle.h"
 #include "tests/support/process.h"
 
@@ -77,19 +78,23 @@ TEST(SceneGeneratorTest, SceneIsConsistentAndRepeatable) {
   }
   EXPECT_GT(annotated, 0);
 
-  // the depth of visible part pixels is between the rim and the floor (mm = value * scale).
-  double min_depth = 1e9;
-  double max_depth = 0;
+  // visible part pixels, back-projected with their depth (mm = value * scale), lie between the
+  // floor and the rim plus one part height in the bin frame
+  const Eigen::Isometry3d world_from_camera = FromPoseMessage(first.camera.world_from_camera);
+  double lowest = 1e9, highest = -1e9;
   for (int v = 0; v < ids.rows; ++v) {
     for (int u = 0; u < ids.cols; ++u) {
       if (ids.at<uint16_t>(v, u) == 0) continue;
       const double mm = depth.at<uint16_t>(v, u) * first.camera.depth_scale_mm;
-      min_depth = std::min(min_depth, mm);
-      max_depth = std::max(max_depth, mm);
+      const Eigen::Vector3d in_camera((u - first.camera.cx) * mm / first.camera.fx,
+                                      (v - first.camera.cy) * mm / first.camera.fy, mm);
+      const double z = (world_from_camera * in_camera).z();
+      lowest = std::min(lowest, z);
+      highest = std::max(highest, z);
     }
   }
-  EXPECT_GT(min_depth, 450 - 100 - 60);
-  EXPECT_LE(max_depth, 450.5);
+  EXPECT_GT(lowest, -1.0);
+  EXPECT_LT(highest, 100 + 60);
 
   // the same scene again is bit-identical in its labels.
   const scene again = generator.Generate(0, nullptr);

@@ -308,6 +308,7 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "physics", "drop_point_y_mm", physics.drop_point_y_mm(), -bin.inner_width_mm() / 2,
              bin.inner_width_mm() / 2);
   CheckRange(n, "physics", "max_penetration_mm", physics.max_penetration_mm(), 0.01, 10);
+  CheckRange(n, "physics", "views_per_pile", physics.views_per_pile(), 1, 1000);
 
   // annotation and output
   CheckRange(n, "annotation", "min_visib_fract", c.annotation().min_visib_fract(), 0, 1);

@@ -34,7 +34,7 @@ constexpr double kRestitutionThresholdMmS = 50;
 // Bullet's contact solver otherwise sustains for an L resting on an edge (hardly slows a tumble)
 constexpr double kAngularDamping = 0.3;
 
-// the floor's collision box reaches at least this far down (into the table), mm
+// the floor's collision box reaches at least this far down (nothing tunnels through it), mm
 constexpr double kMinFloorThicknessMm = 20;
 
 // released parts: gap between their bounding boxes, and to the walls, mm

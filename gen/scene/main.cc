@@ -3,6 +3,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <csignal>
@@ -11,6 +12,7 @@
 #include <functional>
 #include <future>
 #include <iostream>
+#include <optional>
 #include <string>
 
 #include <stackgen/config_text.hpp>
@@ -256,24 +258,31 @@ int Run(int argc, char** argv) {
     publish_periodic(false);
   };
 
-  // the pipeline: the pile of scene k + 1 settles on a second thread while scene k is rendered,
-  // labelled and published (each scene is the same either way: a pure function of its seq)
+  // the pipeline: the next pile settles on a second thread while the scenes of this one are
+  // rendered, labelled and published (each scene is the same either way: a pure function of its
+  // seq); with views_per_pile V, scenes k*V .. k*V+V-1 show pile k
+  const int views = generator.views_per_pile();
   std::future<SettledPile> ahead;
-  const auto settle_ahead = [&](int64_t seq) {
+  std::optional<SettledPile> current;
+  const auto settle_ahead = [&](int64_t pile) {
+    const int64_t seq = std::max(pile * views, first_seq);
     if (count == 0 || seq < count) {
       ahead = std::async(std::launch::async, [&generator, seq] { return generator.Settle(seq); });
     }
   };
-  settle_ahead(first_seq);
+  settle_ahead(first_seq / views);
 
   publish_periodic(true);
   for (int64_t seq = first_seq; (count == 0 || seq < count) && !g_stop; ++seq) {
     // never more than a reliable consumer's window ahead of what it stored
     while (!server.MayPublish(seq) && !g_stop) wait_for_consumers(20);
     if (g_stop) break;
-    const SettledPile settled = ahead.get();
-    settle_ahead(seq + 1);
-    scene message = generator.Finish(settled, &times);
+    if (!current || current->pile != seq / views) {
+      current = ahead.get();
+      times.Add(current->times);
+      settle_ahead(current->pile + 1);
+    }
+    scene message = generator.Finish(*current, seq, &times);
 
     // publish the scene and its labels.
     const Clock::time_point publish_start = Clock::now();

@@ -309,14 +309,32 @@ SceneGenerator::~SceneGenerator() = default;
 
 std::string SceneGenerator::Description() const { return impl_->description; }
 
+void StageTimes::Add(const StageTimes& other) {
+  physics_ms += other.physics_ms;
+  render_ms += other.render_ms;
+  annotate_ms += other.annotate_ms;
+  encode_ms += other.encode_ms;
+  redraws += other.redraws;
+  redraws_unsettled += other.redraws_unsettled;
+  redraws_outside += other.redraws_outside;
+  redraws_penetrating += other.redraws_penetrating;
+}
+
+int SceneGenerator::views_per_pile() const { return impl_->config().physics().views_per_pile(); }
+
 scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
-  return Finish(Settle(seq), times);
+  const SettledPile pile = Settle(seq);
+  if (times != nullptr) times->Add(pile.times);
+  return Finish(pile, seq, times);
 }
 
 SettledPile SceneGenerator::Settle(int64_t seq) const {
   const config::GeneratorConfig& config = impl_->config();
   SettledPile settled;
-  settled.seq = seq;
+  // the pile of this scene: its drop draws from the pile's seeds (with one view per pile, the
+  // scene's own)
+  const int64_t pile_index = seq / views_per_pile();
+  settled.pile = pile_index;
   StageTimes& local = settled.times;
   uint64_t& seed = settled.seed;
   PileResult pile;
@@ -330,7 +348,7 @@ SettledPile SceneGenerator::Settle(int64_t seq) const {
                                " drops in a row failed to settle inside the bin; check the "
                                "physics and bin settings");
     }
-    seed = SceneSeed(impl_->base_seed, impl_->generator_id, seq, redraw);
+    seed = SceneSeed(impl_->base_seed, impl_->generator_id, pile_index, redraw);
     std::mt19937_64 physics_rng(seed);
     const uint64_t pile_seed = physics_rng();
     // how many of each type, then the type of every object in config order
@@ -359,11 +377,20 @@ SettledPile SceneGenerator::Settle(int64_t seq) const {
   return settled;
 }
 
-scene SceneGenerator::Finish(const SettledPile& settled, StageTimes* times) {
+scene SceneGenerator::Finish(const SettledPile& settled, int64_t seq, StageTimes* times) {
   const config::GeneratorConfig& config = impl_->config();
-  StageTimes local = settled.times;
-  const int64_t seq = settled.seq;
-  const uint64_t seed = settled.seed;
+  const int views = views_per_pile();
+  if (seq / views != settled.pile) {
+    throw std::invalid_argument("scene " + std::to_string(seq) + " is a view of pile " +
+                                std::to_string(seq / views) + ", not of pile " +
+                                std::to_string(settled.pile));
+  }
+  StageTimes local;
+  // the seed of this view: the pile's for view 0 (a single view draws what it always drew),
+  // a mix of it and the view's index for the others
+  const int64_t view = seq % views;
+  const uint64_t seed =
+      view == 0 ? settled.seed : SplitMix64(settled.seed ^ SplitMix64(static_cast<uint64_t>(view)));
   const std::vector<int>& object_types = settled.object_types;
   Clock::time_point start;
 
@@ -460,16 +487,7 @@ scene SceneGenerator::Finish(const SettledPile& settled, StageTimes* times) {
   out.instance_map = EncodeImage(rendered.instance, image::PIXEL_INSTANCE16, encoding);
   local.encode_ms = MillisecondsSince(start);
 
-  if (times != nullptr) {
-    times->physics_ms += local.physics_ms;
-    times->render_ms += local.render_ms;
-    times->annotate_ms += local.annotate_ms;
-    times->encode_ms += local.encode_ms;
-    times->redraws += local.redraws;
-    times->redraws_unsettled += local.redraws_unsettled;
-    times->redraws_outside += local.redraws_outside;
-    times->redraws_penetrating += local.redraws_penetrating;
-  }
+  if (times != nullptr) times->Add(local);
   return out;
 }
 

@@ -28,28 +28,33 @@ struct StageTimes {
   int redraws_unsettled = 0;
   int redraws_outside = 0;
   int redraws_penetrating = 0;
+
+  /// Adds another scene's (or pile's) times and counts to these.
+  void Add(const StageTimes& other);
 };
 
 /// The seed of scene `seq` of generator `generator_id` for base seed `base_seed`, after
 /// `redraw` failed attempts: a SplitMix64 mix of all four, so nearby inputs give unrelated seeds.
 uint64_t SceneSeed(uint64_t base_seed, int32_t generator_id, int64_t seq, int redraw);
 
-/// The physics half of a scene: the settled pile of scene `seq` and what was drawn for it.
+/// The physics half of a scene: a settled pile and what was drawn for it. With
+/// physics.views_per_pile V, pile k is shown by scenes k*V .. k*V+V-1.
 struct SettledPile {
-  int64_t seq = 0;
-  /// The scene seed of the drop that settled (after redraws): every later draw derives from it.
+  int64_t pile = 0;
+  /// The seed of the drop that settled (after redraws): the draws of its views derive from it.
   uint64_t seed = 0;
   /// The part type (config order) of each object.
   std::vector<int> object_types;
   /// Where each object settled, mm, its mesh frame in the bin (world) frame.
   std::vector<Eigen::Isometry3d> world_from_object;
-  /// physics_ms and the redraws of this scene.
+  /// physics_ms and the redraws of this pile.
   StageTimes times;
 };
 
 /// Makes scenes: drops the part into the bin, renders the settled pile and labels it. Every
 /// scene is a pure function of (config, base seed, generator id, seq). Generate is Settle then
-/// Finish; a pipeline settles scene k + 1 on another thread while scene k is finished.
+/// Finish; a pipeline settles the next pile on another thread while scenes of this one are
+/// finished.
 class SceneGenerator {
  public:
   /// Loads the part's meshes, prepares collision shapes (decompositions cached in `cache_dir`)
@@ -63,15 +68,19 @@ class SceneGenerator {
   /// each stage to `times` when not null. Throws when max_redraws drops in a row fail.
   scene Generate(int64_t seq, StageTimes* times);
 
-  /// The physics of scene `seq`: drops and settles its pile, redrawing failed drops. Safe to
-  /// call from any thread, also while Finish or Generate runs on another. Throws when
-  /// max_redraws drops in a row fail.
+  /// The physics of scene `seq`: drops and settles its pile (pile seq / views_per_pile),
+  /// redrawing failed drops. Safe to call from any thread, also while Finish or Generate runs on
+  /// another. Throws when max_redraws drops in a row fail.
   SettledPile Settle(int64_t seq) const;
 
-  /// The rest of scene `pile.seq`: camera, lights and looks, render, labels, encoding. Call it
-  /// from the thread that made the generator (it owns the GL context). Adds this stage's times
-  /// and those in `pile.times` to `times` when not null.
-  scene Finish(const SettledPile& pile, StageTimes* times);
+  /// The rest of scene `seq`, a view of `pile` (which must be pile seq / views_per_pile):
+  /// camera, lights and looks, render, labels, encoding. Call it from the thread that made the
+  /// generator (it owns the GL context). Adds the times of these stages, not the pile's, to
+  /// `times` when not null. Throws std::invalid_argument for a pile of another scene.
+  scene Finish(const SettledPile& pile, int64_t seq, StageTimes* times);
+
+  /// Scenes per pile (physics.views_per_pile).
+  int views_per_pile() const;
 
   /// Lines describing the collision shape and the renderer in use.
   std::string Description() const;

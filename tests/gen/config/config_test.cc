@@ -80,6 +80,8 @@ TEST(ConfigTest, CountRangeRoleAndDropChecks) {
             std::string::npos);
   EXPECT_NE(ErrorOf("part { rolling_friction_mm: -1 }").find("part[0].rolling_friction_mm"),
             std::string::npos);
+  EXPECT_NE(ErrorOf("physics { views_per_pile: 0 }").find("physics.views_per_pile"),
+            std::string::npos);
 }
 
 // min above max is refused.

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <future>
 #include <opencv2/imgcodecs.hpp>
 #include <set>
@@ -124,9 +125,9 @@ TEST(SceneGeneratorTest, PilesSettledOnAnotherThreadGiveTheSameScenes) {
       std::async(std::launch::async, [&generator] { return generator.Settle(0); });
   for (int64_t seq = 0; seq < 3; ++seq) {
     const SettledPile settled = ahead.get();
-    EXPECT_EQ(settled.seq, seq);
+    EXPECT_EQ(settled.pile, seq);
     ahead = std::async(std::launch::async, [&generator, seq] { return generator.Settle(seq + 1); });
-    scene message = generator.Finish(settled, nullptr);
+    scene message = generator.Finish(settled, seq, nullptr);
     pipelined.push_back(std::vector<uint8_t>(message.getEncodedSize()));
     message.encode(pipelined.back().data(), 0, static_cast<int>(pipelined.back().size()));
   }
@@ -137,6 +138,52 @@ TEST(SceneGeneratorTest, PilesSettledOnAnotherThreadGiveTheSameScenes) {
     message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
     EXPECT_TRUE(bytes == pipelined[seq]) << "scene " << seq;
   }
+}
+
+// the bytes of a scene message
+std::vector<uint8_t> Encoded(scene message) {
+  std::vector<uint8_t> bytes(message.getEncodedSize());
+  message.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+  return bytes;
+}
+
+// views_per_pile 3: scenes 0, 1, 2 show one pile (the same poses) from different cameras with
+// their own seeds, scene 3 the next pile; view 0 is the scene a single view makes, and a view
+// made from a pile settled for another view of it is the same as Generate's
+TEST(SceneGeneratorTest, ViewsOfOnePile) {
+  const std::string cache = testing::MakeTempDir("stackgen-cache");
+  LoadedConfig config = DefaultConfig();
+  SceneGenerator single(config, 1, 9, cache);
+  config.config.mutable_physics()->set_views_per_pile(3);
+  SceneGenerator views(config, 1, 9, cache);
+  EXPECT_EQ(views.views_per_pile(), 3);
+  const SettledPile pile = views.Settle(1);
+  EXPECT_EQ(pile.pile, 0);
+  std::vector<scene> scenes;
+  for (int64_t seq = 0; seq < 3; ++seq) scenes.push_back(views.Finish(pile, seq, nullptr));
+  scenes.push_back(views.Generate(3, nullptr));
+  std::set<int64_t> seeds;
+  for (size_t k = 0; k < scenes.size(); ++k) {
+    EXPECT_EQ(scenes[k].header.seq, static_cast<int64_t>(k));
+    seeds.insert(scenes[k].header.seed);
+    ASSERT_EQ(scenes[k].instances.size(), 12u);
+  }
+  EXPECT_EQ(seeds.size(), 4u);
+  for (size_t i = 0; i < 12; ++i) {
+    const double* first = scenes[0].instances[i].world_from_object.translation_mm;
+    for (int k = 1; k < 3; ++k) {
+      const double* same = scenes[k].instances[i].world_from_object.translation_mm;
+      EXPECT_TRUE(std::equal(first, first + 3, same)) << "view " << k << " instance " << i;
+    }
+  }
+  const double* next = scenes[3].instances[0].world_from_object.translation_mm;
+  EXPECT_FALSE(std::equal(next, next + 3, scenes[0].instances[0].world_from_object.translation_mm));
+  EXPECT_FALSE(std::equal(scenes[0].camera.world_from_camera.translation_mm,
+                          scenes[0].camera.world_from_camera.translation_mm + 3,
+                          scenes[1].camera.world_from_camera.translation_mm));
+  EXPECT_TRUE(Encoded(scenes[0]) == Encoded(single.Generate(0, nullptr)));
+  EXPECT_TRUE(Encoded(scenes[2]) == Encoded(views.Generate(2, nullptr)));
+  EXPECT_THROW(views.Finish(pile, 3, nullptr), std::invalid_argument);
 }
 
 // a bin too small for the parts is refused before anything runs, naming the config.

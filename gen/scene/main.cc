@@ -65,7 +65,7 @@ credits: the generator never runs more than a consumer's window ahead of what it
 resends scenes a consumer missed (from the ring, else regenerated: scene k is always the same),
 and after --count scenes waits until every reliable consumer has stored them all.
 Best-effort listeners (stackgen-view, lcm-spy, lcm-logger) are never waited for.
-The pile of the next scene settles on a second thread while a scene is rendered and published.
+The next pile settles on a second thread and scenes are encoded on a third while the next one renders.
 On exit and on SIGINT it prints the mean milliseconds per scene of each stage.
 )";
 
@@ -272,17 +272,16 @@ int Run(int argc, char** argv) {
   };
   settle_ahead(first_seq / views);
 
-  publish_periodic(true);
-  for (int64_t seq = first_seq; (count == 0 || seq < count) && !g_stop; ++seq) {
+  // the last stage on a third thread: scene k is encoded while scene k + 1 renders; it is
+  // published once encoded and allowed by the consumers' windows
+  std::future<std::pair<scene, StageTimes>> encoding;
+  const auto publish_encoded = [&] {
+    auto [message, encode_times] = encoding.get();
+    times.Add(encode_times);
+    const int64_t seq = message.header.seq;
     // never more than a reliable consumer's window ahead of what it stored
     while (!server.MayPublish(seq) && !g_stop) wait_for_consumers(20);
-    if (g_stop) break;
-    if (!current || current->pile != seq / views) {
-      current = ahead.get();
-      times.Add(current->times);
-      settle_ahead(current->pile + 1);
-    }
-    scene message = generator.Finish(*current, seq, &times);
+    if (g_stop) return;
 
     // publish the scene and its labels.
     const Clock::time_point publish_start = Clock::now();
@@ -307,8 +306,34 @@ int Run(int argc, char** argv) {
                      static_cast<long long>(published), rate);
       }
     }
+  };
+
+  publish_periodic(true);
+  for (int64_t seq = first_seq; (count == 0 || seq < count) && !g_stop; ++seq) {
+    // nothing in flight: render only what may be published (later, the one scene being
+    // encoded is published first, and rendering runs at most one scene ahead of it)
+    if (!encoding.valid()) {
+      while (!server.MayPublish(seq) && !g_stop) wait_for_consumers(20);
+      if (g_stop) break;
+    }
+    if (!current || current->pile != seq / views) {
+      current = ahead.get();
+      times.Add(current->times);
+      settle_ahead(current->pile + 1);
+    }
+    RenderedScene rendered = generator.Render(*current, seq, &times);
+    if (encoding.valid()) publish_encoded();
+    if (g_stop) break;
+    encoding =
+        std::async(std::launch::async, [&generator, rendered = std::move(rendered)]() mutable {
+          StageTimes encode_times;
+          scene message = generator.Encode(std::move(rendered), &encode_times);
+          return std::make_pair(std::move(message), encode_times);
+        });
   }
-  // a pile settled ahead for a scene that will not be published (stopped by a signal)
+  if (encoding.valid() && !g_stop) publish_encoded();
+  // work in flight for scenes that will not be published (stopped by a signal)
+  if (encoding.valid()) encoding.wait();
   if (ahead.valid()) ahead.wait();
   // after the last scene, until every reliable consumer has stored it (or went silent)
   if (count > 0 && next_seq == count) {

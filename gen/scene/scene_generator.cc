@@ -377,7 +377,18 @@ SettledPile SceneGenerator::Settle(int64_t seq) const {
   return settled;
 }
 
+struct RenderedImages {
+  cv::Mat color;     // RGB8
+  cv::Mat depth_mm;  // float
+  cv::Mat instance;  // uint16 ids
+  SensorEffects sensor;
+};
+
 scene SceneGenerator::Finish(const SettledPile& settled, int64_t seq, StageTimes* times) {
+  return Encode(Render(settled, seq, times), times);
+}
+
+RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, StageTimes* times) {
   const config::GeneratorConfig& config = impl_->config();
   const int views = views_per_pile();
   if (seq / views != settled.pile) {
@@ -452,7 +463,7 @@ scene SceneGenerator::Finish(const SettledPile& settled, int64_t seq, StageTimes
 
   // label every object from the same render.
   start = Clock::now();
-  scene out;
+  scene out{};
   out.header.seq = seq;
   out.header.generator_id = impl_->generator_id;
   out.header.seed = static_cast<int64_t>(seed);
@@ -472,13 +483,30 @@ scene SceneGenerator::Finish(const SettledPile& settled, int64_t seq, StageTimes
   out.num_instances = static_cast<int32_t>(out.instances.size());
   local.annotate_ms = MillisecondsSince(start);
 
+  // what the encoding stage needs: the images and this scene's sensor draw
+  auto images = std::make_shared<RenderedImages>();
+  images->color = rendered.color;
+  images->depth_mm = rendered.depth_mm;
+  images->instance = rendered.instance;
+  images->sensor = SampleSensorEffects(config.sensor(), sensor_engine);
+  if (times != nullptr) times->Add(local);
+  return RenderedScene{std::move(out), std::move(images)};
+}
+
+scene SceneGenerator::Encode(RenderedScene rendered_scene, StageTimes* times) const {
+  const config::GeneratorConfig& config = impl_->config();
+  RenderedImages& rendered = *rendered_scene.images;
+  scene out = std::move(rendered_scene.message);
+  StageTimes local;
+
   // the camera's sensor on the final image (gray or colour), never on depth or ids; then encode
   // the images: colour or gray, depth in depth_scale units, instance ids.
-  start = Clock::now();
+  const Clock::time_point start = Clock::now();
   const config::OutputConfig::Encoding encoding = config.output().image_encoding();
+  // (the sensor works on the rendered colour image itself: nothing else reads it)
   cv::Mat picture = rendered.color;
   if (config.camera().grayscale()) cv::cvtColor(rendered.color, picture, cv::COLOR_RGB2GRAY);
-  ApplySensorEffects(SampleSensorEffects(config.sensor(), sensor_engine), &picture);
+  ApplySensorEffects(rendered.sensor, &picture);
   out.color = EncodeImage(
       picture, config.camera().grayscale() ? image::PIXEL_GRAY8 : image::PIXEL_RGB8, encoding);
   cv::Mat depth;

@@ -51,6 +51,17 @@ struct SettledPile {
   StageTimes times;
 };
 
+/// The images of a rendered scene before the sensor and encoding (defined in the .cc).
+struct RenderedImages;
+
+/// A scene rendered and labelled whose images still need the sensor effects and encoding, the
+/// last stage, which may run on another thread.
+struct RenderedScene {
+  /// Header, camera and instances; the images are empty.
+  scene message;
+  std::shared_ptr<RenderedImages> images;
+};
+
 /// Makes scenes: drops the part into the bin, renders the settled pile and labels it. Every
 /// scene is a pure function of (config, base seed, generator id, seq). Generate is Settle then
 /// Finish; a pipeline settles the next pile on another thread while scenes of this one are
@@ -78,6 +89,12 @@ class SceneGenerator {
   /// generator (it owns the GL context). Adds the times of these stages, not the pile's, to
   /// `times` when not null. Throws std::invalid_argument for a pile of another scene.
   scene Finish(const SettledPile& pile, int64_t seq, StageTimes* times);
+
+  /// Finish in two stages: Render (camera, lights, looks, render and labels; on the thread that
+  /// made the generator) and Encode (sensor effects and image encoding; safe on any thread, also
+  /// while Render runs on another). Each adds its stages' times to `times` when not null.
+  RenderedScene Render(const SettledPile& pile, int64_t seq, StageTimes* times);
+  scene Encode(RenderedScene rendered, StageTimes* times) const;
 
   /// Scenes per pile (physics.views_per_pile).
   int views_per_pile() const;

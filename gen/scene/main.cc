@@ -316,12 +316,19 @@ int Run(int argc, char** argv) {
       while (!server.MayPublish(seq) && !g_stop) wait_for_consumers(20);
       if (g_stop) break;
     }
-    if (!current || current->pile != seq / views) {
-      current = ahead.get();
-      times.Add(current->times);
-      settle_ahead(current->pile + 1);
+    RenderedScene rendered;
+    try {
+      if (!current || current->pile != seq / views) {
+        current = ahead.get();
+        times.Add(current->times);
+        settle_ahead(current->pile + 1);
+      }
+      rendered = generator.Render(*current, seq, &times);
+    } catch (...) {
+      // the scene in flight is made: publish it before the error ends the run
+      if (encoding.valid()) publish_encoded();
+      throw;
     }
-    RenderedScene rendered = generator.Render(*current, seq, &times);
     if (encoding.valid()) publish_encoded();
     if (g_stop) break;
     encoding =

@@ -34,6 +34,7 @@ Dataset MakePiles(std::mt19937_64* engine, int scenes, double lift_mm) {
       PostureSample sample;
       sample.class_name = "part";
       sample.scene = s;
+      sample.pile = s;
       sample.alpha_deg = uniform(*engine);
       sample.beta_deg = std::clamp(tilt_deg + 10.0 * normal(*engine), -90.0, 90.0);
       sample.gamma_deg = std::remainder(tilt_deg * 3.0 + 30.0 * normal(*engine), 360.0);
@@ -123,8 +124,8 @@ TEST(PilesTest, DeterministicAndSelfSame) {
     EXPECT_EQ(test.p, 1.0) << test.name;
   }
   EXPECT_FALSE(self.different);
-  EXPECT_EQ(self.scenes_a, 12);
-  EXPECT_EQ(self.scenes_b, 12);
+  EXPECT_EQ(self.piles_a, 12);
+  EXPECT_EQ(self.piles_b, 12);
 }
 
 // parts without positions (a COCO file without world_t_m2w) leave height and radius out; a

@@ -66,8 +66,8 @@ std::vector<Scene> MakeScenes(int count, int shape) {
       }
       object.annotated = k % 4 != 3;
       // shape 1 lies higher and nearer the bin's centre line
-      object.position_mm = shape == 0 ? Eigen::Vector3d(30.0 + 5 * k, -20.0, 10.0 + 4 * k)
-                                      : Eigen::Vector3d(3.0 * k, 2.0, 50.0 + 4 * k);
+      object.position_mm = shape == 0 ? Eigen::Vector3d(30.0 + 5 * k, -20.0 + s, 10.0 + 4 * k)
+                                      : Eigen::Vector3d(3.0 * k, 2.0 + s, 50.0 + 4 * k);
       scene.push_back(object);
     }
     scenes.push_back(scene);
@@ -308,10 +308,23 @@ TEST(StatsMainTest, IdenticalDatasetsAreSame) {
   // the paper's reproduction lines and the counts follow
   EXPECT_NE(result.out.find("paper alpha: D=0 Z=0 p=1\n"), std::string::npos) << result.out;
   EXPECT_NE(result.out.find("formula (4)"), std::string::npos);
-  EXPECT_NE(result.out.find("999 random reassignments of whole scenes (10 of A, 10 of B)"),
+  EXPECT_NE(result.out.find("999 random reassignments of whole piles (10 of A, 10 of B)"),
             std::string::npos)
       << result.out;
   EXPECT_NE(result.out.find("50 instances of 10 images"), std::string::npos) << result.out;
+  EXPECT_EQ(result.out.find(" piles: "), std::string::npos) << result.out;
+
+  // two views of one pile (scene 3 shows scene 2's poses from elsewhere) are one pile
+  std::vector<Scene> views = MakeScenes(10, 0);
+  views[3] = views[2];
+  WriteCoco(views, dir + "/views.json");
+  const Result grouped =
+      RunStats({dir + "/views.json", dir + "/a.json", "--out", dir + "/plots"}, dir + "/views");
+  ASSERT_EQ(grouped.code, 0) << grouped.err;
+  EXPECT_NE(grouped.out.find("(9 piles: views of one pile are permuted together)"),
+            std::string::npos)
+      << grouped.out;
+  EXPECT_NE(grouped.out.find("(9 of A, 10 of B)"), std::string::npos) << grouped.out;
 }
 
 // Clearly different datasets: every line says "different" with small p, whatever --alpha; the
@@ -386,7 +399,7 @@ TEST(StatsMainTest, OneDatasetSummary) {
   ASSERT_EQ(calibrated.code, 0) << calibrated.err;
   const std::vector<std::string> calibration = Lines(calibrated.out);
   ASSERT_GE(calibration.size(), 3u);
-  EXPECT_EQ(calibration[0].rfind("calibration: 20 random splits of the 10 scenes into halves: "
+  EXPECT_EQ(calibration[0].rfind("calibration: 20 random splits of the 10 piles into halves: "
                                  "\"different\" in ",
                                  0),
             0u)

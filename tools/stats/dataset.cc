@@ -4,13 +4,16 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <limits>
+#include <map>
 #include <nlohmann/json.hpp>
 #include <set>
 #include <sstream>
 #include <stackgen/labels.hpp>
 #include <stackgen/scene.hpp>
 #include <stdexcept>
+#include <tuple>
 #include <utility>
 
 #include "bus/channels.h"
@@ -263,6 +266,33 @@ void ReadLcmLog(const std::string& path, const ReadOptions& options, Dataset* da
   dataset->scenes = static_cast<int64_t>(seen.size());
 }
 
+// scenes that share a part's position exactly show one pile (physics.views_per_pile: the same
+// settled poses under other cameras; two piles of their own never share a float triple)
+void AssignPiles(Dataset* dataset) {
+  std::map<int64_t, int64_t> parent;  // union-find over scenes
+  const std::function<int64_t(int64_t)> root = [&](int64_t scene) {
+    int64_t& up = parent.try_emplace(scene, scene).first->second;
+    if (up != scene) up = root(up);
+    return up;
+  };
+  std::map<std::tuple<double, double, double>, int64_t> scene_at;
+  for (const PostureSample& sample : dataset->samples) {
+    root(sample.scene);
+    const Eigen::Vector3d& p = sample.world_position_mm;
+    if (!p.allFinite()) continue;
+    const auto [at, fresh] = scene_at.emplace(std::make_tuple(p.x(), p.y(), p.z()), sample.scene);
+    if (fresh) continue;
+    const int64_t a = root(at->second), b = root(sample.scene);
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  }
+  // piles numbered in the order of their first scene
+  std::map<int64_t, int64_t> number;
+  for (auto& [scene, unused] : parent)
+    number.emplace(root(scene), static_cast<int64_t>(number.size()));
+  for (PostureSample& sample : dataset->samples) sample.pile = number.at(root(sample.scene));
+  dataset->piles = static_cast<int64_t>(number.size());
+}
+
 }  // namespace
 
 double HeadingDeg(const Eigen::Matrix3d& world_R_reference) {
@@ -316,6 +346,7 @@ Dataset ReadDataset(const std::string& path, const ReadOptions& options) {
   } else {
     throw std::runtime_error(file + " is neither a COCO file (JSON object) nor an LCM log");
   }
+  AssignPiles(&dataset);
   return dataset;
 }
 

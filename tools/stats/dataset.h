@@ -29,6 +29,10 @@ struct PostureSample {
   /// The scene (pile) it lies in: 0.. in the order scenes were first read. Instances of one
   /// pile are not independent; the pile tests permute whole scenes.
   int64_t scene = 0;
+  /// The pile it lies in: scenes that share a part pose exactly (the views of one settled pile,
+  /// physics.views_per_pile) are one pile, numbered 0.. by their first scene; otherwise a pile
+  /// is a scene. The pile tests permute whole piles.
+  int64_t pile = 0;
   /// Where its origin is in the bin (world) frame, mm (origin at the centre of the inner floor,
   /// z up); NaN when the dataset does not say (a COCO file without world_t_m2w).
   Eigen::Vector3d world_position_mm = Eigen::Vector3d::Constant(std::nan(""));
@@ -42,6 +46,8 @@ struct Dataset {
   /// Images (COCO) or distinct scenes (log: by generator_id and seq) read, with or without
   /// instances used; PostureSample::scene counts them.
   int64_t scenes = 0;
+  /// Piles among the scenes with instances used (see PostureSample::pile).
+  int64_t piles = 0;
   /// Log messages that repeated a scene already read (the same scene on STACKGEN_LABELS and
   /// STACKGEN_SCENE, or a resend).
   int64_t repeated_scenes = 0;

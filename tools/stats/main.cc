@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <map>
 #include <random>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -71,9 +72,11 @@ void PrintHelp() {
       "                                        logs, COCO files with world_t_m2w)\n"
       "  verdict: same|different (K of M tests reject ...)\n"
       "The parts of one pile lie on each other and are not independent draws, so each p is a\n"
-      "permutation p-value over whole scenes: the share of N random reassignments of the\n"
-      "scenes of A and B to two groups of their sizes whose statistic is at least the observed\n"
-      "one. holm is p corrected for the number of tests (Holm's step-down method); \"different\"\n"
+      "permutation p-value over whole piles: the share of N random reassignments of the\n"
+      "piles of A and B to two groups of their sizes whose statistic is at least the observed\n"
+      "one (a pile is a scene, or the scenes that share a part pose exactly: the views of one\n"
+      "pile, physics.views_per_pile). holm is p corrected for the number of tests (Holm's "
+      "step-down method); \"different\"\n"
       "means holm < A: the hypothesis that both come from one distribution is rejected, and two\n"
       "datasets of one config are called different by some test at most a share A of the time.\n"
       "Then the paper's D and Z (formula (4)) on samples it normalises (its p-values read the\n"
@@ -100,7 +103,7 @@ void PrintHelp() {
       "                          1); a COCO file holds no dropped instances (default: annotated\n"
       "                          only, so a log and the COCO file of one run agree). Use it on\n"
       "                          logs to compare whole piles, the bottom parts too.\n"
-      "  --permutations N        random reassignments of whole scenes per comparison, 19..1e6\n"
+      "  --permutations N        random reassignments of whole piles per comparison, 19..1e6\n"
       "                          (default 999: p-values down to 0.001).\n"
       "  --seed S                seed of the permutations, >= 0 (default 1): the same seed, the\n"
       "                          same p-values.\n"
@@ -210,6 +213,17 @@ void PrintDatasetLine(const char* letter, const Dataset& dataset, const Flags& f
                      "): " + std::to_string(dataset.samples.size()) + " instances of " +
                      std::to_string(dataset.scenes) +
                      (dataset.kind == "COCO" ? " images" : " scenes");
+  // views of one pile (scenes sharing part poses) count as one pile in the tests
+  int64_t scenes_used = 0;
+  {
+    std::set<int64_t> scenes;
+    for (const PostureSample& sample : dataset.samples) scenes.insert(sample.scene);
+    scenes_used = static_cast<int64_t>(scenes.size());
+  }
+  if (dataset.piles < scenes_used) {
+    line +=
+        " (" + std::to_string(dataset.piles) + " piles: views of one pile are permuted together)";
+  }
   if (dataset.not_annotated > 0) {
     line += ", " + std::to_string(dataset.not_annotated) + " not annotated left out";
   }
@@ -311,7 +325,7 @@ stackgen::stats::PileComparison ComparePiles(const Dataset& a, const Dataset& b,
 
 void CompareTwo(const Dataset& a, const Dataset& b, const Flags& flags) {
   namespace stats = stackgen::stats;
-  // the tests, each by permuting whole scenes, corrected for their number
+  // the tests, each by permuting whole piles, corrected for their number
   const stats::PileComparison comparison = ComparePiles(a, b, flags);
   int rejected = 0;
   for (const stats::PileTest& test : comparison.tests) {
@@ -331,11 +345,11 @@ void CompareTwo(const Dataset& a, const Dataset& b, const Flags& flags) {
 
   // how to read the verdicts
   std::printf(
-      "note: p: the share of %d random reassignments of whole scenes (%lld of A, %lld of B) "
+      "note: p: the share of %d random reassignments of whole piles (%lld of A, %lld of B) "
       "whose\nnote: statistic is at least as large (seed %lld); the parts of one pile are not\n"
-      "note: independent, so scenes, not parts, are permuted\n",
-      flags.permutations, static_cast<long long>(comparison.scenes_a),
-      static_cast<long long>(comparison.scenes_b), static_cast<long long>(flags.seed));
+      "note: independent, so piles, not parts, are permuted\n",
+      flags.permutations, static_cast<long long>(comparison.piles_a),
+      static_cast<long long>(comparison.piles_b), static_cast<long long>(flags.seed));
   std::printf(
       "note: holm: p corrected for the %zu tests (Holm); \"different\" means holm < %s: the\n"
       "note: hypothesis that A and B come from one distribution is rejected, and two datasets of\n"
@@ -413,14 +427,17 @@ std::pair<double, double> WilsonInterval(int64_t k, int64_t n) {
 // random into halves `flags.calibrate` times. With the scenes independent draws of one config
 // that is a false alarm each time, which should happen at most at the significance level.
 void Calibrate(const Dataset& dataset, const Flags& flags) {
-  std::vector<int64_t> scenes;
-  for (const PostureSample& sample : dataset.samples) scenes.push_back(sample.scene);
-  std::sort(scenes.begin(), scenes.end());
-  scenes.erase(std::unique(scenes.begin(), scenes.end()), scenes.end());
-  if (scenes.size() < 4) {
+  // whole piles go to one half (the views of one pile are not independent)
+  std::map<int64_t, int64_t> pile_of_scene;
+  for (const PostureSample& sample : dataset.samples) pile_of_scene[sample.scene] = sample.pile;
+  std::vector<int64_t> piles;
+  for (const auto& [scene, pile] : pile_of_scene) piles.push_back(pile);
+  std::sort(piles.begin(), piles.end());
+  piles.erase(std::unique(piles.begin(), piles.end()), piles.end());
+  if (piles.size() < 4) {
     throw std::runtime_error(dataset.path +
-                             ": --calibrate needs at least 4 scenes with parts, it has " +
-                             std::to_string(scenes.size()));
+                             ": --calibrate needs at least 4 piles with parts, it has " +
+                             std::to_string(piles.size()));
   }
   std::mt19937_64 engine(static_cast<uint64_t>(flags.seed));
   std::map<std::string, int64_t> rejected_by_test;
@@ -428,12 +445,14 @@ void Calibrate(const Dataset& dataset, const Flags& flags) {
   int64_t rejected = 0;
   auto last_progress = std::chrono::steady_clock::now();
   for (int split = 0; split < flags.calibrate; ++split) {
-    std::shuffle(scenes.begin(), scenes.end(), engine);
+    std::shuffle(piles.begin(), piles.end(), engine);
+    const std::set<int64_t> first_piles(piles.begin(), piles.begin() + piles.size() / 2);
     std::vector<bool> first(static_cast<size_t>(dataset.scenes), false);
-    for (size_t k = 0; k < scenes.size() / 2; ++k) first[scenes[k]] = true;
+    for (const auto& [scene, pile] : pile_of_scene) first[scene] = first_piles.count(pile) != 0;
     const auto [one, other] = stackgen::stats::SplitScenes(dataset, first);
     Flags split_flags = flags;
-    split_flags.seed = flags.seed + 1 + split;
+    split_flags.seed =
+        static_cast<int64_t>((static_cast<uint64_t>(flags.seed) + 1 + split) & INT64_MAX);
     const stackgen::stats::PileComparison comparison = ComparePiles(one, other, split_flags);
     rejected += comparison.different ? 1 : 0;
     for (const stackgen::stats::PileTest& test : comparison.tests) {
@@ -450,9 +469,9 @@ void Calibrate(const Dataset& dataset, const Flags& flags) {
   }
   const auto [low, high] = WilsonInterval(rejected, flags.calibrate);
   std::printf(
-      "calibration: %d random splits of the %zu scenes into halves: \"different\" in %lld "
+      "calibration: %d random splits of the %zu piles into halves: \"different\" in %lld "
       "(%.1f%%, 95%% interval %.1f..%.1f%%); at most %s%% are expected\n",
-      flags.calibrate, scenes.size(), static_cast<long long>(rejected),
+      flags.calibrate, piles.size(), static_cast<long long>(rejected),
       100.0 * rejected / flags.calibrate, 100.0 * low, 100.0 * high,
       Number(100.0 * flags.significance).c_str());
   std::string line = "calibration per test (different):";
@@ -485,7 +504,14 @@ int Run(const Flags& flags) {
   if (datasets.size() == 2) {
     CompareTwo(datasets[0], datasets[1], flags);
   } else {
-    if (flags.calibrate > 0) Calibrate(datasets[0], flags);
+    if (flags.calibrate > 0) {
+      try {
+        Calibrate(datasets[0], flags);
+      } catch (const std::runtime_error& error) {
+        std::fprintf(stderr, "%s: error: %s\n", kProgram, error.what());
+        return 2;
+      }
+    }
     SummariseOne(datasets[0]);
   }
   const char* letters[] = {"A", "B"};

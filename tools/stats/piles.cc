@@ -5,6 +5,7 @@
 #include <map>
 #include <numeric>
 #include <random>
+#include <set>
 #include <stdexcept>
 #include <utility>
 
@@ -144,16 +145,16 @@ PileComparison ComparePiles(const Dataset& a, const Dataset& b, const PileOption
   const Dataset* datasets[2] = {&a, &b};
   for (int d = 0; d < 2; ++d) {
     for (const PostureSample& sample : datasets[d]->samples) {
-      const auto key = std::make_pair(d, sample.scene);
+      const auto key = std::make_pair(d, sample.pile);
       if (pooled_scene.count(key) == 0) {
         pooled_scene.emplace(key, static_cast<int32_t>(pooled_scene.size()));
-        ++(d == 0 ? comparison.scenes_a : comparison.scenes_b);
+        ++(d == 0 ? comparison.piles_a : comparison.piles_b);
       }
     }
   }
   const int scenes = static_cast<int>(pooled_scene.size());
   std::vector<uint8_t> group(scenes, 1);
-  for (int s = 0; s < comparison.scenes_a; ++s) group[s] = 0;
+  for (int s = 0; s < comparison.piles_a; ++s) group[s] = 0;
 
   // each measure's values, and its statistic between A and B
   std::vector<Pooled> measures;
@@ -164,7 +165,7 @@ PileComparison ComparePiles(const Dataset& a, const Dataset& b, const PileOption
       for (const PostureSample& sample : datasets[d]->samples) {
         const double value = measure.value(sample);
         if (std::isnan(value)) continue;
-        values.emplace_back(value, pooled_scene.at({d, sample.scene}));
+        values.emplace_back(value, pooled_scene.at({d, sample.pile}));
         ++n[d];
       }
     }
@@ -222,7 +223,7 @@ PileComparison ComparePiles(const Dataset& a, const Dataset& b, const PileOption
   std::vector<uint8_t> permuted(scenes);
   for (int k = 0; k < options.permutations; ++k) {
     std::shuffle(order.begin(), order.end(), engine);
-    for (int s = 0; s < scenes; ++s) permuted[order[s]] = s < comparison.scenes_a ? 0 : 1;
+    for (int s = 0; s < scenes; ++s) permuted[order[s]] = s < comparison.piles_a ? 0 : 1;
     for (size_t m = 0; m < measures.size(); ++m) {
       const double observed = comparison.tests[m].value;
       if (Statistic(measures[m], permuted) >= observed * (1.0 - kTieTolerance)) ++at_least[m];
@@ -257,13 +258,18 @@ std::pair<Dataset, Dataset> SplitScenes(const Dataset& dataset, const std::vecto
   }
   halves.first.scenes = std::count(first.begin(), first.end(), true);
   halves.second.scenes = dataset.scenes - halves.first.scenes;
+  std::set<int64_t> piles[2];
   halves.first.path += " (first part)";
   halves.second.path += " (second part)";
   for (const PostureSample& sample : dataset.samples) {
-    Dataset* part = first.at(sample.scene) ? &halves.first : &halves.second;
+    const int half = first.at(sample.scene) ? 0 : 1;
+    Dataset* part = parts[half];
     part->samples.push_back(sample);
+    piles[half].insert(sample.pile);
     ++part->class_counts[sample.class_name];
   }
+  halves.first.piles = static_cast<int64_t>(piles[0].size());
+  halves.second.piles = static_cast<int64_t>(piles[1].size());
   return halves;
 }
 

@@ -3,10 +3,10 @@
 // Comparing the piles of two datasets. The parts of one pile lie on each other: their heights,
 // faces and angles are not independent draws, so a test that counts parts as independent
 // calls two seeds of one config "different" far more often than its significance says. Here
-// every measure is tested by permuting whole scenes between the two datasets (the scene is the
-// independent draw), and the family of tests is corrected with Holm's step-down method, so the
-// verdict "different" comes from the pair of datasets at most at the stated rate when both come
-// from one config.
+// every measure is tested by permuting whole piles between the two datasets (the pile is the
+// independent draw: a scene, or the views of one pile, PostureSample::pile), and the family of
+// tests is corrected with Holm's step-down method, so the verdict "different" comes from the
+// pair of datasets at most at the stated rate when both come from one config.
 
 #include <cstdint>
 #include <string>
@@ -50,14 +50,14 @@ struct PileComparison {
   std::vector<std::string> left_out;
   /// Some test says "different" after the correction.
   bool different = false;
-  /// Scenes holding at least one part used, per dataset.
-  int64_t scenes_a = 0;
-  int64_t scenes_b = 0;
+  /// Piles holding at least one part used, per dataset (the units permuted).
+  int64_t piles_a = 0;
+  int64_t piles_b = 0;
 };
 
 /// How to compare.
 struct PileOptions {
-  /// Random reassignments of whole scenes to the two datasets, 19..1000000. Default 999: the
+  /// Random reassignments of whole piles to the two datasets, 19..1000000. Default 999: the
   /// smallest p-value is 1/1000.
   int permutations = 999;
   /// Seed of the engine that draws the permutations (the same seed, the same p-values).

@@ -201,7 +201,8 @@ class Stream:
     @property
     def counters(self):
         """dict: received, handed, duplicates, lost, reasked, bad_messages, dropped_behind,
-        fault_dropped, queued."""
+        fault_dropped, queued. On a live bus the delivery counts (lost, reasked, fault_dropped)
+        are refreshed every 20 ms, and are final once the stream is closed."""
         return self._native.counters
 
     @property

@@ -91,7 +91,9 @@ def test_reliable_stream_misses_nothing_under_loss(tmp_path, processes):
         generator = processes(generator_argv(url, count, tmp_path / "cache", "--fault-drop", "0.1"),
                               "stackgen")
         seqs = [scene.seq for scene in stream]
-        counters = stream.counters
+    # the counters after close: while live they are refreshed every 20 ms, so a scene asked
+    # for again and handed out last may still count as lost for that long
+    counters = stream.counters
     assert generator.wait(60) == 0, generator.stderr()
     assert sorted(seqs) == list(range(count))
     assert counters["fault_dropped"] > 0

@@ -22,6 +22,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "bus/rle_counts.h"
+
 namespace stackgen {
 namespace {
 
@@ -50,34 +52,6 @@ constexpr std::string_view kScenePrefix = "],\"scene\":";
 std::string SceneName(const stackgen::scene& scene) {
   return "scene " + std::to_string(scene.header.generator_id) + "/" +
          std::to_string(scene.header.seq);
-}
-
-// the runs of a COCO compressed RLE string (cocoapi maskApi.c rleFrString); throws
-// std::runtime_error on a malformed string. Consumers do not link gen/, hence this small copy.
-std::vector<uint32_t> ParseRleCounts(const std::string& counts) {
-  std::vector<uint32_t> runs;
-  size_t p = 0;
-  while (p < counts.size()) {
-    int64_t x = 0;
-    int k = 0;
-    bool more = true;
-    while (more) {
-      if (p >= counts.size() || k >= 7) throw std::runtime_error("a number is cut short");
-      const int c = static_cast<unsigned char>(counts[p]) - 48;
-      if (c < 0 || c > 63) throw std::runtime_error("char outside '0'..'o'");
-      x |= static_cast<int64_t>(c & 0x1f) << (5 * k);
-      more = (c & 0x20) != 0;
-      ++p;
-      ++k;
-      if (!more && (c & 0x10)) x -= int64_t{1} << (5 * k);
-    }
-    if (runs.size() > 2) x += runs[runs.size() - 2];
-    if (x < 0 || x > std::numeric_limits<uint32_t>::max()) {
-      throw std::runtime_error("a count outside 0..2^32-1");
-    }
-    runs.push_back(static_cast<uint32_t>(x));
-  }
-  return runs;
 }
 
 [[noreturn]] void Fail(const std::string& scene_name, const std::string& text) {

@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bus/bounded_decode.h"
+#include "bus/rle_counts.h"
 
 namespace stackgen::feed {
 namespace {
@@ -43,7 +44,7 @@ bool BoxInside(const int32_t box[4], int width, int height) {
 
 // the pixels of a compressed RLE string over `area` pixels; throws std::runtime_error
 int64_t RleArea(const std::string& counts, int64_t area) {
-  const std::vector<uint32_t> runs = ParseRle(counts);
+  const std::vector<uint32_t> runs = ParseRleCounts(counts);
   int64_t total = 0, inside = 0;
   for (size_t k = 0; k < runs.size(); ++k) {
     total += runs[k];
@@ -78,36 +79,9 @@ bool CheckImage(const image& m, const std::string& field, int width, int height,
 
 }  // namespace
 
-std::vector<uint32_t> ParseRle(const std::string& counts) {
-  std::vector<uint32_t> runs;
-  size_t p = 0;
-  while (p < counts.size()) {
-    int64_t x = 0;
-    int k = 0;
-    bool more = true;
-    while (more) {
-      if (p >= counts.size()) throw std::runtime_error("a number is cut short");
-      if (k >= 7) throw std::runtime_error("a number runs past 7 characters");
-      const int c = static_cast<unsigned char>(counts[p]) - 48;
-      if (c < 0 || c > 63) throw std::runtime_error("a char outside '0'..'o'");
-      x |= static_cast<int64_t>(c & 0x1f) << (5 * k);
-      more = (c & 0x20) != 0;
-      ++p;
-      ++k;
-      if (!more && (c & 0x10)) x -= int64_t{1} << (5 * k);
-    }
-    if (runs.size() > 2) x += runs[runs.size() - 2];
-    if (x < 0 || x > std::numeric_limits<uint32_t>::max()) {
-      throw std::runtime_error("a count outside 0..2^32-1");
-    }
-    runs.push_back(static_cast<uint32_t>(x));
-  }
-  return runs;
-}
-
 int64_t DecodeRleWindow(const std::string& counts, int height, int width, int x0, int y0,
                         int window_width, int window_height, uint8_t* out) {
-  const std::vector<uint32_t> runs = ParseRle(counts);
+  const std::vector<uint32_t> runs = ParseRleCounts(counts);
   const int64_t area = int64_t{height} * width;
   const int64_t x1 = int64_t{x0} + window_width, y1 = int64_t{y0} + window_height;
   int64_t position = 0, set = 0;

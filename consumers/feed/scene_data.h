@@ -25,11 +25,6 @@ class FeedError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-/// The runs of a COCO compressed RLE string (cocoapi maskApi.c rleFrString: 5 bits per char,
-/// '0'..'o', counts from the third on stored as the difference to the one two before), starting
-/// with a run of zeros. Throws std::runtime_error on a malformed string.
-std::vector<uint32_t> ParseRle(const std::string& counts);
-
 /// Sets to 1 the pixels of the mask `counts` (compressed RLE over `height` x `width` pixels,
 /// column-major as COCO) in `out`, a row-major height x width byte array that the caller has
 /// zeroed. Returns the pixels set. Throws std::runtime_error if the runs do not cover exactly

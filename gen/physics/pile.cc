@@ -62,6 +62,11 @@ constexpr double kOverhangToleranceMm = 1;
 // releases and the settle rule are checked this many times per settle window
 constexpr int kChecksPerWindow = 25;
 
+// PickOrder: spacing of the vertical rays over the bin opening, mm, and the fraction of a part's
+// rays that may meet another part first with the part still counting as on top (grazing edges)
+constexpr double kPickRayPitchMm = 2;
+constexpr double kPickCoveredFraction = 0.02;
+
 // Throws unless lo <= value <= hi.
 void CheckRange(const char* object, const char* field, double value, double lo, double hi) {
   if (!(std::isfinite(value) && value >= lo && value <= hi)) {
@@ -488,50 +493,49 @@ PileResult PileSimulator::Simulate(int count, uint64_t seed) const {
   return Simulate(std::vector<int>(count, 0), seed);
 }
 
-PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed) const {
-  const Model& m = *model_;
-  for (int type : types) TypeAt(m.types, type);
-  const int count = static_cast<int>(types.size());
-  const BinSpec& bin = m.bin;
-  const SimulationParams& params = m.params;
-  const double dt = params.time_step_s;
-  World w;
+namespace {
 
-  // gravity and the contact solver: split impulse always (position fixes add no energy), two
-  // cached friction directions (less creep in piles)
-  w.world->setGravity(btVector3(0, 0, ToSim(-kGravityMmS2)));
-  btContactSolverInfo& solver = w.world->getSolverInfo();
-  solver.m_numIterations = kSolverIterations;
-  solver.m_splitImpulse = true;
-  solver.m_splitImpulsePenetrationThreshold = 0;
-  solver.m_restitutionVelocityThreshold = ToSim(kRestitutionThresholdMmS);
-  solver.m_solverMode = SOLVER_USE_WARMSTARTING | SOLVER_SIMD | SOLVER_USE_2_FRICTION_DIRECTIONS |
-                        SOLVER_ENABLE_FRICTION_DIRECTION_CACHING |
-                        SOLVER_DISABLE_VELOCITY_DEPENDENT_FRICTION_DIRECTION;
+// Bullet multiplies the two bodies' coefficients: each gets the square root, so a contact
+// gets the geometric mean of the two surfaces' values
+btScalar Root(double value) { return static_cast<btScalar>(std::sqrt(value)); }
 
-  // Bullet multiplies the two bodies' coefficients: each gets the square root, so a contact
-  // gets the geometric mean of the two surfaces' values
-  const auto root = [](double value) { return static_cast<btScalar>(std::sqrt(value)); };
-
-  // the bin: a tote mesh, or floor and four walls as a static compound of boxes. Nothing is
-  // under it: a part that falls past the bin's bottom has left the bin, and the drop stops
-  // there (a table cost every part a collision test per step and caught only parts that make
-  // the drop a redraw anyway)
-  double bottom_z_mm = 0;
-  if (m.tote_shape != nullptr) {
-    btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, m.tote_shape.get());
-    info.m_friction = root(bin.friction);
-    info.m_restitution = root(bin.restitution);
-    w.AddBody(info);
-    bottom_z_mm = m.table_z_mm;
-  } else {
+// A world with gravity, the solver and the bin set up, into which parts are put: what
+// Simulate, Resettle and PickOrder share.
+class PileWorld {
+ public:
+  // the bin: a tote mesh (tote_shape, its lowest point at bottom_z_mm), or floor and four walls
+  // as a static compound of boxes. Nothing is under it: a part that falls past the bin's bottom
+  // has left the bin, and the drop stops there (a table cost every part a collision test per
+  // step and caught only parts that make the drop a redraw anyway)
+  PileWorld(const BinSpec& bin, const std::vector<TypeModel>& types, btCollisionShape* tote_shape,
+            double tote_bottom_z_mm)
+      : types_(types), shape_of_type_(types.size(), nullptr), inertia_of_type_(types.size()) {
+    // gravity and the contact solver: split impulse always (position fixes add no energy), two
+    // cached friction directions (less creep in piles)
+    w_.world->setGravity(btVector3(0, 0, ToSim(-kGravityMmS2)));
+    btContactSolverInfo& solver = w_.world->getSolverInfo();
+    solver.m_numIterations = kSolverIterations;
+    solver.m_splitImpulse = true;
+    solver.m_splitImpulsePenetrationThreshold = 0;
+    solver.m_restitutionVelocityThreshold = ToSim(kRestitutionThresholdMmS);
+    solver.m_solverMode = SOLVER_USE_WARMSTARTING | SOLVER_SIMD | SOLVER_USE_2_FRICTION_DIRECTIONS |
+                          SOLVER_ENABLE_FRICTION_DIRECTION_CACHING |
+                          SOLVER_DISABLE_VELOCITY_DEPENDENT_FRICTION_DIRECTION;
+    if (tote_shape != nullptr) {
+      btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, tote_shape);
+      info.m_friction = Root(bin.friction);
+      info.m_restitution = Root(bin.restitution);
+      bin_body_ = w_.AddBody(info);
+      bottom_z_mm_ = tote_bottom_z_mm;
+      return;
+    }
     const double l = bin.inner_length_mm / 2;
     const double wd = bin.inner_width_mm / 2;
     const double h = bin.inner_height_mm;
     const double t = bin.wall_mm;
-    auto* compound = w.AddShape<btCompoundShape>(false, 5);
+    auto* compound = w_.AddShape<btCompoundShape>(false, 5);
     auto add_box = [&](const Eigen::Vector3d& lo, const Eigen::Vector3d& hi) {
-      auto* box = w.AddShape<btBoxShape>(ToSim(Eigen::Vector3d((hi - lo) / 2)));
+      auto* box = w_.AddShape<btBoxShape>(ToSim(Eigen::Vector3d((hi - lo) / 2)));
       box->setMargin(ToSim(kMarginMm));
       compound->addChildShape(btTransform(btQuaternion::getIdentity(), ToSim((lo + hi) / 2)), box);
     };
@@ -542,44 +546,147 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
     add_box({-l, -wd - t, 0}, {l, -wd, h});
     add_box({-l, wd, 0}, {l, wd + t, h});
     btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, compound);
-    info.m_friction = root(bin.friction);
-    info.m_restitution = root(bin.restitution);
-    w.AddBody(info);
-    bottom_z_mm = -std::max(t, kMinFloorThicknessMm);
+    info.m_friction = Root(bin.friction);
+    info.m_restitution = Root(bin.restitution);
+    bin_body_ = w_.AddBody(info);
+    bottom_z_mm_ = -std::max(t, kMinFloorThicknessMm);
   }
+
+  // Builds the collision shape of each type in `types` not built yet: a compound of its pieces
+  // around the centre of mass, principal axes.
+  void AddShapes(const std::vector<int>& types) {
+    for (int type : types) {
+      if (shape_of_type_[type] != nullptr) continue;
+      const TypeModel& tm = types_[type];
+      auto* shape = w_.AddShape<btCompoundShape>(true, static_cast<int>(tm.pieces.size()));
+      for (const Piece& piece : tm.pieces) {
+        btCollisionShape* child = nullptr;
+        if (piece.is_box) {
+          child = w_.AddShape<btBoxShape>(ToSim(piece.half_extents_mm));
+        } else {
+          auto* hull = w_.AddShape<btConvexHullShape>();
+          for (const auto& p : piece.points_mm) hull->addPoint(ToSim(p), false);
+          hull->recalcLocalAabb();
+          child = hull;
+        }
+        child->setMargin(ToSim(piece.margin_mm));
+        shape->addChildShape(ToSim(piece.body_from_piece), child);
+      }
+      shape_of_type_[type] = shape;
+      const Eigen::Vector3d& moments = tm.mass.principal_moments_kg_mm2;
+      const double inertia_scale = kSimPerMm * kSimPerMm;
+      inertia_of_type_[type] = btVector3(static_cast<btScalar>(moments.x() * inertia_scale),
+                                         static_cast<btScalar>(moments.y() * inertia_scale),
+                                         static_cast<btScalar>(moments.z() * inertia_scale));
+    }
+  }
+
+  // Puts a part of `type` at rest with its mesh frame at `world_from_object`.
+  btRigidBody* AddPart(int type, const Eigen::Isometry3d& world_from_object) {
+    AddShapes({type});
+    const TypeModel& tm = types_[type];
+    btRigidBody::btRigidBodyConstructionInfo info(static_cast<btScalar>(tm.mass.mass_kg), nullptr,
+                                                  shape_of_type_[type], inertia_of_type_[type]);
+    info.m_startWorldTransform = ToSim(world_from_object * tm.object_from_body);
+    info.m_friction = Root(tm.physics.friction);
+    info.m_restitution = Root(tm.physics.restitution);
+    info.m_rollingFriction = ToSim(tm.physics.rolling_friction_mm);
+    info.m_spinningFriction = ToSim(tm.physics.rolling_friction_mm);
+    btRigidBody* body = w_.AddBody(info);
+    // the settle rule decides when to stop; sleeping bodies would freeze mid-motion
+    body->setActivationState(DISABLE_DEACTIVATION);
+    body->setDamping(0, static_cast<btScalar>(kAngularDamping));
+    parts_.push_back(body);
+    part_types_.push_back(type);
+    return body;
+  }
+
+  // whether a part's centre of mass fell a part size below the bin's bottom: outside for good
+  bool FellOut() const {
+    for (size_t b = 0; b < parts_.size(); ++b) {
+      const double z_mm = parts_[b]->getCenterOfMassPosition().z() / kSimPerMm;
+      if (z_mm < bottom_z_mm_ - types_[part_types_[b]].max_extent_mm) return true;
+    }
+    return false;
+  }
+
+  // the mesh frame of a part, mm
+  Eigen::Isometry3d WorldFromObject(const btRigidBody* body, int type) const {
+    return FromSim(body->getWorldTransform()) * types_[type].body_from_object;
+  }
+
+  // the deepest penetration over the current contacts, mm
+  double MaxPenetrationMm() {
+    double deepest = 0;
+    for (int i = 0; i < w_.dispatcher.getNumManifolds(); ++i) {
+      const btPersistentManifold* manifold = w_.dispatcher.getManifoldByIndexInternal(i);
+      for (int c = 0; c < manifold->getNumContacts(); ++c) {
+        const double distance_mm = manifold->getContactPoint(c).getDistance() / kSimPerMm;
+        deepest = std::max(deepest, -distance_mm);
+      }
+    }
+    return deepest;
+  }
+
+  btDiscreteDynamicsWorld& world() { return *w_.world; }
+  const btRigidBody* bin_body() const { return bin_body_; }
+
+ private:
+  const std::vector<TypeModel>& types_;
+  World w_;
+  btRigidBody* bin_body_ = nullptr;
+  double bottom_z_mm_ = 0;
+  std::vector<btCompoundShape*> shape_of_type_;
+  std::vector<btVector3> inertia_of_type_;
+  std::vector<btRigidBody*> parts_;  // in the order added
+  std::vector<int> part_types_;
+};
+
+// Adds the mesh frame of a part whose body (centre of mass) is at `world_from_body` to `result`
+// and counts it if it is outside the bin (its centre of mass is not in the bin, up to one part
+// size above the rim, for an overfull pile is still in the bin; or it hangs beyond a wall's
+// plane below the rim) or leans over the rim.
+void AddPlacement(const BinSpec& bin, const TypeModel& tm, const Eigen::Isometry3d& world_from_body,
+                  PileResult* result) {
+  const Eigen::Isometry3d world_from_object = world_from_body * tm.body_from_object;
+  result->world_from_object.push_back(world_from_object);
+  const Eigen::Vector3d com = world_from_body.translation();
+  const bool inside = std::abs(com.x()) <= bin.inner_length_mm / 2 &&
+                      std::abs(com.y()) <= bin.inner_width_mm / 2 && com.z() >= 0 &&
+                      com.z() <= bin.inner_height_mm + tm.max_extent_mm;
+  // parts reaching beyond the walls' planes: hanging outside below the rim, leaning over it
+  // above
+  bool hooked = false, leaning = false;
+  for (const auto& v : tm.hull_vertices_mm) {
+    const Eigen::Vector3d p = world_from_object * v;
+    const bool beyond = std::abs(p.x()) > bin.inner_length_mm / 2 + kOverhangToleranceMm ||
+                        std::abs(p.y()) > bin.inner_width_mm / 2 + kOverhangToleranceMm;
+    if (beyond && p.z() < bin.inner_height_mm - kOverhangToleranceMm) hooked = true;
+    if (beyond) leaning = true;
+  }
+  if (!inside || hooked) {
+    ++result->num_outside;
+  } else if (leaning) {
+    ++result->num_overhanging;
+  }
+}
+
+}  // namespace
+
+PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed) const {
+  const Model& m = *model_;
+  for (int type : types) TypeAt(m.types, type);
+  const int count = static_cast<int>(types.size());
+  const BinSpec& bin = m.bin;
+  const SimulationParams& params = m.params;
+  const double dt = params.time_step_s;
+  PileWorld w(bin, m.types, m.tote_shape.get(), m.table_z_mm);
   if (count == 0) {
     PileResult empty;
     empty.settled = true;
     return empty;
   }
-
-  // each type used: a compound of its pieces around the centre of mass, principal axes
-  std::vector<btCompoundShape*> type_shape(m.types.size(), nullptr);
-  std::vector<btVector3> type_inertia(m.types.size());
-  for (int type : types) {
-    if (type_shape[type] != nullptr) continue;
-    const TypeModel& tm = m.types[type];
-    auto* shape = w.AddShape<btCompoundShape>(true, static_cast<int>(tm.pieces.size()));
-    for (const Piece& piece : tm.pieces) {
-      btCollisionShape* child = nullptr;
-      if (piece.is_box) {
-        child = w.AddShape<btBoxShape>(ToSim(piece.half_extents_mm));
-      } else {
-        auto* hull = w.AddShape<btConvexHullShape>();
-        for (const auto& p : piece.points_mm) hull->addPoint(ToSim(p), false);
-        hull->recalcLocalAabb();
-        child = hull;
-      }
-      child->setMargin(ToSim(piece.margin_mm));
-      shape->addChildShape(ToSim(piece.body_from_piece), child);
-    }
-    type_shape[type] = shape;
-    const Eigen::Vector3d& moments = tm.mass.principal_moments_kg_mm2;
-    const double inertia_scale = kSimPerMm * kSimPerMm;
-    type_inertia[type] = btVector3(static_cast<btScalar>(moments.x() * inertia_scale),
-                                   static_cast<btScalar>(moments.y() * inertia_scale),
-                                   static_cast<btScalar>(moments.z() * inertia_scale));
-  }
+  w.AddShapes(types);
 
   // how each part drops, all drawn now: orientation, bounding box, and x, y inside the opening
   // (centred where the box is wider than the bin)
@@ -643,7 +750,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
     for (size_t b = 0; b < released_bodies.size(); ++b) {
       const TypeModel& tm = m.types[released_types[b]];
       const Eigen::Isometry3d world_from_object =
-          FromSim(released_bodies[b]->getWorldTransform()) * tm.body_from_object;
+          w.WorldFromObject(released_bodies[b], released_types[b]);
       Box box;
       for (const auto& v : tm.hull_vertices_mm) box.Add(world_from_object * v);
       boxes.push_back(box);
@@ -654,19 +761,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
     const auto parts = queue.Next(time_s, std::move(boxes), in_pile, landed);
     for (const auto& [part, z] : parts) {
       const int type = queue.release(part).type;
-      const TypeModel& tm = m.types[type];
-      btRigidBody::btRigidBodyConstructionInfo info(static_cast<btScalar>(tm.mass.mass_kg), nullptr,
-                                                    type_shape[type], type_inertia[type]);
-      info.m_startWorldTransform =
-          ToSim(queue.release(part).WorldFromObjectAt(z) * tm.object_from_body);
-      info.m_friction = root(tm.physics.friction);
-      info.m_restitution = root(tm.physics.restitution);
-      info.m_rollingFriction = ToSim(tm.physics.rolling_friction_mm);
-      info.m_spinningFriction = ToSim(tm.physics.rolling_friction_mm);
-      btRigidBody* body = w.AddBody(info);
-      // the settle rule decides when to stop; sleeping bodies would freeze mid-motion
-      body->setActivationState(DISABLE_DEACTIVATION);
-      body->setDamping(0, static_cast<btScalar>(kAngularDamping));
+      btRigidBody* body = w.AddPart(type, queue.release(part).WorldFromObjectAt(z));
       body_of_part[part] = body;
       released_bodies.push_back(body);
       released_types.push_back(type);
@@ -691,19 +786,11 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
                         params.settle_window_s);
   PileResult result;
   int step = 0;
-  // a part whose centre of mass fell a part size below the bin's bottom is outside for good
-  const auto fell_out = [&] {
-    for (size_t b = 0; b < released_bodies.size(); ++b) {
-      const double z_mm = released_bodies[b]->getCenterOfMassPosition().z() / kSimPerMm;
-      if (z_mm < bottom_z_mm - m.types[released_types[b]].max_extent_mm) return true;
-    }
-    return false;
-  };
   while (step < max_steps && step - last_release_step < settle_steps && !result.settled) {
-    w.world->stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
+    w.world().stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
     ++step;
     if (step % check_every != 0) continue;
-    if (fell_out()) break;
+    if (w.FellOut()) break;
     const double time_s = step * dt;
     if (!queue.empty()) {
       if (release(time_s)) last_release_step = step;
@@ -717,8 +804,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
   }
   result.simulated_s = step * dt;
 
-  // the mesh frame of each part, and whether its centre of mass is in the bin (up to one part
-  // size above the rim: an overfull pile is still in the bin)
+  // the mesh frame of each part, and whether it is in the bin
   for (int i = 0; i < count; ++i) {
     if (body_of_part[i] == nullptr) {
       // still waiting when time ran out: it never entered the bin
@@ -726,39 +812,116 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
       ++result.num_outside;
       continue;
     }
-    const TypeModel& tm = m.types[types[i]];
-    const Eigen::Isometry3d world_from_body = FromSim(body_of_part[i]->getWorldTransform());
-    result.world_from_object.push_back(world_from_body * tm.body_from_object);
-    const Eigen::Vector3d com = world_from_body.translation();
-    const bool inside = std::abs(com.x()) <= bin.inner_length_mm / 2 &&
-                        std::abs(com.y()) <= bin.inner_width_mm / 2 && com.z() >= 0 &&
-                        com.z() <= bin.inner_height_mm + tm.max_extent_mm;
-    // parts reaching beyond the walls' planes: hanging outside below the rim, leaning over it
-    // above
-    bool hooked = false, leaning = false;
-    for (const auto& v : tm.hull_vertices_mm) {
-      const Eigen::Vector3d p = result.world_from_object.back() * v;
-      const bool beyond = std::abs(p.x()) > bin.inner_length_mm / 2 + kOverhangToleranceMm ||
-                          std::abs(p.y()) > bin.inner_width_mm / 2 + kOverhangToleranceMm;
-      if (beyond && p.z() < bin.inner_height_mm - kOverhangToleranceMm) hooked = true;
-      if (beyond) leaning = true;
-    }
-    if (!inside || hooked) {
-      ++result.num_outside;
-    } else if (leaning) {
-      ++result.num_overhanging;
+    AddPlacement(bin, m.types[types[i]], FromSim(body_of_part[i]->getWorldTransform()), &result);
+  }
+  result.max_penetration_mm = w.MaxPenetrationMm();
+  return result;
+}
+
+PileResult PileSimulator::Resettle(const std::vector<int>& types,
+                                   const std::vector<Eigen::Isometry3d>& world_from_object) const {
+  const Model& m = *model_;
+  for (int type : types) TypeAt(m.types, type);
+  if (types.size() != world_from_object.size()) {
+    throw std::invalid_argument("PileSimulator::Resettle: " + std::to_string(types.size()) +
+                                " types but " + std::to_string(world_from_object.size()) +
+                                " poses");
+  }
+  const SimulationParams& params = m.params;
+  const double dt = params.time_step_s;
+  PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm);
+  w.AddShapes(types);
+  std::vector<btRigidBody*> bodies;
+  for (size_t i = 0; i < types.size(); ++i)
+    bodies.push_back(w.AddPart(types[i], world_from_object[i]));
+
+  // step until settled (the window starts at once) or the cap, checking as Simulate does
+  const int max_steps = static_cast<int>(std::ceil(params.max_sim_time_s / dt - 1e-9));
+  const int check_every =
+      std::max(1, static_cast<int>(std::lround(params.settle_window_s / kChecksPerWindow / dt)));
+  SettleDetector settle(params.settle_translation_mm, params.settle_rotation_deg,
+                        params.settle_window_s);
+  PileResult result;
+  result.settled = bodies.empty();
+  int step = 0;
+  while (step < max_steps && !result.settled) {
+    w.world().stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
+    ++step;
+    if (step % check_every != 0) continue;
+    if (w.FellOut()) break;
+    std::vector<Eigen::Isometry3d> poses;
+    for (const btRigidBody* body : bodies) poses.push_back(FromSim(body->getWorldTransform()));
+    result.settled = settle.AddSample(step * dt, poses);
+  }
+  result.simulated_s = step * dt;
+  for (size_t i = 0; i < types.size(); ++i) {
+    AddPlacement(m.bin, m.types[types[i]], FromSim(bodies[i]->getWorldTransform()), &result);
+  }
+  result.max_penetration_mm = w.MaxPenetrationMm();
+  return result;
+}
+
+std::vector<int> PileSimulator::PickOrder(
+    const std::vector<int>& types, const std::vector<Eigen::Isometry3d>& world_from_object) const {
+  const Model& m = *model_;
+  for (int type : types) TypeAt(m.types, type);
+  if (types.size() != world_from_object.size()) {
+    throw std::invalid_argument("PileSimulator::PickOrder: " + std::to_string(types.size()) +
+                                " types but " + std::to_string(world_from_object.size()) +
+                                " poses");
+  }
+  PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm);
+  std::vector<const btCollisionObject*> bodies;
+  double top_mm = m.bin.inner_height_mm;
+  for (size_t i = 0; i < types.size(); ++i) {
+    bodies.push_back(w.AddPart(types[i], world_from_object[i]));
+    top_mm =
+        std::max(top_mm, world_from_object[i].translation().z() + m.types[types[i]].max_extent_mm);
+  }
+
+  // vertical rays on a grid over the opening: each counts for the part it meets first, and as
+  // covering every other part it passes through
+  std::vector<int> seen(types.size(), 0), covered(types.size(), 0);
+  const int nx = std::max(1, static_cast<int>(std::floor(m.bin.inner_length_mm / kPickRayPitchMm)));
+  const int ny = std::max(1, static_cast<int>(std::floor(m.bin.inner_width_mm / kPickRayPitchMm)));
+  for (int ix = 0; ix < nx; ++ix) {
+    for (int iy = 0; iy < ny; ++iy) {
+      const double x = -m.bin.inner_length_mm / 2 + (ix + 0.5) * m.bin.inner_length_mm / nx;
+      const double y = -m.bin.inner_width_mm / 2 + (iy + 0.5) * m.bin.inner_width_mm / ny;
+      const btVector3 from = ToSim(Eigen::Vector3d(x, y, top_mm + 10));
+      const btVector3 to = ToSim(Eigen::Vector3d(x, y, -1));
+      btCollisionWorld::AllHitsRayResultCallback callback(from, to);
+      w.world().rayTest(from, to, callback);
+      // the parts along the ray, nearest first (the bin's floor ends it)
+      std::vector<std::pair<btScalar, int>> along;
+      for (int h = 0; h < callback.m_collisionObjects.size(); ++h) {
+        const auto it = std::find(bodies.begin(), bodies.end(), callback.m_collisionObjects[h]);
+        const int part = it == bodies.end() ? -1 : static_cast<int>(it - bodies.begin());
+        along.emplace_back(callback.m_hitFractions[h], part);
+      }
+      std::sort(along.begin(), along.end());
+      for (size_t h = 0; h < along.size() && along[h].second >= 0; ++h) {
+        ++(h == 0 ? seen : covered)[along[h].second];
+      }
     }
   }
 
-  // the deepest penetration over the current contacts
-  for (int i = 0; i < w.dispatcher.getNumManifolds(); ++i) {
-    const btPersistentManifold* manifold = w.dispatcher.getManifoldByIndexInternal(i);
-    for (int c = 0; c < manifold->getNumContacts(); ++c) {
-      const double distance_mm = manifold->getContactPoint(c).getDistance() / kSimPerMm;
-      result.max_penetration_mm = std::max(result.max_penetration_mm, -distance_mm);
-    }
-  }
-  return result;
+  // parts on top (another part covers less than kPickCoveredFraction of the area seen of them)
+  // first, most area seen from above first; then the higher centre of mass; then the lower index
+  const auto on_top = [&](int i) {
+    return covered[i] <= kPickCoveredFraction * (seen[i] + covered[i]);
+  };
+  std::vector<int> order(types.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+  const auto com_z = [&](int i) {
+    return (world_from_object[i] * m.types[types[i]].object_from_body).translation().z();
+  };
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
+    if (on_top(a) != on_top(b)) return on_top(a);
+    if (seen[a] != seen[b]) return seen[a] > seen[b];
+    return com_z(a) > com_z(b);
+  });
+  return order;
 }
 
 }  // namespace stackgen

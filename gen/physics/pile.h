@@ -20,11 +20,11 @@ namespace stackgen {
 /// collision shape instead of the box (a static triangle mesh), its lowest point is the bottom,
 /// and the inner sizes still say where parts are released and what counts as inside.
 struct BinSpec {
-  double inner_length_mm;  // along x
-  double inner_width_mm;   // along y
-  double inner_height_mm;  // inner floor to rim, along z
-  double wall_mm;          // thickness of the floor and the walls
-  double friction = 0.6;   // Coulomb coefficient of the bin's surfaces, >= 0
+  double inner_length_mm;    // along x
+  double inner_width_mm;     // along y
+  double inner_height_mm;    // inner floor to rim, along z
+  double wall_mm;            // thickness of the floor and the walls
+  double friction = 0.6;     // Coulomb coefficient of the bin's surfaces, >= 0
   double restitution = 0.1;  // 0..1
   TriangleMesh mesh;         // optional tote mesh, world frame, mm; empty = the box above
 };
@@ -129,6 +129,23 @@ class PileSimulator {
 
   /// `count` copies of type 0. Throws std::runtime_error if count < 0.
   PileResult Simulate(int count, uint64_t seed) const;
+
+  /// Puts parts of types[i] at rest with their mesh frames at world_from_object[i] (mm; a pile
+  /// Simulate settled, less what was picked from it) and runs until they settle again or
+  /// max_sim_time_s, with Simulate's settle rule (its window starts at once) and checks. Pure
+  /// function of the inputs. Throws std::invalid_argument unless there is one pose per type.
+  PileResult Resettle(const std::vector<int>& types,
+                      const std::vector<Eigen::Isometry3d>& world_from_object) const;
+
+  /// The order in which a robot picking from above takes the parts of a pile (indices into
+  /// `types`), the most visible part on top first: vertical rays on a 2 mm grid over the bin
+  /// opening each count as seen for the part they meet first and as covered for the parts
+  /// behind it; parts on top (covered on under 2 % of their rays) go before covered ones, and
+  /// among those the most area seen from above first, then the higher centre of mass, then the
+  /// lower index. Pure function of the inputs. Throws std::invalid_argument unless there is one
+  /// pose per type.
+  std::vector<int> PickOrder(const std::vector<int>& types,
+                             const std::vector<Eigen::Isometry3d>& world_from_object) const;
 
   /// One line saying which collision shape type `type` uses, e.g. "compound of 4 convex pieces
   /// (supplied)" / "HACD decomposition, 7 pieces (cached, <file>)" / "convex hull (8 vertices)".

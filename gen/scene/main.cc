@@ -258,19 +258,25 @@ int Run(int argc, char** argv) {
     publish_periodic(false);
   };
 
-  // the pipeline: the next pile settles on a second thread while the scenes of this one are
-  // rendered, labelled and published (each scene is the same either way: a pure function of its
-  // seq); with views_per_pile V, scenes k*V .. k*V+V-1 show pile k
+  // the pipeline: the next pile (or, with pick sequences, the pile after the next pick) settles
+  // on a second thread while the scenes of this one are rendered, labelled and published (each
+  // scene is the same either way: a pure function of its seq); with views_per_pile V, V scenes
+  // in a row show each state
   const int views = generator.views_per_pile();
   std::future<SettledPile> ahead;
   std::optional<SettledPile> current;
-  const auto settle_ahead = [&](int64_t pile) {
-    const int64_t seq = std::max(pile * views, first_seq);
-    if (count == 0 || seq < count) {
-      ahead = std::async(std::launch::async, [&generator, seq] { return generator.Settle(seq); });
+  const auto settle_ahead = [&] {
+    const int64_t next_first = current ? current->first_seq + views : first_seq;
+    if (count != 0 && next_first >= count) return;
+    if (current) {
+      ahead = std::async(std::launch::async,
+                         [&generator, state = *current] { return generator.SettleNext(state); });
+    } else {
+      ahead = std::async(std::launch::async,
+                         [&generator, next_first] { return generator.Settle(next_first); });
     }
   };
-  settle_ahead(first_seq / views);
+  settle_ahead();
 
   // the last stage on a third thread: scene k is encoded while scene k + 1 renders; it is
   // published once encoded and allowed by the consumers' windows
@@ -318,10 +324,10 @@ int Run(int argc, char** argv) {
     }
     RenderedScene rendered;
     try {
-      if (!current || current->pile != seq / views) {
+      if (!current || seq >= current->first_seq + views) {
         current = ahead.get();
         times.Add(current->times);
-        settle_ahead(current->pile + 1);
+        settle_ahead();
       }
       rendered = generator.Render(*current, seq, &times);
     } catch (...) {

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <mutex>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
@@ -34,6 +35,9 @@ uint64_t SplitMix64(uint64_t x) {
   x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
   return x ^ (x >> 31);
 }
+
+// mixed into a pile's drop seed for the seeds of the states after picks
+constexpr uint64_t kPickSalt = 0x7069636b5069636bULL;
 
 // Each randomisation lever draws from an engine of its own, seeded from the scene seed and the
 // lever, so switching one lever on or off never shifts another's draws.
@@ -112,8 +116,23 @@ struct SceneGenerator::Impl {
   int bin_mesh_id = 0;
   Material bin_material;
   std::string description;
+  // physics.pick_sequence: the first seq of piles 0, 1, ..., counted as far as asked
+  std::mutex pile_starts_mutex;
+  std::vector<int64_t> pile_starts = {0};
 
   const config::GeneratorConfig& config() const { return loaded.config; }
+
+  // The part type of every object of a pile, drawn from `engine`: how many of each type, then
+  // the types in config order.
+  std::vector<int> ObjectTypes(std::mt19937_64& engine) const;
+  // With picks: the object types of pile `pile`, those of its first drop.
+  std::vector<int> PickedPileTypes(int64_t pile) const;
+  // Drops and settles pile `pile_index` (its first scene is first_seq), redrawing failed drops.
+  SettledPile Drop(int64_t pile_index, int64_t first_seq) const;
+  // Picks the next part from `state` (see physics.pick_sequence); throws if none can go.
+  void Pick(SettledPile* state, int views) const;
+  // Whether a pile passes every check a published scene must pass; counts a failure in `times`.
+  bool Passes(const PileResult& pile, StageTimes* times) const;
 
   // the camera's intrinsics from the config (a preset is resolved when the config is parsed).
   Intrinsics CameraIntrinsics() const {
@@ -328,53 +347,154 @@ scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
   return Finish(pile, seq, times);
 }
 
+ScenePlace SceneGenerator::PlaceOf(int64_t seq) const {
+  if (seq < 0) throw std::invalid_argument("scene " + std::to_string(seq) + ": seq must be >= 0");
+  const int views = views_per_pile();
+  ScenePlace place;
+  if (!impl_->config().physics().pick_sequence()) {
+    place.pile = seq / views;
+    place.view = static_cast<int>(seq % views);
+    place.first_seq = seq - place.view;
+    return place;
+  }
+  // with picks, pile k shows (n_k + 1) * V scenes: where the piles start, counted up to seq
+  std::lock_guard<std::mutex> lock(impl_->pile_starts_mutex);
+  std::vector<int64_t>& starts = impl_->pile_starts;
+  while (starts.back() <= seq) {
+    const int64_t pile = static_cast<int64_t>(starts.size()) - 1;
+    const int64_t parts = static_cast<int64_t>(impl_->PickedPileTypes(pile).size());
+    starts.push_back(starts.back() + (parts + 1) * views);
+  }
+  const auto next = std::upper_bound(starts.begin(), starts.end(), seq);
+  place.pile = (next - starts.begin()) - 1;
+  const int64_t offset = seq - *(next - 1);
+  place.level = static_cast<int>(offset / views);
+  place.view = static_cast<int>(offset % views);
+  place.first_seq = seq - place.view;
+  return place;
+}
+
 SettledPile SceneGenerator::Settle(int64_t seq) const {
-  const config::GeneratorConfig& config = impl_->config();
+  const ScenePlace place = PlaceOf(seq);
+  SettledPile state = impl_->Drop(place.pile, place.first_seq - place.level * views_per_pile());
+  StageTimes times = state.times;
+  while (state.level < place.level) {
+    impl_->Pick(&state, views_per_pile());
+    times.Add(state.times);
+  }
+  state.times = times;
+  return state;
+}
+
+SettledPile SceneGenerator::SettleNext(const SettledPile& state) const {
+  const int views = views_per_pile();
+  if (impl_->config().physics().pick_sequence() && !state.object_types.empty()) {
+    SettledPile next = state;
+    impl_->Pick(&next, views);
+    return next;
+  }
+  const int64_t first_seq = state.first_seq + views;
+  return impl_->Drop(PlaceOf(first_seq).pile, first_seq);
+}
+
+std::vector<int> SceneGenerator::Impl::ObjectTypes(std::mt19937_64& engine) const {
+  // how many of each type, then the type of every object in config order
+  std::vector<int> object_types;
+  for (int t = 0; t < config().part_size(); ++t) {
+    const config::PartConfig& part = config().part(t);
+    const int count = part.count_max() > 0
+                          ? UniformCount(engine, part.count_min(), part.count_max())
+                          : part.count();
+    object_types.insert(object_types.end(), count, t);
+  }
+  return object_types;
+}
+
+std::vector<int> SceneGenerator::Impl::PickedPileTypes(int64_t pile) const {
+  std::mt19937_64 engine(SceneSeed(base_seed, generator_id, pile, 0));
+  engine();  // the drop's seed
+  return ObjectTypes(engine);
+}
+
+SettledPile SceneGenerator::Impl::Drop(int64_t pile_index, int64_t first_seq) const {
+  const bool picks = config().physics().pick_sequence();
   SettledPile settled;
-  // the pile of this scene: its drop draws from the pile's seeds (with one view per pile, the
-  // scene's own)
-  const int64_t pile_index = seq / views_per_pile();
   settled.pile = pile_index;
+  settled.first_seq = first_seq;
   StageTimes& local = settled.times;
-  uint64_t& seed = settled.seed;
+  uint64_t& seed = settled.drop_seed;
   PileResult pile;
   std::vector<int>& object_types = settled.object_types;
+  // with picks, the part counts of the first drop (where later piles start depends on them)
+  const std::vector<int> pick_types = picks ? PickedPileTypes(pile_index) : std::vector<int>();
 
   // drop the parts; a drop that fails a check is redrawn with a derived seed.
   const Clock::time_point start = Clock::now();
   for (int redraw = 0;; ++redraw) {
-    if (redraw > config.physics().max_redraws()) {
-      throw std::runtime_error("scene " + std::to_string(seq) + ": " + std::to_string(redraw) +
+    if (redraw > config().physics().max_redraws()) {
+      throw std::runtime_error("scene " + std::to_string(first_seq) + ": " +
+                               std::to_string(redraw) +
                                " drops in a row failed to settle inside the bin; check the "
                                "physics and bin settings");
     }
-    seed = SceneSeed(impl_->base_seed, impl_->generator_id, pile_index, redraw);
+    seed = SceneSeed(base_seed, generator_id, pile_index, redraw);
     std::mt19937_64 physics_rng(seed);
     const uint64_t pile_seed = physics_rng();
-    // how many of each type, then the type of every object in config order
-    object_types.clear();
-    for (int t = 0; t < config.part_size(); ++t) {
-      const config::PartConfig& part = config.part(t);
-      const int count = part.count_max() > 0
-                            ? UniformCount(physics_rng, part.count_min(), part.count_max())
-                            : part.count();
-      object_types.insert(object_types.end(), count, t);
-    }
-    pile = impl_->simulator->Simulate(object_types, pile_seed);
+    object_types = picks ? pick_types : ObjectTypes(physics_rng);
+    pile = simulator->Simulate(object_types, pile_seed);
     // every check a published scene must pass
-    const bool settled_ok = pile.settled;
-    const bool inside = pile.num_outside == 0;
-    const bool apart = pile.max_penetration_mm <= config.physics().max_penetration_mm();
-    if (settled_ok && inside && apart) break;
-    ++local.redraws;
-    // (a drop stops when a part falls out of the bin: unsettled says nothing more then)
-    local.redraws_unsettled += settled_ok || !inside ? 0 : 1;
-    local.redraws_outside += inside ? 0 : 1;
-    local.redraws_penetrating += apart ? 0 : 1;
+    if (Passes(pile, &local)) break;
   }
   local.physics_ms = MillisecondsSince(start);
+  settled.seed = seed;
   settled.world_from_object = std::move(pile.world_from_object);
   return settled;
+}
+
+bool SceneGenerator::Impl::Passes(const PileResult& pile, StageTimes* times) const {
+  const bool settled_ok = pile.settled;
+  const bool inside = pile.num_outside == 0;
+  const bool apart = pile.max_penetration_mm <= config().physics().max_penetration_mm();
+  if (settled_ok && inside && apart) return true;
+  ++times->redraws;
+  // (a drop stops when a part falls out of the bin: unsettled says nothing more then)
+  times->redraws_unsettled += settled_ok || !inside ? 0 : 1;
+  times->redraws_outside += inside ? 0 : 1;
+  times->redraws_penetrating += apart ? 0 : 1;
+  return false;
+}
+
+void SceneGenerator::Impl::Pick(SettledPile* state, int views) const {
+  const Clock::time_point start = Clock::now();
+  StageTimes local;
+  // the parts in the order a robot picks them; the first whose removal leaves a pile that
+  // passes the checks goes
+  const std::vector<int> order =
+      simulator->PickOrder(state->object_types, state->world_from_object);
+  const int tries = std::min(static_cast<int>(order.size()), config().physics().max_redraws() + 1);
+  for (int t = 0; t < tries; ++t) {
+    std::vector<int> types = state->object_types;
+    std::vector<Eigen::Isometry3d> poses = state->world_from_object;
+    types.erase(types.begin() + order[t]);
+    poses.erase(poses.begin() + order[t]);
+    PileResult rest = simulator->Resettle(types, poses);
+    if (!Passes(rest, &local)) continue;
+    state->object_types = std::move(types);
+    state->world_from_object = std::move(rest.world_from_object);
+    ++state->level;
+    state->first_seq += views;
+    state->seed =
+        SplitMix64(SplitMix64(state->drop_seed ^ kPickSalt) + static_cast<uint64_t>(state->level));
+    local.physics_ms = MillisecondsSince(start);
+    state->times = local;
+    return;
+  }
+  throw std::runtime_error("scene " + std::to_string(state->first_seq + views) + " (pile " +
+                           std::to_string(state->pile) + ", pick " +
+                           std::to_string(state->level + 1) + "): none of the " +
+                           std::to_string(tries) +
+                           " parts tried could be picked with the rest settling inside the bin; "
+                           "check the physics and bin settings");
 }
 
 struct RenderedImages {
@@ -391,15 +511,17 @@ scene SceneGenerator::Finish(const SettledPile& settled, int64_t seq, StageTimes
 RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, StageTimes* times) {
   const config::GeneratorConfig& config = impl_->config();
   const int views = views_per_pile();
-  if (seq / views != settled.pile) {
-    throw std::invalid_argument("scene " + std::to_string(seq) + " is a view of pile " +
-                                std::to_string(seq / views) + ", not of pile " +
-                                std::to_string(settled.pile));
+  if (seq < settled.first_seq || seq >= settled.first_seq + views) {
+    const ScenePlace place = PlaceOf(seq);
+    throw std::invalid_argument(
+        "scene " + std::to_string(seq) + " shows pile " + std::to_string(place.pile) + " after " +
+        std::to_string(place.level) + " picks, not pile " + std::to_string(settled.pile) +
+        " after " + std::to_string(settled.level));
   }
   StageTimes local;
-  // the seed of this view: the pile's for view 0 (a single view draws what it always drew),
+  // the seed of this view: the state's for view 0 (a single view draws what it always drew),
   // a mix of it and the view's index for the others
-  const int64_t view = seq % views;
+  const int64_t view = seq - settled.first_seq;
   const uint64_t seed =
       view == 0 ? settled.seed : SplitMix64(settled.seed ^ SplitMix64(static_cast<uint64_t>(view)));
   const std::vector<int>& object_types = settled.object_types;

@@ -37,17 +37,36 @@ struct StageTimes {
 /// `redraw` failed attempts: a SplitMix64 mix of all four, so nearby inputs give unrelated seeds.
 uint64_t SceneSeed(uint64_t base_seed, int32_t generator_id, int64_t seq, int redraw);
 
-/// The physics half of a scene: a settled pile and what was drawn for it. With
-/// physics.views_per_pile V, pile k is shown by scenes k*V .. k*V+V-1.
+/// Where scene `seq` falls: pile, fill level and view. With physics.views_per_pile V, each
+/// state of a pile is shown by V scenes in a row; with physics.pick_sequence, pile k of n parts
+/// has the states (levels) 0 .. n, level l with l parts picked, so it makes (n + 1) * V scenes,
+/// else only level 0.
+struct ScenePlace {
+  int64_t pile = 0;
+  int level = 0;
+  int view = 0;
+  /// The first scene of this state (its view 0).
+  int64_t first_seq = 0;
+};
+
+/// The physics half of a scene: one state of a settled pile and what was drawn for it.
 struct SettledPile {
   int64_t pile = 0;
-  /// The seed of the drop that settled (after redraws): the draws of its views derive from it.
+  /// Parts picked from the pile so far (physics.pick_sequence), 0 for the pile as dropped.
+  int level = 0;
+  /// The first scene that shows this state; scenes first_seq .. first_seq + V - 1 do.
+  int64_t first_seq = 0;
+  /// The seed of the drop that settled (after redraws).
+  uint64_t drop_seed = 0;
+  /// The seed the draws of this state's views derive from: drop_seed at level 0, a mix of it and
+  /// the level after picks.
   uint64_t seed = 0;
   /// The part type (config order) of each object.
   std::vector<int> object_types;
   /// Where each object settled, mm, its mesh frame in the bin (world) frame.
   std::vector<Eigen::Isometry3d> world_from_object;
-  /// physics_ms and the redraws of this pile.
+  /// physics_ms and the redraws of this state (a pick whose rest failed a check counts as a
+  /// redraw).
   StageTimes times;
 };
 
@@ -79,15 +98,25 @@ class SceneGenerator {
   /// each stage to `times` when not null. Throws when max_redraws drops in a row fail.
   scene Generate(int64_t seq, StageTimes* times);
 
-  /// The physics of scene `seq`: drops and settles its pile (pile seq / views_per_pile),
-  /// redrawing failed drops. Safe to call from any thread, also while Finish or Generate runs on
-  /// another. Throws when max_redraws drops in a row fail.
+  /// The physics of scene `seq`: drops and settles its pile, redrawing failed drops, and with
+  /// physics.pick_sequence picks parts from it down to the scene's level. Safe to call from any
+  /// thread, also while Finish or Generate runs on another. Throws when max_redraws drops in a
+  /// row fail, or when no part of a pile can be picked with the rest passing the checks.
   SettledPile Settle(int64_t seq) const;
 
-  /// The rest of scene `seq`, a view of `pile` (which must be pile seq / views_per_pile):
+  /// The state after `state`, the same as Settle of the first scene after its views but cheaper:
+  /// the next part picked from it (physics.pick_sequence and parts left), else the next pile.
+  /// Thread-safe as Settle.
+  SettledPile SettleNext(const SettledPile& state) const;
+
+  /// Where scene `seq` falls (see ScenePlace). Thread-safe. Throws std::invalid_argument for
+  /// seq < 0.
+  ScenePlace PlaceOf(int64_t seq) const;
+
+  /// The rest of scene `seq`, a view of `pile` (which must be the state scene seq shows):
   /// camera, lights and looks, render, labels, encoding. Call it from the thread that made the
   /// generator (it owns the GL context). Adds the times of these stages, not the pile's, to
-  /// `times` when not null. Throws std::invalid_argument for a pile of another scene.
+  /// `times` when not null. Throws std::invalid_argument for a state of another scene.
   scene Finish(const SettledPile& pile, int64_t seq, StageTimes* times);
 
   /// Finish in two stages: Render (camera, lights, looks, render and labels; on the thread that
@@ -96,7 +125,7 @@ class SceneGenerator {
   RenderedScene Render(const SettledPile& pile, int64_t seq, StageTimes* times);
   scene Encode(RenderedScene rendered, StageTimes* times) const;
 
-  /// Scenes per pile (physics.views_per_pile).
+  /// Scenes per state of a pile (physics.views_per_pile).
   int views_per_pile() const;
 
   /// Lines describing the collision shape and the renderer in use.

@@ -9,8 +9,10 @@
 #include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <map>
+#include <set>
 #include <stackgen/labels.hpp>
 #include <string>
 #include <vector>
@@ -33,25 +35,27 @@ struct GeneratorRun {
   std::string output;
 };
 
-// Starts `stackgen --count kScenes --seed seed` as a process, with this test listening on
-// STACKGEN_LABELS of a fresh multicast port before it starts, and collects every scene. The
-// process's output and cache go to the new folder `dir`.
-GeneratorRun Generate(const std::string& dir, uint64_t seed) {
+// Starts `stackgen --count count --seed seed --config config` as a process, with this test
+// listening on STACKGEN_LABELS of a fresh multicast port before it starts, and collects every
+// scene. The process's output and cache go to the new folder `dir`.
+GeneratorRun Generate(const std::string& dir, uint64_t seed,
+                      const std::string& config = std::string(STACKGEN_SOURCE_DIR) +
+                                                  "/config/default.pbtxt",
+                      int count = kScenes) {
   const std::string url = testing::FreeMulticastUrl();
   mkdir(dir.c_str(), 0755);
   GeneratorRun run;
   Bus bus(url);
   bus.Subscribe<labels>(
       kLabelsChannel, [&run](const labels& message) { run.scenes[message.header.seq] = message; });
-  Process generator({std::string(STACKGEN_BIN_DIR) + "/stackgen", "--config",
-                     std::string(STACKGEN_SOURCE_DIR) + "/config/default.pbtxt", "--count",
-                     std::to_string(kScenes), "--seed", std::to_string(seed), "--lcm-url", url,
+  Process generator({std::string(STACKGEN_BIN_DIR) + "/stackgen", "--config", config, "--count",
+                     std::to_string(count), "--seed", std::to_string(seed), "--lcm-url", url,
                      "--cache-dir", dir + "/cache"},
                     dir + "/stackgen");
 
   // the labels arrive as the scenes are made; generous time for a slow machine
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::minutes(5);
-  while (static_cast<int>(run.scenes.size()) < kScenes &&
+  while (static_cast<int>(run.scenes.size()) < count &&
          std::chrono::steady_clock::now() < deadline) {
     bus.HandleFor(100);
   }
@@ -126,6 +130,35 @@ TEST(DeterminismTest, SameSeedGivesBitIdenticalPosesAcrossProcesses) {
   std::cout << kScenes
             << " scenes from seed 21 twice and seed 22 once: " << first.scenes.at(0).num_instances
             << " instances in scene 0\n";
+  std::filesystem::remove_all(dir);
+}
+
+// The program's pipeline with pick sequences: piles of 3 parts show 3, 2, 1 and 0 parts in
+// scenes 0-3 and again in 4-7 (the next pile settles while a state is shown and picks are made
+// one after the other), and the states of a pile share no camera seed.
+TEST(DeterminismTest, PickSequenceEmptiesEachPileInTurn) {
+  const std::string dir = testing::MakeTempDir("stackgen-picks");
+  const std::string config = dir + "/picks.pbtxt";
+  {
+    std::ofstream out(config);
+    out << "part { mesh: \"" << STACKGEN_SOURCE_DIR
+        << "/config/models/corner_connector.obj\" collision_mesh: \"" << STACKGEN_SOURCE_DIR
+        << "/config/models/corner_connector_collision.obj\" class_name: \"connector\" count: 3 }\n"
+        << "bin { inner_length_mm: 200 inner_width_mm: 150 inner_height_mm: 100 "
+           "wall_thickness_mm: 8 }\n"
+        << "physics { pick_sequence: true }\n";
+  }
+  const GeneratorRun run = Generate(dir + "/a", 5, config, 8);
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  ASSERT_EQ(run.scenes.size(), 8u) << run.output;
+  std::vector<int> counts;
+  std::set<int64_t> seeds;
+  for (const auto& [seq, scene] : run.scenes) {
+    counts.push_back(scene.num_instances);
+    seeds.insert(scene.header.seed);
+  }
+  EXPECT_EQ(counts, (std::vector<int>{3, 2, 1, 0, 3, 2, 1, 0}));
+  EXPECT_EQ(seeds.size(), 8u);
   std::filesystem::remove_all(dir);
 }
 

@@ -236,5 +236,86 @@ TEST_F(PileTest, EmptyPile) {
   EXPECT_EQ(pile.num_outside, 0);
 }
 
+// A settled pile put back at rest where it lay stays there: Resettle settles at once, nothing
+// moves by more than the settle rule allows, and it is bit-identical per input.
+TEST_F(PileTest, ResettleKeepsASettledPile) {
+  const PileSimulator simulator = ConnectorSimulator();
+  // the first seed whose drop settles inside the bin (about one in ten loses a part)
+  PileResult pile;
+  for (uint64_t seed = 1; !(pile.settled && pile.num_outside == 0) && seed < 10; ++seed) {
+    pile = simulator.Simulate(12, seed);
+  }
+  ASSERT_TRUE(pile.settled);
+  ASSERT_EQ(pile.num_outside, 0);
+  const std::vector<int> types(12, 0);
+  const PileResult again = simulator.Resettle(types, pile.world_from_object);
+  EXPECT_TRUE(again.settled);
+  EXPECT_EQ(again.num_outside, 0);
+  EXPECT_LT(again.max_penetration_mm, 0.5);
+  EXPECT_LT(again.simulated_s, 1.0);
+  ASSERT_EQ(again.world_from_object.size(), 12u);
+  for (size_t i = 0; i < 12; ++i) {
+    const double moved_mm =
+        (again.world_from_object[i].translation() - pile.world_from_object[i].translation()).norm();
+    EXPECT_LT(moved_mm, 1.0) << "part " << i;
+  }
+  const PileResult third = simulator.Resettle(types, pile.world_from_object);
+  for (size_t i = 0; i < 12; ++i) {
+    EXPECT_TRUE(third.world_from_object[i].matrix() == again.world_from_object[i].matrix());
+  }
+  EXPECT_THROW(simulator.Resettle({0}, {}), std::invalid_argument);
+}
+
+// Picking a part from under another lets the one on top fall: a plate resting on two blocks
+// drops to the floor once a block is taken away, and the rest settles.
+TEST_F(PileTest, ResettleAfterAPickLetsTheRestFall) {
+  const PileSimulator simulator(BoxMesh({-20, -20, -5}, {20, 20, 5}), {}, PartPhysics{}, kBin,
+                                SimulationParams{}, (dir_ / "cache").string());
+  // two 40 x 40 x 10 mm plates side by side on the floor and one across them, 10 mm up
+  const auto at = [](double x, double z) {
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    pose.translation() = Eigen::Vector3d(x, 0, z);
+    return pose;
+  };
+  const PileResult stacked = simulator.Resettle({0, 0, 0}, {at(-25, 5), at(25, 5), at(0, 15)});
+  ASSERT_TRUE(stacked.settled);
+  EXPECT_NEAR(stacked.world_from_object[2].translation().z(), 15, 0.5);
+  const PileResult picked = simulator.Resettle({0, 0}, {at(-25, 5), at(0, 15)});
+  ASSERT_TRUE(picked.settled);
+  EXPECT_EQ(picked.num_outside, 0);
+  // the plate that lay across tipped over the edge of its one support: one side on the floor
+  EXPECT_LT(picked.world_from_object[1].translation().z(), 14) << "plate still up";
+  const double tilt_deg =
+      std::acos(std::min(1.0, std::abs(picked.world_from_object[1].linear()(2, 2)))) * 180 / M_PI;
+  EXPECT_GT(tilt_deg, 5);
+}
+
+// A robot takes the most visible part on top first: a plate lying half over another goes
+// before a plate standing on edge (less area seen from above), and the covered plate last,
+// though more of it is seen than of the standing one; a plate standing on top of another goes
+// first although it shows less area; the order never depends on the indices.
+TEST_F(PileTest, PickOrderTakesTheMostVisiblePartOnTopFirst) {
+  const PileSimulator simulator(BoxMesh({-20, -20, -5}, {20, 20, 5}), {}, PartPhysics{}, kBin,
+                                SimulationParams{}, (dir_ / "cache").string());
+  const auto at = [](double x, double z, bool standing) {
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    if (standing) {
+      pose.linear() = Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitX()).toRotationMatrix();
+    }
+    pose.translation() = Eigen::Vector3d(x, 0, z);
+    return pose;
+  };
+  const Eigen::Isometry3d bottom = at(-40, 5, false);
+  const Eigen::Isometry3d top = at(-20, 15, false);  // covers half of the bottom plate
+  const Eigen::Isometry3d on_edge = at(60, 20, true);
+  EXPECT_EQ(simulator.PickOrder({0, 0, 0}, {bottom, top, on_edge}), (std::vector<int>{1, 2, 0}));
+  EXPECT_EQ(simulator.PickOrder({0, 0, 0}, {on_edge, bottom, top}), (std::vector<int>{2, 0, 1}));
+  // 400 mm^2 seen of the standing plate against 1200 of the one under it
+  EXPECT_EQ(simulator.PickOrder({0, 0}, {at(40, 5, false), at(40, 30, true)}),
+            (std::vector<int>{1, 0}));
+  EXPECT_TRUE(simulator.PickOrder({}, {}).empty());
+  EXPECT_THROW(simulator.PickOrder({0, 0}, {top}), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace stackgen

@@ -242,16 +242,17 @@ void SyncFolder(const fs::path& path) {
   if (fsync(folder.get()) != 0 && errno != EINVAL) throw SystemError("cannot sync", name, errno);
 }
 
-// writes `size` bytes to `path` through `path`.tmp, synced to disk before the rename, and syncs
-// the folder after it; on failure removes what it wrote and throws naming the file and reason
-void WriteFileAtomically(const fs::path& path, const char* bytes, size_t size) {
+// writes `size` bytes to `path` through `path`.tmp, with `sync` synced to disk before the rename
+// and the folder synced after it; on failure removes what it wrote and throws naming the file and
+// reason
+void WriteFileAtomically(const fs::path& path, const char* bytes, size_t size, bool sync) {
   const std::string temporary = path.string() + ".tmp";
   // write and sync the temporary file, or remove it
   {
     ScopedFd file(open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644));
     if (file.get() < 0) throw SystemError("cannot create", temporary, errno);
     int error = WriteAll(file.get(), bytes, size);
-    if (error == 0 && fsync(file.get()) != 0) error = errno;
+    if (error == 0 && sync && fsync(file.get()) != 0) error = errno;
     const int close_error = file.Close();
     if (error == 0) error = close_error;
     if (error != 0) {
@@ -266,6 +267,7 @@ void WriteFileAtomically(const fs::path& path, const char* bytes, size_t size) {
     throw std::runtime_error("cannot rename " + temporary + " to " + path.string() + ": " +
                              std::strerror(error));
   }
+  if (!sync) return;
   try {
     SyncFolder(path.parent_path());
   } catch (const std::runtime_error&) {
@@ -780,12 +782,17 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
     }
     if (instance.class_name.empty()) Fail(name, field + ".class_name is empty");
     if (!IsUtf8(instance.class_name)) Fail(name, field + ".class_name is not valid UTF-8");
-    const auto known = categories_.find(instance.class_id);
+    // the name stored (or staged) before for this class
+    const std::string* known = nullptr;
+    for (const auto* seen : {&categories_, &staged_categories_}) {
+      const auto found = seen->find(instance.class_id);
+      if (known == nullptr && found != seen->end()) known = &found->second;
+    }
     const auto in_scene = scene_categories.emplace(instance.class_id, instance.class_name).first;
-    if ((known != categories_.end() && known->second != instance.class_name) ||
+    if ((known != nullptr && *known != instance.class_name) ||
         in_scene->second != instance.class_name) {
       Fail(name, field + ".class_name \"" + instance.class_name + "\" differs from \"" +
-                     (known != categories_.end() ? known->second : in_scene->second) +
+                     (known != nullptr ? *known : in_scene->second) +
                      "\" seen before for class_id " + std::to_string(instance.class_id));
     }
     // numbers
@@ -833,11 +840,13 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
   }
 }
 
-void CocoWriter::WriteImageFile(const stackgen::scene& scene, const std::string& path) const {
+void CocoWriter::WriteImageFile(const stackgen::scene& scene, const std::string& path,
+                                bool sync) const {
   const stackgen::image& color = scene.color;
   if (color.encoding != stackgen::image::ENCODING_RAW) {
     // PNG and JPEG: the bytes as they came
-    WriteFileAtomically(path, reinterpret_cast<const char*>(color.data.data()), color.data.size());
+    WriteFileAtomically(path, reinterpret_cast<const char*>(color.data.data()), color.data.size(),
+                        sync);
     return;
   }
   // RAW: encode to PNG (OpenCV wants BGR order)
@@ -850,7 +859,7 @@ void CocoWriter::WriteImageFile(const stackgen::scene& scene, const std::string&
   if (!cv::imencode(".png", to_encode, png)) {
     throw std::runtime_error("cannot encode " + path + " as PNG");
   }
-  WriteFileAtomically(path, reinterpret_cast<const char*>(png.data()), png.size());
+  WriteFileAtomically(path, reinterpret_cast<const char*>(png.data()), png.size(), sync);
 }
 
 void CocoWriter::AppendToJournal(const std::string& line) {
@@ -887,6 +896,16 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
       Fail(scene_name, "header.seed " + std::to_string(scene.header.seed) +
                            " differs from the stored scene's " +
                            std::to_string(stored->second.seed) +
+                           ": another run with the same --generator-id (give each run its own "
+                           "id, or write it to another --out)");
+    }
+    return false;
+  }
+  const auto staged = staged_seeds_.find(image_id);
+  if (staged != staged_seeds_.end()) {
+    if (staged->second != scene.header.seed) {
+      Fail(scene_name, "header.seed " + std::to_string(scene.header.seed) +
+                           " differs from the stored scene's " + std::to_string(staged->second) +
                            ": another run with the same --generator-id (give each run its own "
                            "id, or write it to another --out)");
     }
@@ -997,32 +1016,77 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
   line.append(kImagePrefix).append(image_text).append(kAnnotationsPrefix).append(annotations);
   line.append(kScenePrefix).append(scene_record.dump()).append("}\n");
 
-  // the image, then the line that records it; a failed line takes the image with it
+  // the image, then (at the commit) the line that records it; a failed line takes the image
+  // with it
   const std::string image_path = (fs::path(dir_) / kImagesFolder / file_name).string();
-  WriteImageFile(scene, image_path);
-  const uint64_t line_offset = journal_size_;
-  try {
-    AppendToJournal(line);
-  } catch (const std::runtime_error&) {
-    if (!journal_broken_) unlink(image_path.c_str());
-    throw;
-  }
-
-  // index it
-  JournalEntry entry;
+  WriteImageFile(scene, image_path, !options_.group_commit);
+  StagedScene staged_scene;
+  JournalEntry& entry = staged_scene.entry;
   entry.generator_id = scene.header.generator_id;
   entry.seq = scene.header.seq;
   entry.seed = scene.header.seed;
-  entry.image_offset = line_offset + kImagePrefix.size();
+  entry.image_offset = kImagePrefix.size();
   entry.image_length = image_text.size();
   entry.annotations_offset = entry.image_offset + image_text.size() + kAnnotationsPrefix.size();
   entry.annotations_length = annotations.size();
-  Index(entry, SceneCounts{scene_annotations, scene_crowd, scene_dropped});
-  categories_.insert(scene_categories.begin(), scene_categories.end());
+  staged_scene.counts = SceneCounts{scene_annotations, scene_crowd, scene_dropped};
+  staged_scene.line = std::move(line);
+  staged_scene.image_path = image_path;
+  staged_.push_back(std::move(staged_scene));
+  staged_seeds_.emplace(image_id, scene.header.seed);
+  for (const auto& category : scene_categories) {
+    if (categories_.count(category.first) == 0) staged_categories_.insert(category);
+  }
+  if (!options_.group_commit) Commit();
   return true;
 }
 
+std::vector<std::pair<int32_t, int64_t>> CocoWriter::Commit() {
+  std::vector<std::pair<int32_t, int64_t>> committed;
+  if (staged_.empty()) return committed;
+  // drops what is staged: its image files go, nothing of it stays in the writer
+  const auto drop_staged = [&] {
+    if (!journal_broken_) {
+      for (const StagedScene& staged : staged_) unlink(staged.image_path.c_str());
+    }
+    staged_.clear();
+    staged_seeds_.clear();
+    staged_categories_.clear();
+  };
+  try {
+    // group commits: the image files and their names, in one sync of the file system (without,
+    // each Add synced its image and the folder)
+    if (options_.group_commit && syncfs(journal_fd_) != 0) {
+      throw SystemError("cannot sync", (fs::path(dir_) / kImagesFolder).string(), errno);
+    }
+    // then the lines that record them, in one write and one sync
+    std::string lines;
+    for (const StagedScene& staged : staged_) lines += staged.line;
+    AppendToJournal(lines);
+  } catch (...) {
+    drop_staged();
+    throw;
+  }
+  // index them where their lines now lie
+  uint64_t line_offset = journal_size_;
+  for (const StagedScene& staged : staged_) line_offset -= staged.line.size();
+  for (const StagedScene& staged : staged_) {
+    JournalEntry entry = staged.entry;
+    entry.image_offset += line_offset;
+    entry.annotations_offset += line_offset;
+    Index(entry, staged.counts);
+    committed.emplace_back(entry.generator_id, entry.seq);
+    line_offset += staged.line.size();
+  }
+  categories_.insert(staged_categories_.begin(), staged_categories_.end());
+  staged_.clear();
+  staged_seeds_.clear();
+  staged_categories_.clear();
+  return committed;
+}
+
 void CocoWriter::Finish() {
+  Commit();
   const fs::path final_path = fs::path(dir_) / kAnnotationsFile;
   const std::string temporary = final_path.string() + std::string(kTemporarySuffix);
   try {

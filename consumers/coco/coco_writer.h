@@ -6,6 +6,7 @@
 #include <set>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <stackgen/scene.hpp>
@@ -35,13 +36,24 @@ struct CocoWriterOptions {
   /// recorded there counts as stored, a record torn by a crash is cut off, and later Adds and
   /// Finish extend the same dataset. A missing or empty folder starts a new dataset either way.
   bool resume = false;
+  /// False (the default): every Add is durable when it returns (the image file and the folder
+  /// are synced before its journal line is written and synced: three syncs per scene). True:
+  /// group commits. Add only stages a scene (its image file written and renamed into place, its
+  /// journal line held in memory) and Commit makes every staged scene durable at once: one
+  /// syncfs of the file system that holds the dataset (the images and their names; it also
+  /// writes out other programs' pending data on that file system), then the journal lines in
+  /// one write and one sync. A staged scene counts as stored only once committed (num_images,
+  /// Has, StoredThrough); a crash loses the staged ones, and a resumed writer removes their
+  /// image files.
+  bool group_commit = false;
 };
 
 /// Streams stackgen::scene messages into a COCO instances dataset in a folder:
 /// `annotations.json` and `images/<generator_id>_<seq:06>.png` (`.jpg` for JPEG scenes).
 /// The writer's durable record is the journal `annotations.journal`: each Add writes the image
 /// file, then appends one line to the journal holding the scene's image record, its annotation
-/// records and its counts, and syncs both to disk before it returns; only a small index stays in
+/// records and its counts, and syncs both to disk before it returns (with group commits, Commit
+/// does that for every scene added since the last one); only a small index stays in
 /// memory. annotations.json is derived from the journal: Finish streams the journal, sorted by
 /// id, into it. The journal is kept after Finish, so a dataset (finished or cut short by a crash)
 /// can be resumed and extended (CocoWriterOptions::resume). Ids: image id =
@@ -84,7 +96,8 @@ class CocoWriter {
   /// they are, RAW encoded to PNG; through a temporary file, synced to disk before it is renamed
   /// into place; the image record's file_name is relative to images/, as COCO loaders expect),
   /// then appends its journal line and syncs it. When Add returns true the scene is on disk for
-  /// good: it survives a crash or a power cut and is kept by a resumed writer.
+  /// good: it survives a crash or a power cut and is kept by a resumed writer (with
+  /// options.group_commit: once Commit has returned it).
   /// Every annotation (iscrowd 0 or 1) has the COCO fields (segmentation = the visible mask,
   /// area = px_count_visib, bbox = bbox_visib, iscrowd), the amodal ones (amodal_segmentation =
   /// mask_obj_rle, amodal_bbox = bbox_obj, px_count_all) and stackgen's (instance_id,
@@ -104,9 +117,21 @@ class CocoWriter {
   /// journal cut back to its previous length), and the writer can go on: later Adds and Finish
   /// work when there is room again. (Should cutting the journal back fail as well, later Adds
   /// throw until the dataset is resumed, which cuts a torn line off.)
+  /// With options.group_commit, the scene is only staged when Add returns true (see
+  /// CocoWriterOptions::group_commit) and a staged scene counts as seen for the same-id rules.
   bool Add(const stackgen::scene& scene);
 
-  /// Writes `annotations.json` with every scene stored so far: streams the journal into
+  /// Makes every staged scene durable (see CocoWriterOptions::group_commit) and returns their
+  /// (generator_id, seq), in the order they were added; nothing when none is staged. Throws
+  /// std::runtime_error naming the file and the system's reason if a sync or the journal write
+  /// fails; then none of the staged scenes is kept (their image files are removed, the journal
+  /// is cut back) and the writer can go on.
+  std::vector<std::pair<int32_t, int64_t>> Commit();
+  /// Scenes added but not yet committed.
+  int64_t num_staged() const { return static_cast<int64_t>(staged_.size()); }
+
+  /// Commits what is staged, then writes `annotations.json` with every scene stored so far:
+  /// streams the journal into
   /// `annotations.json.tmp`, syncs it, then renames it, so annotations.json is never
   /// half-written. Images and annotations are sorted by id, categories by id. May be called
   /// again after more Adds. Throws std::runtime_error naming the file and the system's reason
@@ -169,9 +194,19 @@ class CocoWriter {
     int64_t dropped = 0;
   };
 
+  // a scene added but not committed: its journal line, where its records lie in the line, its
+  // counts and its image file
+  struct StagedScene {
+    JournalEntry entry;  // offsets from the start of `line`
+    SceneCounts counts;
+    std::string line;
+    std::string image_path;
+  };
+
   void Validate(const stackgen::scene& scene) const;
-  // writes the scene's colour image to `path` (see Add)
-  void WriteImageFile(const stackgen::scene& scene, const std::string& path) const;
+  // writes the scene's colour image to `path` (see Add); `sync`: synced before it is renamed
+  // into place, and the folder after
+  void WriteImageFile(const stackgen::scene& scene, const std::string& path, bool sync) const;
   // appends `line` to the journal and syncs it; on failure cuts the journal back and throws
   void AppendToJournal(const std::string& line);
   // indexes every complete journal line and cuts a torn last one off; returns the image file
@@ -190,10 +225,13 @@ class CocoWriter {
   std::string journal_path_;
   int journal_fd_ = -1;
   uint64_t journal_size_ = 0;
-  bool journal_broken_ = false;                // a failed append could not be cut back
-  std::map<int64_t, JournalEntry> index_;      // by image id
-  std::map<int32_t, std::string> categories_;  // class_id -> class_name
-  std::map<int32_t, int64_t> stored_through_;  // generator_id -> StoredThrough
+  bool journal_broken_ = false;                       // a failed append could not be cut back
+  std::map<int64_t, JournalEntry> index_;             // by image id
+  std::map<int32_t, std::string> categories_;         // class_id -> class_name
+  std::map<int32_t, int64_t> stored_through_;         // generator_id -> StoredThrough
+  std::vector<StagedScene> staged_;                   // added, not committed, in order
+  std::map<int64_t, int64_t> staged_seeds_;           // their image ids -> header.seed
+  std::map<int32_t, std::string> staged_categories_;  // classes first seen in staged scenes
   int64_t num_annotations_ = 0;
   int64_t num_crowd_ = 0;
   int64_t num_dropped_ = 0;

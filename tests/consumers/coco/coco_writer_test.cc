@@ -979,8 +979,10 @@ struct LimitedRun {
 
 // adds `scenes` to a new dataset in `dir` in a forked child whose files may grow to
 // `limit_bytes` (SIGXFSZ ignored, so a write past it fails with EFBIG), until an Add throws
+// (with `group` > 0: group commits, a Commit after every `group` scenes and at the end, and the
+// scenes reported as each commit returns them)
 LimitedRun AddWithFileSizeLimit(const std::string& dir, const std::vector<stackgen::scene>& scenes,
-                                rlim_t limit_bytes) {
+                                rlim_t limit_bytes, int group = 0) {
   int fds[2];
   if (pipe(fds) != 0) return {};
   const pid_t pid = fork();
@@ -992,10 +994,19 @@ LimitedRun AddWithFileSizeLimit(const std::string& dir, const std::vector<stackg
     // "<seq> " per stored scene, then "error: <text>"
     std::string report;
     try {
-      CocoWriter writer(dir);
+      CocoWriterOptions options;
+      options.group_commit = group > 0;
+      CocoWriter writer(dir, options);
+      const auto commit = [&] {
+        for (const auto& [generator_id, seq] : writer.Commit()) {
+          report += std::to_string(seq) + " ";
+        }
+      };
       for (const stackgen::scene& scene : scenes) {
-        if (writer.Add(scene)) report += std::to_string(scene.header.seq) + " ";
+        if (writer.Add(scene) && group == 0) report += std::to_string(scene.header.seq) + " ";
+        if (group > 0 && writer.num_staged() >= group) commit();
       }
+      commit();
     } catch (const std::exception& error) {
       report += std::string("error: ") + error.what();
     }
@@ -1075,6 +1086,94 @@ TEST(CocoWriterTest, FileSizeLimitLeavesValidJournal) {
     EXPECT_EQ(writer.truncated_journal_bytes(), 0);
     EXPECT_TRUE(writer.Has(0, 0));
   }
+}
+
+// Group commits: an added scene is only staged (not stored, not Has, not in StoredThrough, but a
+// repeat is still refused or reported) until Commit, which returns the scenes in the order added
+// and leaves the same journal, byte for byte, as storing each scene on its own; staged scenes
+// of a writer that ends without a commit are gone after resume, their image files removed.
+TEST(CocoWriterTest, GroupCommitStoresOnlyWhenCommitted) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string single_dir = scratch.path() + "/single", group_dir = scratch.path() + "/group";
+  CocoWriterOptions grouped;
+  grouped.group_commit = true;
+  std::vector<stackgen::scene> scenes;
+  for (int64_t seq = 0; seq < 7; ++seq) {
+    scenes.push_back(testing::MakeScene(
+        seq % 2, seq, {testing::MakeInstance(1, 1, "connector", cv::Rect(1, 2, 3, 3), 1.0)},
+        stackgen::image::ENCODING_PNG));
+  }
+  {
+    CocoWriter single(single_dir);
+    for (int k = 0; k < 5; ++k) ASSERT_TRUE(single.Add(scenes[k]));
+  }
+  {
+    CocoWriter writer(group_dir, grouped);
+    for (int k = 0; k < 5; ++k) ASSERT_TRUE(writer.Add(scenes[k]));
+    EXPECT_FALSE(writer.Add(scenes[2])) << "a staged scene again";
+    stackgen::scene other_run = scenes[2];
+    other_run.header.seed += 1;
+    EXPECT_THROW(writer.Add(other_run), InvalidSceneError);
+    EXPECT_EQ(writer.num_staged(), 5);
+    EXPECT_EQ(writer.num_images(), 0);
+    EXPECT_FALSE(writer.Has(0, 0));
+    EXPECT_EQ(writer.StoredThrough(0), -1);
+    const std::vector<std::pair<int32_t, int64_t>> committed = writer.Commit();
+    EXPECT_EQ(committed,
+              (std::vector<std::pair<int32_t, int64_t>>{{0, 0}, {1, 1}, {0, 2}, {1, 3}, {0, 4}}));
+    EXPECT_EQ(writer.num_staged(), 0);
+    EXPECT_EQ(writer.num_images(), 5);
+    EXPECT_EQ(writer.StoredThrough(0), 0) << "generator 0 has seqs 0, 2 and 4";
+    EXPECT_TRUE(writer.Has(1, 3));
+    EXPECT_TRUE(writer.Commit().empty());
+    EXPECT_EQ(testing::ReadFile(group_dir + "/annotations.journal"),
+              testing::ReadFile(single_dir + "/annotations.journal"));
+    // two more, never committed: as if the writer were killed now
+    ASSERT_TRUE(writer.Add(scenes[5]));
+    ASSERT_TRUE(writer.Add(scenes[6]));
+    EXPECT_TRUE(fs::exists(group_dir + "/images/1_000005.png"));
+  }
+  grouped.resume = true;
+  CocoWriter resumed(group_dir, grouped);
+  EXPECT_EQ(resumed.resumed_scenes(), 5);
+  EXPECT_FALSE(fs::exists(group_dir + "/images/1_000005.png"));
+  EXPECT_FALSE(fs::exists(group_dir + "/images/0_000006.png"));
+  ExpectNoTemporaryFiles(group_dir);
+  ASSERT_TRUE(resumed.Add(scenes[5]));
+  resumed.Finish();
+  EXPECT_EQ(resumed.num_staged(), 0);
+  EXPECT_EQ(ReadDataset(group_dir)["images"].size(), 6u) << "Finish commits what is staged";
+}
+
+// A group whose journal lines cannot be written (RLIMIT_FSIZE): Commit throws naming the
+// journal, the whole group is dropped (its images removed, the journal cut back) and the
+// dataset resumes with exactly the scenes earlier commits returned.
+TEST(CocoWriterTest, FailedGroupCommitDropsTheGroup) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  std::vector<stackgen::scene> scenes;
+  for (int64_t seq = 0; seq < 40; ++seq) {
+    scenes.push_back(testing::MakeScene(
+        0, seq, {testing::MakeInstance(1, 1, "connector", cv::Rect(1, 2, 3, 3), 1.0)},
+        stackgen::image::ENCODING_PNG));
+  }
+  const std::string dir = scratch.path() + "/group";
+  const LimitedRun run = AddWithFileSizeLimit(dir, scenes, 8000, 4);
+  ASSERT_TRUE(WIFEXITED(run.status) && WEXITSTATUS(run.status) == 0) << run.status;
+  EXPECT_EQ(run.error, "cannot write " + dir + "/annotations.journal: File too large");
+  ASSERT_GE(run.stored_seqs.size(), 4u);
+  ASSERT_EQ(run.stored_seqs.size() % 4, 0u) << "only whole groups are stored";
+  const size_t failed = run.stored_seqs.size();
+  for (size_t seq = failed; seq < failed + 4; ++seq) {
+    EXPECT_FALSE(fs::exists(dir + "/images/0_" + std::string(6 - std::to_string(seq).size(), '0') +
+                            std::to_string(seq) + ".png"))
+        << "the image of scene " << seq << " of the failed group stayed";
+  }
+  ExpectNoTemporaryFiles(dir);
+  CocoWriterOptions options;
+  options.resume = true;
+  CocoWriter writer(dir, options);
+  EXPECT_EQ(writer.truncated_journal_bytes(), 0) << "the journal was not cut back";
+  EXPECT_EQ(writer.StoredSeqs(), (std::map<int32_t, std::vector<int64_t>>{{0, run.stored_seqs}}));
 }
 
 }  // namespace

@@ -755,6 +755,23 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
                    std::to_string(encoded_height) + " image, color.width x color.height is " +
                    std::to_string(color.width) + " x " + std::to_string(color.height));
   }
+  // a PNG or JPEG file is stored as it came: it must decode, whole (libpng checks every chunk's
+  // CRC and zlib the data's checksum, so a flipped bit or a cut shows; a JPEG must also end
+  // with its end-of-image marker, as libjpeg fills a cut one with grey)
+  if (color.encoding != stackgen::image::ENCODING_RAW) {
+    const bool png = color.encoding == stackgen::image::ENCODING_PNG;
+    const bool jpeg_ends = color.data.size() >= 2 && color.data[color.data.size() - 2] == 0xff &&
+                           color.data.back() == 0xd9;
+    const cv::Mat decoded =
+        png || jpeg_ends ? cv::imdecode(color.data, cv::IMREAD_UNCHANGED) : cv::Mat();
+    if (decoded.empty() || decoded.cols != color.width || decoded.rows != color.height ||
+        decoded.depth() != CV_8U || decoded.channels() != channels) {
+      Fail(name, std::string("color.data does not decode as a whole ") + (png ? "PNG" : "JPEG") +
+                     " image of " + std::to_string(color.width) + " x " +
+                     std::to_string(color.height) + " x " + std::to_string(channels) +
+                     " bytes (damaged or cut short)");
+    }
+  }
 
   // instances
   if (scene.num_instances < 0 ||

@@ -33,6 +33,10 @@ constexpr const char* kProgram = "stackgen-coco";
 constexpr int kQueueCapacity = 1000;
 // decode errors and invalid scenes reported one by one; later ones are only counted
 constexpr int kMaxReportedErrors = 10;
+// a seq whose copies failed the checks this often is given up (a generator that makes a bad
+// scene sends the same bad bytes again); at most this many seqs are remembered
+constexpr int kBadCopies = 3;
+constexpr size_t kMaxBadCopyKeys = 10000;
 
 std::atomic<bool> stop_requested{false};
 
@@ -64,7 +68,9 @@ void PrintHelp() {
       "stored through which seq, how many more it can take), so no generator runs more than\n"
       "--window scenes ahead of what it stored; it asks for missed seqs on STACKGEN_RESEND; it\n"
       "stores every scene of every generator (from seq 0) exactly once, keeping generators apart\n"
-      "by generator_id; it publishes its counters on STACKGEN_STATUS every second. On a file://\n"
+      "by generator_id; it publishes its counters on STACKGEN_STATUS every second. A scene\n"
+      "that fails the checks (its PNG or JPEG is decoded whole first) is refused, counted and\n"
+      "asked for again; a seq is given up after 3 bad copies. On a file://\n"
       "LCM log (file://LOG?speed=0) it only reads.\n"
       "\n"
       "The generator's labels decide what is written: an instance it marks annotated becomes an\n"
@@ -206,6 +212,8 @@ int main(int argc, char** argv) {
     int64_t decode_errors = 0;
     int64_t invalid_scenes = 0;
     int64_t duplicates = 0;
+    // reliable: bad copies received per (generator_id, seq) not stored yet
+    std::map<std::pair<int32_t, int64_t>, int> bad_copies;
     const auto enough = [&] {
       return flags.count > 0 && writer->num_images() + writer->num_staged() >= flags.count;
     };
@@ -223,29 +231,44 @@ int main(int argc, char** argv) {
           if (enough()) return;
           const int32_t generator_id = scene.header.generator_id;
           const int64_t seq = scene.header.seq;
-          // the client tracks seqs; the writer still sees a repeat, to refuse one from another
-          // run (same ids, another seed), and a scene once skipped as invalid may be stored now
-          const bool fresh = !client || client->Received(generator_id, seq);
-          // store it; an inconsistent scene is reported and skipped (never asked for again)
+          // the writer first: it checks the scene whole (its image decoded) and refuses a
+          // repeat. A copy that fails the checks tells the client nothing, so a damaged or a
+          // stranger's copy cannot take the real scene's place: that seq is asked for again,
+          // and given up (skipped) only after kBadCopies bad copies of it
+          bool added = false;
           try {
-            if (writer->Add(scene)) {
-              // credited once durable: at once without group commits (Add made it durable),
-              // else with its group
-              if (!options.group_commit) {
-                if (client) client->Stored(generator_id, seq);
-              } else if (writer->num_staged() >= flags.group_commit) {
-                commit();
-              }
-            } else if (!client) {
-              ++duplicates;
-            } else if (fresh) {
-              client->Skipped(generator_id, seq);
-            }
+            added = writer->Add(scene);
           } catch (const stackgen::InvalidSceneError& error) {
-            if (client && fresh) client->Skipped(generator_id, seq);
             if (++invalid_scenes <= kMaxReportedErrors) {
-              std::fprintf(stderr, "%s: skipped an invalid scene: %s\n", kProgram, error.what());
+              std::fprintf(stderr, "%s: refused a scene: %s\n", kProgram, error.what());
             }
+            if (client) {
+              if (bad_copies.size() > kMaxBadCopyKeys) bad_copies.clear();
+              const std::pair<int32_t, int64_t> key{generator_id, seq};
+              if (++bad_copies[key] >= kBadCopies) {
+                bad_copies.erase(key);
+                if (client->Received(generator_id, seq)) client->Skipped(generator_id, seq);
+              }
+              client->Service();
+            }
+            return;
+          }
+          // the client tracks seqs (and counts repeats); a scene the writer holds already that
+          // the client has not seen (stored before it started) needs no asking again
+          const bool fresh = !client || client->Received(generator_id, seq);
+          if (added) {
+            if (client) bad_copies.erase({generator_id, seq});
+            // credited once durable: at once without group commits (Add made it durable),
+            // else with its group
+            if (!options.group_commit) {
+              if (client) client->Stored(generator_id, seq);
+            } else if (writer->num_staged() >= flags.group_commit) {
+              commit();
+            }
+          } else if (!client) {
+            ++duplicates;
+          } else if (fresh) {
+            client->Skipped(generator_id, seq);
           }
           if (client) client->Service();
         },
@@ -326,8 +349,9 @@ int main(int argc, char** argv) {
       }
     }
     if (decode_errors > 0 || invalid_scenes > 0) {
-      std::fprintf(stderr, "%s: skipped %lld undecodable messages, %lld invalid scenes\n", kProgram,
-                   static_cast<long long>(decode_errors), static_cast<long long>(invalid_scenes));
+      std::fprintf(stderr, "%s: skipped %lld undecodable messages, refused %lld invalid scenes\n",
+                   kProgram, static_cast<long long>(decode_errors),
+                   static_cast<long long>(invalid_scenes));
     }
     if (client) {
       const stackgen::DeliveryCounters counters = client->counters();

@@ -173,7 +173,7 @@ class LosslessTest : public ::testing::Test {
 
 // with 10 % of the messages each process receives dropped (scenes at the writer; credits and
 // resend requests at the generator), the dataset is complete and identical to the reference.
-// The generator keeps only 2 scenes for resending, so most resent scenes are made again from
+// The generator keeps only 1 scene for resending, so most resent scenes are made again from
 // their seed: regenerated scenes are byte-identical too. Both processes' last status on
 // STACKGEN_STATUS counts what happened.
 TEST_F(LosslessTest, InjectedLossGivesTheSameDataset) {
@@ -182,7 +182,7 @@ TEST_F(LosslessTest, InjectedLossGivesTheSameDataset) {
   StatusListener listener(url);
   Process coco(Coco(out, url, {"--fault-drop", "0.1"}), out + "-coco");
   ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
-  Process generator(Generator(url, cache_, {"--fault-drop", "0.1", "--resend-ring", "2"}),
+  Process generator(Generator(url, cache_, {"--fault-drop", "0.1", "--resend-ring", "1"}),
                     out + "-gen");
   ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();

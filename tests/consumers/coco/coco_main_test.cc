@@ -12,6 +12,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <stackgen/header.hpp>
+#include <stackgen/resend_request.hpp>
 
 #include "bus/bus.h"
 #include "bus/channels.h"
@@ -45,9 +46,9 @@ TEST(CocoMainTest, HelpListsEveryFlag) {
   const std::string dir = scratch.path();
   std::string out, err;
   EXPECT_EQ(RunToEnd({"--help"}, dir + "/help", &out, &err), 0);
-  for (const char* text :
-       {"--out", "--count", "--lcm-url", "--min-visib-fract", "--help", "default 0",
-        "follow the generator", "iscrowd 1", "amodal_segmentation", "STACKGEN_LCM_URL"}) {
+  for (const char* text : {"--out", "--count", "--lcm-url", "--min-visib-fract", "--group-commit",
+                           "--help", "default 0", "follow the generator", "iscrowd 1",
+                           "amodal_segmentation", "STACKGEN_LCM_URL"}) {
     EXPECT_NE(out.find(text), std::string::npos) << text << " missing from\n" << out;
   }
 }
@@ -124,6 +125,46 @@ TEST(CocoMainTest, StoresScenesFromTheBus) {
   EXPECT_EQ(dataset["annotations"].size(), 3u);
   // the journal stays: the durable record a --resume continues from
   EXPECT_TRUE(fs::exists(dir + "/coco/annotations.journal"));
+}
+
+// A damaged copy of a scene (one bit flipped in its PNG, as a stranger or a bad link could send
+// it) is refused and counted, and does not count as received: the writer asks for that seq
+// again once the next one arrives, and stores the intact copy.
+TEST(CocoMainTest, DamagedCopyIsRefusedAndAskedForAgain) {
+  const testing::ScopedTempDir scratch("coco-main");
+  const std::string dir = scratch.path();
+  const std::string url = testing::FreeMulticastUrl();
+  Process coco({kProgram, "--out", dir + "/coco", "--count", "2", "--lcm-url", url}, dir + "/run");
+  ASSERT_TRUE(coco.WaitForOutput("listening on " + url, 30)) << coco.Stderr();
+
+  Bus bus(url);
+  bool asked_again = false;
+  bus.Subscribe<resend_request>(kResendChannel, [&](const resend_request& request) {
+    for (int64_t seq : request.seqs) asked_again = asked_again || seq == 0;
+  });
+  const stackgen::scene intact = testing::SceneB();  // generator 0, seq 1, a PNG
+  ASSERT_EQ(intact.color.encoding, stackgen::image::ENCODING_PNG);
+  stackgen::scene first = intact, damaged = intact;
+  first.header.seq = 0;
+  damaged.header.seq = 0;
+  damaged.color.data[damaged.color.data.size() / 2] ^= 0x10;
+  bus.Publish(kSceneChannel, damaged);
+  bus.HandleFor(100);
+  bus.Publish(kSceneChannel, intact);
+  for (int i = 0; i < 50 && !asked_again; ++i) bus.HandleFor(100);
+  EXPECT_TRUE(asked_again) << "seq 0 was not asked for again";
+  bus.Publish(kSceneChannel, first);
+
+  ASSERT_EQ(coco.Wait(30), 0) << coco.Stderr();
+  EXPECT_NE(coco.Stderr().find("refused a scene: scene 0/0: color.data does not decode as a "
+                               "whole PNG image"),
+            std::string::npos)
+      << coco.Stderr();
+  EXPECT_NE(coco.Stderr().find("refused 1 invalid scenes"), std::string::npos) << coco.Stderr();
+  EXPECT_NE(coco.Stdout().find("2 stored"), std::string::npos) << coco.Stdout();
+  const std::string stored = testing::ReadFile(dir + "/coco/images/0_000000.png");
+  EXPECT_EQ(std::vector<uint8_t>(stored.begin(), stored.end()), first.color.data)
+      << "the stored image is not the intact copy";
 }
 
 // SIGINT and SIGTERM finish a valid dataset of what arrived; --min-visib-fract drops annotated

@@ -279,6 +279,36 @@ TEST(CocoWriterTest, JpegWrittenAsIs) {
   EXPECT_EQ(std::vector<uint8_t>(jpeg.begin(), jpeg.end()), scene.color.data);
 }
 
+// An image that does not decode whole is refused before anything is written: a PNG with one
+// bit flipped in its pixel data or cut in half, a JPEG cut short (libjpeg would fill it with
+// grey); the intact scenes are stored.
+TEST(CocoWriterTest, DamagedImagesAreRefused) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string dir = scratch.path();
+  CocoWriter writer(dir);
+  const stackgen::scene png = NoiseScene(0, 0, 64);
+  ASSERT_EQ(png.color.encoding, stackgen::image::ENCODING_PNG);
+  stackgen::scene flipped = png;
+  flipped.color.data[flipped.color.data.size() / 2] ^= 0x10;
+  stackgen::scene cut = png;
+  cut.color.data.resize(cut.color.data.size() / 2);
+  cut.color.size = static_cast<int32_t>(cut.color.data.size());
+  stackgen::scene jpeg = testing::MakeScene(
+      0, 1, {testing::MakeInstance(1, 1, "connector", cv::Rect(0, 0, 2, 2), 1.0)},
+      stackgen::image::ENCODING_JPEG);
+  stackgen::scene cut_jpeg = jpeg;
+  cut_jpeg.color.data.resize(cut_jpeg.color.data.size() - 8);
+  cut_jpeg.color.size = static_cast<int32_t>(cut_jpeg.color.data.size());
+  for (const stackgen::scene* damaged : {&flipped, &cut, &cut_jpeg}) {
+    const std::string error = AddError(writer, *damaged);
+    EXPECT_NE(error.find("color.data does not decode as a whole"), std::string::npos) << error;
+  }
+  EXPECT_TRUE(fs::is_empty(dir + "/images"));
+  EXPECT_TRUE(writer.Add(png));
+  EXPECT_TRUE(writer.Add(jpeg));
+  EXPECT_EQ(writer.num_images(), 2);
+}
+
 // A scene that disagrees with itself throws, naming the field, and writes nothing.
 TEST(CocoWriterTest, InconsistentScenesThrowNamingTheField) {
   const testing::ScopedTempDir scratch("coco-writer");

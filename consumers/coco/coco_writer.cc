@@ -432,11 +432,28 @@ CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
   }
   fs::create_directories(images, error);
   if (error) throw std::runtime_error("cannot create " + images.string() + ": " + error.message());
-  for (const fs::path& path : created) SyncFolder(path.parent_path());
+  // a writer that cannot open leaves nothing it made behind: the journal it created, empty, and
+  // the folders it created, empty
+  const bool journal_existed = FileSize(journal_path_) >= 0;
+  const auto remove_created = [&] {
+    if (!journal_existed && FileSize(journal_path_) == 0) unlink(journal_path_.c_str());
+    std::error_code ignored;
+    for (const fs::path& path : created) fs::remove(path, ignored);  // only if empty
+  };
+  try {
+    for (const fs::path& path : created) SyncFolder(path.parent_path());
+  } catch (...) {
+    remove_created();
+    throw;
+  }
 
   // the journal, locked against a second writer
   journal_fd_ = open(journal_path_.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-  if (journal_fd_ < 0) throw SystemError("cannot open", journal_path_, errno);
+  if (journal_fd_ < 0) {
+    const int open_error = errno;
+    remove_created();
+    throw SystemError("cannot open", journal_path_, open_error);
+  }
   try {
     if (flock(journal_fd_, LOCK_EX | LOCK_NB) != 0) {
       if (errno == EWOULDBLOCK) {
@@ -464,6 +481,8 @@ CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
     SyncFolder(folder);
   } catch (...) {
     close(journal_fd_);
+    journal_fd_ = -1;
+    remove_created();
     throw;
   }
 }
@@ -617,6 +636,10 @@ void CocoWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64
       }
       scene_categories.emplace(class_id, class_name);
     }
+  } catch (const json::parse_error& error) {
+    throw corrupt("not a journal record: invalid JSON at byte " + std::to_string(error.byte) +
+                  " of the line (the journal is damaged; annotations.journal lines are written "
+                  "only by stackgen-coco)");
   } catch (const json::exception& error) {
     throw corrupt(error.what());
   }

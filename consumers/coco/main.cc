@@ -173,7 +173,15 @@ int main(int argc, char** argv) {
     sigaction(SIGINT, &action, nullptr);
     sigaction(SIGTERM, &action, nullptr);
 
-    // the dataset first, so a folder that holds one is refused before listening
+    // the bus first: a bad URL or log is refused before anything is created on disk (on a log
+    // file it only reads, live it is a reliable consumer; it listens once subscribed, below)
+    stackgen::BusOptions bus_options;
+    bus_options.drop_receive_fraction = flags.fault_drop;
+    bus_options.fault_seed = 0xC0C0;
+    bus_owner =
+        std::make_unique<stackgen::Bus>(stackgen::ResolveLcmUrl(flags.lcm_url), bus_options);
+    stackgen::Bus& bus = *bus_owner;
+    // then the dataset: a folder that holds one is refused before listening
     stackgen::CocoWriterOptions options;
     options.min_visib_fract = flags.min_visib_fract;
     options.resume = flags.resume;
@@ -189,13 +197,6 @@ int main(int argc, char** argv) {
                       : "");
     }
 
-    // the bus; on a log file it only reads, live it is a reliable consumer
-    stackgen::BusOptions bus_options;
-    bus_options.drop_receive_fraction = flags.fault_drop;
-    bus_options.fault_seed = 0xC0C0;
-    bus_owner =
-        std::make_unique<stackgen::Bus>(stackgen::ResolveLcmUrl(flags.lcm_url), bus_options);
-    stackgen::Bus& bus = *bus_owner;
     const std::string name = ConsumerName(flags.out);
     if (bus.url().rfind("file://", 0) != 0) {
       stackgen::SceneClientOptions client_options;

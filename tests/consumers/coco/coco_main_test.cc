@@ -86,6 +86,45 @@ TEST(CocoMainTest, RefusesExistingDataset) {
   EXPECT_EQ(testing::ReadFile(dir + "/annotations.json"), "{}");
 }
 
+// A bus or log that cannot be opened, and a journal that is not one, get one line naming the
+// URL or the journal line, exit 1, and leave nothing behind: no dataset folder, no images/, the
+// journal as it was.
+TEST(CocoMainTest, BadBusOrJournalLeavesNothing) {
+  const testing::ScopedTempDir scratch("coco-main");
+  const std::string dir = scratch.path();
+  { std::ofstream(dir + "/junk.log") << "not an LCM log"; }
+  for (const auto& [url, why] : std::vector<std::pair<std::string, std::string>>{
+           {"bogus://x", "LCM provider \"bogus\" not found"},
+           {"file://" + dir + "/missing.log?speed=0", "No such file or directory"},
+           {"file://" + dir + "/junk.log?speed=0", "Failed to read first event from log"}}) {
+    std::string out, err;
+    EXPECT_EQ(RunToEnd({"--out", dir + "/out", "--lcm-url", url}, dir + "/run", &out, &err), 1);
+    EXPECT_EQ(err, "stackgen-coco: error: cannot open the LCM bus at " + url + ": " +
+                       (why == "No such file or directory"
+                            ? "Failed to open " + dir + "/missing.log: " + why
+                            : why) +
+                       "\n");
+    EXPECT_FALSE(fs::exists(dir + "/out")) << url;
+  }
+  fs::create_directory(dir + "/damaged");
+  { std::ofstream(dir + "/damaged/annotations.journal") << "garbage\n"; }
+  std::string out, err;
+  EXPECT_EQ(RunToEnd({"--out", dir + "/damaged", "--resume", "--lcm-url",
+                      "file://" + dir + "/junk.log?speed=0"},
+                     dir + "/run", &out, &err),
+            1);
+  EXPECT_EQ(
+      RunToEnd({"--out", dir + "/damaged", "--resume", "--lcm-url", testing::FreeMulticastUrl()},
+               dir + "/run", &out, &err),
+      1);
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+  EXPECT_NE(err.find(dir + "/damaged/annotations.journal line 1 (byte 0): not a journal record"),
+            std::string::npos)
+      << err;
+  EXPECT_FALSE(fs::exists(dir + "/damaged/images"));
+  EXPECT_EQ(testing::ReadFile(dir + "/damaged/annotations.journal"), "garbage\n");
+}
+
 // Scenes over multicast: a repeat is stored once, an undecodable message is skipped, a seq gap
 // that no generator fills is counted as missing and lost, and the program stops after --count
 // scenes with a summary line.

@@ -4,6 +4,7 @@
 #include <google/protobuf/text_format.h>
 
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <vector>
@@ -395,6 +396,16 @@ LoadedConfig ParseConfig(const std::string& text, const std::string& name,
 }
 
 LoadedConfig LoadConfig(const std::string& path) {
+  // (an ifstream opens a folder and reads it as an empty config: all defaults)
+  std::error_code error;
+  const std::filesystem::file_status status = std::filesystem::status(path, error);
+  if (std::filesystem::is_directory(status)) {
+    throw ConfigError(path + ": is a folder, not a config file (protobuf text, e.g. " +
+                      "config/default.pbtxt)");
+  }
+  if (!std::filesystem::exists(status)) {
+    throw ConfigError(path + ": cannot read the config file: no such file");
+  }
   std::ifstream file(path);
   if (!file) throw ConfigError(path + ": cannot read the config file");
   std::ostringstream text;

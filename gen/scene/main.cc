@@ -56,6 +56,9 @@ flags:
                       regenerated from their seed when asked for
   --fault-drop F      drop the fraction F in [0, 1) of the messages received (credits, resend
                       requests), from a fixed seed: for tests and demos (default: 0)
+  --check             check the flags, the config (meshes and collision shapes included), the
+                      bus and the renderer, print what would run, and exit 0 without
+                      publishing (tools/run does this before it creates a dataset folder)
   --help              this text
 
 channels published: STACKGEN_SCENE (labels + images), STACKGEN_LABELS (labels only),
@@ -92,6 +95,7 @@ int Run(int argc, char** argv) {
   std::string lcm_url;
   std::string cache_dir = DefaultCacheDir();
   bool resume = false;
+  bool check = false;
   int64_t consumer_timeout = 10;
   int ring_size = 64;
   BusOptions bus_options;
@@ -103,6 +107,7 @@ int Run(int argc, char** argv) {
   parser.LcmUrl(&lcm_url);
   parser.String("--cache-dir", &cache_dir);
   parser.Switch("--resume", &resume);
+  parser.Switch("--check", &check);
   parser.Int("--consumer-timeout", &consumer_timeout, 1, 86400);
   parser.Int("--resend-ring", &ring_size, 1, 10000);
   parser.FaultDrop(&bus_options.drop_receive_fraction);
@@ -119,6 +124,10 @@ int Run(int argc, char** argv) {
               static_cast<unsigned long long>(seed), config.path.c_str(), bus.url().c_str(),
               generator.Description().c_str());
   std::fflush(stdout);
+  if (check) {
+    std::printf("stackgen: --check: the config, the bus and the renderer are usable\n");
+    return 0;
+  }
 
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);

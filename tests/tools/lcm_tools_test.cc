@@ -259,5 +259,29 @@ TEST(LcmToolsTest, RecordRefusesExistingFile) {
   EXPECT_EQ(testing::ReadFile(log), "keep");
 }
 
+// tools/record on a bus it cannot open says why in one line and leaves no log; stopped before
+// anything arrived, it says so and leaves no log either (an empty file is not an LCM log).
+TEST(LcmToolsTest, RecordLeavesNoEmptyLog) {
+  if (FindOnPath("lcm-logger").empty()) GTEST_SKIP() << "lcm-logger not on PATH (liblcm-bin)";
+  const ScratchDir scratch("lcm-tools");
+  const std::string bad_log = scratch.path() + "/bad.lcmlog";
+  Process bad({kRecord, "--lcm-url", "bogus://x", "--out", bad_log}, scratch.path() + "/bad");
+  EXPECT_EQ(bad.Wait(30), 1);
+  EXPECT_EQ(bad.Stderr(),
+            "tools/record: error: cannot record on bogus://x: LCM provider \"bogus\" not found\n");
+  EXPECT_FALSE(fs::exists(bad_log));
+
+  const std::string quiet_log = scratch.path() + "/quiet.lcmlog";
+  const std::string url = testing::FreeMulticastUrl();
+  Process quiet({kRecord, "--lcm-url", url, "--out", quiet_log}, scratch.path() + "/quiet");
+  ASSERT_TRUE(quiet.WaitForOutput("Ctrl-C stops", 30)) << quiet.Stderr();
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  quiet.Signal(SIGINT);
+  EXPECT_EQ(quiet.Wait(30), 1);
+  EXPECT_NE(quiet.Stderr().find("tools/record: error: nothing arrived on "), std::string::npos)
+      << quiet.Stderr();
+  EXPECT_FALSE(fs::exists(quiet_log));
+}
+
 }  // namespace
 }  // namespace stackgen

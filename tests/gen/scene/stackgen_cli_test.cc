@@ -132,6 +132,38 @@ TEST(StackgenCliTest, MissingConfig) {
   ExpectOneLine(outcome.err);
 }
 
+// a folder given as --config is refused as a folder (it read as an empty config before, and the
+// error named the default mesh).
+TEST(StackgenCliTest, FolderAsConfig) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  const Outcome outcome = RunStackgen({"--config", dir, "--lcm-url", "memq://"}, dir);
+  EXPECT_EQ(outcome.code, 1);
+  EXPECT_EQ(outcome.err, "stackgen: error: " + dir +
+                             ": is a folder, not a config file (protobuf text, e.g. "
+                             "config/default.pbtxt)\n");
+}
+
+// --check builds everything a run needs and exits 0 without publishing; a bad bus fails it.
+TEST(StackgenCliTest, CheckPublishesNothing) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  const std::string url = testing::FreeMulticastUrl();
+  Bus bus(url);
+  int heard = 0;
+  bus.Subscribe<status>(kStatusChannel, [&](const status&) { ++heard; });
+  const Outcome ok = RunStackgen({"--check", "--lcm-url", url}, dir);
+  EXPECT_EQ(ok.code, 0) << ok.err;
+  EXPECT_NE(ok.out.find("--check: the config, the bus and the renderer are usable"),
+            std::string::npos)
+      << ok.out;
+  bus.HandleFor(300);
+  EXPECT_EQ(heard, 0);
+  const Outcome bad = RunStackgen({"--check", "--lcm-url", "bogus://x"}, dir);
+  EXPECT_EQ(bad.code, 1);
+  EXPECT_EQ(bad.err,
+            "stackgen: error: cannot open the LCM bus at bogus://x: LCM provider \"bogus\" not "
+            "found\n");
+}
+
 // a second generator with the same --generator-id on the same bus refuses to run, naming the id
 // and the first one, while the first (it has published more) goes on with a warning.
 TEST(StackgenCliTest, SameGeneratorIdRefused) {

@@ -1,6 +1,7 @@
 #include "gen/mesh/mesh.h"
 
 #include <algorithm>
+#include <array>
 #include <cctype>
 #include <cmath>
 #include <filesystem>
@@ -216,6 +217,15 @@ void CheckAndOrient(const std::string& what, TriangleMesh* mesh) {
   if (mesh->triangles.empty()) {
     throw std::runtime_error("mesh file " + what + " holds no triangles");
   }
+  // every coordinate a number (a NaN vertex would read as a flat extent below)
+  for (size_t v = 0; v < mesh->positions_mm.size(); ++v) {
+    if (!mesh->positions_mm[v].allFinite()) {
+      std::ostringstream message;
+      message << "mesh file " << what << ": a vertex is not finite (" << mesh->positions_mm[v].x()
+              << ", " << mesh->positions_mm[v].y() << ", " << mesh->positions_mm[v].z() << ")";
+      throw std::runtime_error(message.str());
+    }
+  }
 
   // extent: every axis must be spanned
   const Eigen::Vector3d extent = Bounds(*mesh).sizes();
@@ -331,6 +341,38 @@ void CheckObjMaterialFiles(const std::string& path) {
 }
 
 }  // namespace
+
+int64_t OpenEdges(const TriangleMesh& mesh) {
+  // vertices welded by exact position, then every undirected edge counted
+  std::map<std::array<float, 3>, int> weld;
+  std::vector<int> welded(mesh.positions_mm.size());
+  for (size_t v = 0; v < mesh.positions_mm.size(); ++v) {
+    const Eigen::Vector3f& p = mesh.positions_mm[v];
+    welded[v] =
+        weld.emplace(std::array<float, 3>{p.x(), p.y(), p.z()}, static_cast<int>(weld.size()))
+            .first->second;
+  }
+  std::map<std::pair<int, int>, int> edges;
+  for (const auto& t : mesh.triangles) {
+    for (int k = 0; k < 3; ++k) {
+      const int a = welded[t[k]], b = welded[t[(k + 1) % 3]];
+      if (a != b) ++edges[std::minmax(a, b)];
+    }
+  }
+  int64_t open = 0;
+  for (const auto& [edge, count] : edges) open += count != 2 ? 1 : 0;
+  return open;
+}
+
+void CheckClosedSolid(const std::string& what, const TriangleMesh& mesh) {
+  const int64_t open = OpenEdges(mesh);
+  if (open > 0) {
+    throw std::runtime_error("mesh file " + what +
+                             " is not a closed solid: " + std::to_string(open) +
+                             " edges do not border exactly two triangles (a cut-off or damaged "
+                             "file?); a part's mass and collision shape need a closed mesh");
+  }
+}
 
 double SignedVolume(const TriangleMesh& mesh) {
   double volume = 0;

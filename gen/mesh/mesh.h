@@ -54,6 +54,15 @@ TriangleMesh LoadMesh(const std::string& path, double scale_to_mm);
 /// LoadMesh does for the geometry.
 std::vector<TriangleMesh> LoadMeshPieces(const std::string& path, double scale_to_mm);
 
+/// Edges (between vertices at the same position: hard edges split vertices) that do not border
+/// exactly two triangles: 0 for a closed solid; a cut-off or damaged file has some.
+int64_t OpenEdges(const TriangleMesh& mesh);
+
+/// Throws naming `what` (the file) unless `mesh` is a closed solid a part can be made of: every
+/// edge borders exactly two triangles (see OpenEdges). LoadMesh already refused non-finite
+/// vertices, flat meshes and meshes without volume.
+void CheckClosedSolid(const std::string& what, const TriangleMesh& mesh);
+
 /// Signed volume enclosed by the triangles, mm^3 (positive when wound outward).
 double SignedVolume(const TriangleMesh& mesh);
 

@@ -182,6 +182,7 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   for (const config::PartConfig& part : config.config.part()) {
     PartType type;
     type.mesh = LoadMesh(config.Resolve(part.mesh()), part.scale_to_mm());
+    CheckClosedSolid("'" + config.Resolve(part.mesh()) + "'", type.mesh);
     if (!part.collision_mesh().empty()) {
       type.collision_pieces =
           LoadMeshPieces(config.Resolve(part.collision_mesh()), part.scale_to_mm());

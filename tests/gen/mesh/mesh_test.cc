@@ -226,6 +226,39 @@ TEST_F(MeshTest, FlatMeshIsDegenerate) {
   EXPECT_NE(error.find("degenerate"), std::string::npos) << error;
 }
 
+// A vertex that is not a number is refused as such (it read as a flat extent before).
+TEST_F(MeshTest, NonFiniteVertexIsError) {
+  std::string obj = kCubeObj;
+  obj.replace(obj.find("v 2 1 1"), 7, "v 2 1 nan");
+  const std::string path = Write("nan.obj", obj);
+  const std::string error = LoadError(path);
+  EXPECT_NE(error.find(path), std::string::npos) << error;
+  EXPECT_NE(error.find("a vertex is not finite"), std::string::npos) << error;
+}
+
+// A closed solid has no open edges; a cube missing a face, as a cut-off file is, has four (the
+// rim of the hole), and CheckClosedSolid names the file.
+TEST_F(MeshTest, OpenMeshIsNotASolid) {
+  const TriangleMesh cube = LoadMesh(Write("cube.obj", kCubeObj), 1.0);
+  EXPECT_EQ(OpenEdges(cube), 0);
+  EXPECT_NO_THROW(CheckClosedSolid("cube.obj", cube));
+  std::string obj = kCubeObj;
+  obj.erase(obj.find("f 4 1 5 8"));
+  const TriangleMesh cut = LoadMesh(Write("cut.obj", obj), 1.0);
+  EXPECT_EQ(OpenEdges(cut), 4);
+  try {
+    CheckClosedSolid("'cut.obj'", cut);
+    ADD_FAILURE() << "an open mesh passed";
+  } catch (const std::runtime_error& error) {
+    EXPECT_NE(std::string(error.what()).find("mesh file 'cut.obj' is not a closed solid: 4 edges"),
+              std::string::npos)
+        << error.what();
+  }
+  EXPECT_EQ(OpenEdges(LoadMesh(
+                std::string(STACKGEN_SOURCE_DIR) + "/config/models/corner_connector.obj", 1.0)),
+            0);
+}
+
 // A non-positive scale is refused.
 TEST_F(MeshTest, BadScaleIsError) {
   EXPECT_THROW(LoadMesh(Write("cube.obj", kCubeObj), 0.0), std::runtime_error);

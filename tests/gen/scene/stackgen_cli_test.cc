@@ -2,6 +2,7 @@
 // one clear line and a non-zero exit, and answers --help.
 
 #include <algorithm>
+#include <fstream>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -129,6 +130,25 @@ TEST(StackgenCliTest, MissingConfig) {
   const Outcome outcome = RunStackgen({"--config", dir + "/nope.pbtxt"}, dir);
   EXPECT_EQ(outcome.code, 1);
   EXPECT_NE(outcome.err.find("nope.pbtxt"), std::string::npos) << outcome.err;
+  ExpectOneLine(outcome.err);
+}
+
+// a part mesh cut off at 90 % of its file (a damaged download) is refused, naming the file, as
+// not a closed solid (it passed before, with a wrong mass and collision shape).
+TEST(StackgenCliTest, TruncatedMeshNamesTheFile) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  const std::string whole =
+      testing::ReadFile(std::string(STACKGEN_SOURCE_DIR) + "/config/models/corner_connector.obj");
+  const std::string cut = dir + "/cut.obj";
+  std::ofstream(cut) << whole.substr(0, whole.size() * 9 / 10);
+  std::ofstream(dir + "/corner_connector.mtl") << testing::ReadFile(
+      std::string(STACKGEN_SOURCE_DIR) + "/config/models/corner_connector.mtl");
+  const std::string config = WriteConfig(dir, "part { mesh: \"cut.obj\" count: 3 }\n");
+  const Outcome outcome = RunStackgen(
+      {"--config", config, "--check", "--lcm-url", "memq://", "--cache-dir", dir + "/cache"}, dir);
+  EXPECT_EQ(outcome.code, 1);
+  EXPECT_NE(outcome.err.find("mesh file '" + cut + "' is not a closed solid"), std::string::npos)
+      << outcome.err;
   ExpectOneLine(outcome.err);
 }
 

@@ -1,8 +1,10 @@
 // stackgen-overlay: draws the masks, boxes and ids of one image of a COCO dataset written by
 // stackgen-coco over the image, for a quick look (the README's example image).
 
+#include <algorithm>
 #include <cstdint>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <string>
 #include <vector>
@@ -36,26 +38,80 @@ int Run(int argc, char** argv) {
   const size_t index = static_cast<size_t>(image);
 
   // the dataset and the chosen image.
-  std::ifstream file(dir + "/annotations.json");
-  if (!file) throw std::runtime_error(dir + "/annotations.json: cannot read");
-  const nlohmann::json dataset = nlohmann::json::parse(file);
+  const std::string json_path = dir + "/annotations.json";
+  std::ifstream file(json_path);
+  if (!file) throw std::runtime_error(json_path + ": cannot read");
+  nlohmann::json dataset;
+  try {
+    dataset = nlohmann::json::parse(file);
+  } catch (const nlohmann::json::parse_error& error) {
+    throw std::runtime_error(json_path + ": not valid JSON (at byte " + std::to_string(error.byte) +
+                             ")");
+  }
+  if (!dataset.is_object() || !dataset.contains("images") || !dataset["images"].is_array() ||
+      !dataset.contains("annotations") || !dataset["annotations"].is_array()) {
+    throw std::runtime_error(json_path +
+                             ": not a COCO dataset (\"images\" and \"annotations\" "
+                             "arrays expected)");
+  }
   if (index >= dataset["images"].size()) {
-    throw std::runtime_error(dir + "/annotations.json: no image " + std::to_string(index));
+    throw std::runtime_error(json_path + ": no image " + std::to_string(index) + " (it has " +
+                             std::to_string(dataset["images"].size()) + ")");
   }
   const nlohmann::json& record = dataset["images"][index];
+  const std::string where = json_path + ": images[" + std::to_string(index) + "]";
+  if (!record.contains("file_name") || !record["file_name"].is_string() || !record.contains("id") ||
+      !record["id"].is_number_integer()) {
+    throw std::runtime_error(where + ": file_name or id is missing or of the wrong type");
+  }
   const std::string path = dir + "/images/" + record["file_name"].get<std::string>();
+  std::error_code missing;
+  if (!std::filesystem::exists(path, missing)) {
+    throw std::runtime_error(where + ": its image " + path + " does not exist");
+  }
   cv::Mat picture = cv::imread(path, cv::IMREAD_COLOR);
-  if (picture.empty()) throw std::runtime_error(path + ": cannot read");
+  if (picture.empty()) throw std::runtime_error(path + ": cannot read (damaged or not an image)");
 
   // each mask tinted, outlined and labelled.
   const int64_t image_id = record["id"].get<int64_t>();
   cv::Mat tint = picture.clone();
   int drawn = 0;
   std::vector<std::pair<cv::Mat, cv::Scalar>> outlines;
+  // every annotation of the image checked as it is used: an error names it
+  const auto annotation_error = [&](const nlohmann::json& annotation, const std::string& what) {
+    return std::runtime_error(json_path + ": annotation " +
+                              annotation.value("id", nlohmann::json()).dump() + " (image " +
+                              std::to_string(image_id) + "): " + what);
+  };
+  std::vector<const nlohmann::json*> of_image;
   for (const nlohmann::json& annotation : dataset["annotations"]) {
-    if (annotation["image_id"].get<int64_t>() != image_id) continue;
-    const cv::Mat mask = stackgen::DecodeRle(
-        annotation["segmentation"]["counts"].get<std::string>(), picture.rows, picture.cols);
+    const auto image = annotation.find("image_id");
+    if (image == annotation.end() || !image->is_number_integer()) {
+      throw annotation_error(annotation, "image_id is missing or not an integer");
+    }
+    if (image->get<int64_t>() != image_id) continue;
+    const auto segmentation = annotation.find("segmentation");
+    const auto bbox = annotation.find("bbox");
+    if (segmentation == annotation.end() || !segmentation->is_object() ||
+        !segmentation->contains("counts") || !(*segmentation)["counts"].is_string()) {
+      throw annotation_error(annotation, "segmentation.counts is missing or not an RLE string");
+    }
+    if (bbox == annotation.end() || !bbox->is_array() || bbox->size() != 4 ||
+        !std::all_of(bbox->begin(), bbox->end(),
+                     [](const nlohmann::json& v) { return v.is_number(); })) {
+      throw annotation_error(annotation, "bbox is missing or not 4 numbers");
+    }
+    of_image.push_back(&annotation);
+  }
+  for (const nlohmann::json* annotation_pointer : of_image) {
+    const nlohmann::json& annotation = *annotation_pointer;
+    cv::Mat mask;
+    try {
+      mask = stackgen::DecodeRle(annotation["segmentation"]["counts"].get<std::string>(),
+                                 picture.rows, picture.cols);
+    } catch (const std::exception& error) {
+      throw annotation_error(annotation, std::string("segmentation.counts: ") + error.what());
+    }
     const int id = annotation.value("instance_id", drawn + 1);
     const cv::Scalar colour((id * 67) % 200 + 55, (id * 131) % 200 + 55, (id * 29) % 200 + 55);
     tint.setTo(colour, mask);
@@ -63,8 +119,8 @@ int Run(int argc, char** argv) {
     ++drawn;
   }
   cv::addWeighted(picture, 0.55, tint, 0.45, 0, picture);
-  for (const nlohmann::json& annotation : dataset["annotations"]) {
-    if (annotation["image_id"].get<int64_t>() != image_id) continue;
+  for (const nlohmann::json* annotation_pointer : of_image) {
+    const nlohmann::json& annotation = *annotation_pointer;
     const nlohmann::json& box = annotation["bbox"];
     const cv::Rect rect(box[0].get<int>(), box[1].get<int>(), box[2].get<int>(), box[3].get<int>());
     cv::rectangle(picture, rect, cv::Scalar(255, 255, 255), 1);

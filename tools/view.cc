@@ -480,12 +480,19 @@ std::vector<Tile> ReadCocoTiles(const Flags& flags) {
     }
     // stackgen-coco's file_name is relative to images/; other datasets' maybe to the folder
     const std::string file_name = record["file_name"].get<std::string>();
-    fs::path image_path = fs::path(flags.coco_dir) / "images" / file_name;
-    if (!fs::exists(image_path, error)) image_path = fs::path(flags.coco_dir) / file_name;
+    const fs::path in_images = fs::path(flags.coco_dir) / "images" / file_name;
+    const fs::path in_folder = fs::path(flags.coco_dir) / file_name;
+    const bool found_in_images = fs::exists(in_images, error);
+    if (!found_in_images && !fs::exists(in_folder, error)) {
+      throw std::runtime_error(where + ": its image " + in_images.string() +
+                               " does not exist (nor " + in_folder.string() + ")");
+    }
+    const fs::path image_path = found_in_images ? in_images : in_folder;
     SceneView scene;
     scene.image = cv::imread(image_path.string(), cv::IMREAD_COLOR);
     if (scene.image.empty()) {
-      throw std::runtime_error(where + ": cannot read its image " + image_path.string());
+      throw std::runtime_error(where + ": cannot read its image " + image_path.string() +
+                               " (not an image OpenCV can decode, or damaged)");
     }
     if (record.value("width", scene.image.cols) != scene.image.cols ||
         record.value("height", scene.image.rows) != scene.image.rows) {

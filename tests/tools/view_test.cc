@@ -255,6 +255,21 @@ TEST(ViewTest, BadInputIsOneLine) {
   EXPECT_EQ(err, "stackgen-view: error: --coco " + missing + ": no such folder\n");
   EXPECT_FALSE(fs::exists(scratch.path() + "/s.png"));
 
+  // an image file that is gone is named where stackgen-coco writes it (images/), not elsewhere
+  const std::string dataset = scratch.path() + "/coco";
+  {
+    CocoWriter writer(dataset);
+    ASSERT_TRUE(writer.Add(testing::SceneA()));
+    writer.Finish();
+  }
+  fs::remove(dataset + "/images/0_000000.png");
+  EXPECT_EQ(RunToEnd({"--coco", dataset, "--out", scratch.path() + "/s.png"},
+                     scratch.path() + "/no-image", &out, &err),
+            1);
+  EXPECT_EQ(err, "stackgen-view: error: " + dataset + "/annotations.json: image 1: its image " +
+                     dataset + "/images/0_000000.png does not exist (nor " + dataset +
+                     "/0_000000.png)\n");
+
   // a folder without annotations.json names the file
   fs::create_directory(scratch.path() + "/empty");
   EXPECT_EQ(RunToEnd({"--coco", scratch.path() + "/empty", "--out", scratch.path() + "/s.png"},

@@ -6,6 +6,7 @@
 
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cmath>
 #include <cstdint>
@@ -25,6 +26,11 @@ namespace fs = std::filesystem;
 
 // bump when the decomposition or the file format changes: old cache files are then ignored
 constexpr char kCacheVersion[] = "stackgen-hacd-v1";
+
+// a convex part's hull keeps at most this many vertices (else it is simplified)
+constexpr int kMaxHullVertices = 256;
+// the most triangles a part mesh may have to be decomposed with HACD
+constexpr int64_t kMaxDecompositionTriangles = 20000;
 
 // HACD works on coordinates scaled so the part's largest extent is this long
 constexpr double kHacdExtent = 1000.0;
@@ -326,9 +332,44 @@ ConvexPieces MakeConvexPieces(const TriangleMesh& part, const std::vector<Triang
   const Hull hull = ComputeHull(all_points);
   const double hull_volume = HullVolume(hull);
   if (SignedVolume(part) >= settings.convex_volume_ratio * hull_volume) {
-    result.points_mm.push_back(hull.vertices);
-    result.description = "convex hull (" + std::to_string(hull.vertices.size()) + " vertices)";
-    return result;
+    if (static_cast<int>(hull.vertices.size()) <= kMaxHullVertices) {
+      result.points_mm.push_back(hull.vertices);
+      result.description = "convex hull (" + std::to_string(hull.vertices.size()) + " vertices)";
+      return result;
+    }
+    // a finely tessellated convex part: its hull from one point per cell of a grid (each
+    // Bullet contact test walks every hull vertex), coarser until small enough; the hull moves
+    // by at most a cell's diagonal
+    for (int cells = 64; cells >= 4; cells /= 2) {
+      const double cell = extent / cells;
+      std::map<std::array<int64_t, 3>, Eigen::Vector3d> representative;
+      for (const Eigen::Vector3d& v : hull.vertices) {
+        const std::array<int64_t, 3> key = {static_cast<int64_t>(std::floor(v.x() / cell)),
+                                            static_cast<int64_t>(std::floor(v.y() / cell)),
+                                            static_cast<int64_t>(std::floor(v.z() / cell))};
+        representative.emplace(key, v);
+      }
+      std::vector<Eigen::Vector3d> points;
+      for (const auto& [key, v] : representative) points.push_back(v);
+      const Hull coarse = ComputeHull(points);
+      if (static_cast<int>(coarse.vertices.size()) <= kMaxHullVertices || cells == 4) {
+        result.points_mm.push_back(coarse.vertices);
+        std::ostringstream text;
+        text << "convex hull (" << coarse.vertices.size() << " vertices, simplified from "
+             << hull.vertices.size() << " on a " << cell << " mm grid)";
+        result.description = text.str();
+        return result;
+      }
+    }
+  }
+
+  // a mesh this large takes HACD far too long (minutes and more, with no way to stop it)
+  if (static_cast<int64_t>(part.triangles.size()) > kMaxDecompositionTriangles) {
+    throw std::runtime_error(
+        "the part mesh has " + std::to_string(part.triangles.size()) +
+        " triangles, more than the " + std::to_string(kMaxDecompositionTriangles) +
+        " a convex decomposition is computed for; give its convex collision pieces "
+        "(collision_mesh) or a simplified mesh");
   }
 
   // otherwise HACD, from the cache when it holds this mesh and these settings

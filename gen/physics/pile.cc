@@ -408,8 +408,8 @@ PileSimulator::PileSimulator(const TriangleMesh& part,
                              const std::vector<TriangleMesh>& collision_pieces,
                              const PartPhysics& physics, const BinSpec& bin,
                              const SimulationParams& params, const std::string& cache_dir)
-    : PileSimulator(std::vector<PartType>{PartType{part, collision_pieces, physics}}, bin, params,
-                    cache_dir) {}
+    : PileSimulator(std::vector<PartType>{PartType{part, collision_pieces, physics, ""}}, bin,
+                    params, cache_dir) {}
 
 PileSimulator::PileSimulator(const std::vector<PartType>& types, const BinSpec& bin,
                              const SimulationParams& params, const std::string& cache_dir) {
@@ -437,7 +437,9 @@ PileSimulator::PileSimulator(const std::vector<PartType>& types, const BinSpec& 
   model->bin = bin;
   model->params = params;
   for (size_t t = 0; t < types.size(); ++t) {
-    const std::string what = types.size() > 1 ? "part type " + std::to_string(t) + ": " : "";
+    const std::string what =
+        !types[t].name.empty() ? types[t].name + ": "
+                               : (types.size() > 1 ? "part type " + std::to_string(t) + ": " : "");
     model->types.push_back(MakeTypeModel(types[t], what, cache_dir));
   }
 

@@ -44,6 +44,8 @@ struct PartType {
   TriangleMesh mesh;
   std::vector<TriangleMesh> collision_pieces;
   PartPhysics physics;
+  /// What errors call it (e.g. its mesh file); empty: "part type N" when there are several.
+  std::string name;
 };
 
 /// How parts are released into the bin.

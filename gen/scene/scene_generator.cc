@@ -181,6 +181,7 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   std::vector<PartType> types;
   for (const config::PartConfig& part : config.config.part()) {
     PartType type;
+    type.name = "part mesh '" + config.Resolve(part.mesh()) + "'";
     type.mesh = LoadMesh(config.Resolve(part.mesh()), part.scale_to_mm());
     CheckClosedSolid("'" + config.Resolve(part.mesh()) + "'", type.mesh);
     if (!part.collision_mesh().empty()) {

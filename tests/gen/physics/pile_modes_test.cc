@@ -31,11 +31,11 @@ class PileModesTest : public ::testing::Test {
   static PartType Connector() {
     static const PartType type{LoadMesh(ModelPath("corner_connector.obj"), 1.0),
                                LoadMeshPieces(ModelPath("corner_connector_collision.obj"), 1.0),
-                               PartPhysics{}};
+                               PartPhysics{}, ""};
     return type;
   }
   static PartType Pin(double rolling_friction_mm) {
-    PartType type{LoadMesh(ModelPath("dowel_pin.obj"), 1.0), {}, PartPhysics{}};
+    PartType type{LoadMesh(ModelPath("dowel_pin.obj"), 1.0), {}, PartPhysics{}, ""};
     type.physics.density_kg_m3 = 7850;
     type.physics.rolling_friction_mm = rolling_friction_mm;
     return type;
@@ -57,8 +57,9 @@ double MeanDistanceFrom(const PileResult& pile, const Eigen::Vector2d& point) {
 // Two part types in one pile: each object gets its own type's shape, mass and hull faces, and
 // the pile settles inside the bin.
 TEST_F(PileModesTest, SeveralPartTypesInOnePile) {
-  const PileSimulator simulator({Connector(), PartType{BoxMesh({30, 20, 10}), {}, PartPhysics{}}},
-                                kBin, SimulationParams{}, Cache());
+  const PileSimulator simulator(
+      {Connector(), PartType{BoxMesh({30, 20, 10}), {}, PartPhysics{}, ""}}, kBin,
+      SimulationParams{}, Cache());
   EXPECT_NEAR(simulator.mass_kg(0), 0.0959, 0.001);
   EXPECT_NEAR(simulator.mass_kg(1), 30 * 20 * 10 * 2700e-9, 1e-9);
   EXPECT_EQ(simulator.hull_faces(1).size(), 6u);

@@ -228,6 +228,78 @@ TEST_F(PileTest, RefusesBadInput) {
   EXPECT_THROW(PileSimulator(cube, {}, {}, kBin, {}, "").Simulate(-1, 0), std::runtime_error);
 }
 
+// A torus of n x m quads (two triangles each), radii R and r mm, outward-wound.
+TriangleMesh Torus(int n, int m, double big_r, double small_r) {
+  TriangleMesh mesh;
+  for (int i = 0; i < n; ++i) {
+    for (int j = 0; j < m; ++j) {
+      const double u = 2 * M_PI * i / n, v = 2 * M_PI * j / m;
+      mesh.positions_mm.emplace_back((big_r + small_r * std::cos(v)) * std::cos(u),
+                                     (big_r + small_r * std::cos(v)) * std::sin(u),
+                                     small_r * std::sin(v));
+      mesh.normals.emplace_back(std::cos(v) * std::cos(u), std::cos(v) * std::sin(u), std::sin(v));
+    }
+  }
+  const auto at = [&](int i, int j) { return static_cast<uint32_t>((i % n) * m + (j % m)); };
+  for (int i = 0; i < n; ++i) {
+    for (int j = 0; j < m; ++j) {
+      mesh.triangles.push_back({at(i, j), at(i + 1, j), at(i + 1, j + 1)});
+      mesh.triangles.push_back({at(i, j), at(i + 1, j + 1), at(i, j + 1)});
+    }
+  }
+  return mesh;
+}
+
+// A UV sphere of n rings x m segments, radius r mm, outward-wound.
+TriangleMesh Sphere(int n, int m, double r) {
+  TriangleMesh mesh;
+  mesh.positions_mm = {{0, 0, static_cast<float>(r)}, {0, 0, static_cast<float>(-r)}};
+  for (int i = 1; i < n; ++i) {
+    for (int j = 0; j < m; ++j) {
+      const double theta = M_PI * i / n, phi = 2 * M_PI * j / m;
+      mesh.positions_mm.emplace_back(r * std::sin(theta) * std::cos(phi),
+                                     r * std::sin(theta) * std::sin(phi), r * std::cos(theta));
+    }
+  }
+  for (const auto& p : mesh.positions_mm) mesh.normals.push_back(p.normalized());
+  const auto at = [&](int i, int j) { return static_cast<uint32_t>(2 + (i - 1) * m + (j % m)); };
+  for (int j = 0; j < m; ++j) mesh.triangles.push_back({0, at(1, j), at(1, j + 1)});
+  for (int i = 1; i < n - 1; ++i) {
+    for (int j = 0; j < m; ++j) {
+      mesh.triangles.push_back({at(i, j), at(i + 1, j), at(i + 1, j + 1)});
+      mesh.triangles.push_back({at(i, j), at(i + 1, j + 1), at(i, j + 1)});
+    }
+  }
+  for (int j = 0; j < m; ++j) mesh.triangles.push_back({1, at(n - 1, j + 1), at(n - 1, j)});
+  return mesh;
+}
+
+// A part mesh too large to decompose (a torus of 217,800 triangles, not convex) is refused at
+// once, naming the part and saying what to give instead (HACD ran for many minutes on it); a
+// finely tessellated convex part (a sphere of 124,500 triangles) gets a simplified hull, said in
+// its description, and piles settle.
+TEST_F(PileTest, LargeMeshesAreRefusedOrSimplified) {
+  PartType torus{Torus(330, 330, 20, 6), {}, PartPhysics{}, "part mesh 'torus.obj'"};
+  try {
+    PileSimulator({torus}, kBin, SimulationParams{}, "");
+    ADD_FAILURE() << "a 217,800-triangle torus was decomposed";
+  } catch (const std::runtime_error& error) {
+    EXPECT_NE(std::string(error.what())
+                  .find("part mesh 'torus.obj': the part mesh has 217800 triangles, more than the "
+                        "20000 a convex decomposition is computed for"),
+              std::string::npos)
+        << error.what();
+  }
+  // a UV sphere of 124,500 triangles: convex, its hull has 45,000 vertices
+  PartType ball{Sphere(250, 250, 15), {}, PartPhysics{}, ""};
+  const PileSimulator simulator({ball}, kBin, SimulationParams{}, "");
+  const std::string description = simulator.CollisionDescription();
+  EXPECT_NE(description.find("convex hull ("), std::string::npos) << description;
+  EXPECT_NE(description.find("simplified from"), std::string::npos) << description;
+  const PileResult pile = simulator.Simulate(3, 1);
+  EXPECT_TRUE(pile.settled);
+}
+
 // Dropping nothing is a settled, empty pile.
 TEST_F(PileTest, EmptyPile) {
   const PileResult pile = ConnectorSimulator().Simulate(0, 1);

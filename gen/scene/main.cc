@@ -6,14 +6,19 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
 #include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <deque>
 #include <functional>
 #include <future>
 #include <iostream>
+#include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
 
 #include <stackgen/config_text.hpp>
 #include <stackgen/status.hpp>
@@ -85,6 +90,59 @@ std::string FormatMs(double total_ms, int64_t scenes) {
   std::snprintf(text, sizeof(text), "%.1f", scenes > 0 ? total_ms / scenes : 0.0);
   return text;
 }
+
+// One long-lived thread that runs the tasks given to it in order. The pipeline's stages run on
+// two of these rather than on a thread per scene: OpenCV keeps the thread-local buffers of
+// threads that have exited, so a thread per scene grew the heap by about 0.7 KB per scene
+// (heaptrack: 5.35 MB leaked after 300 scenes, 5.96 MB after 1,200).
+class Worker {
+ public:
+  Worker() : thread_([this] { Loop(); }) {}
+  ~Worker() {
+    {
+      const std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    wake_.notify_one();
+    thread_.join();
+  }
+  Worker(const Worker&) = delete;
+  Worker& operator=(const Worker&) = delete;
+
+  // Runs `task` after those given before; its result (or exception) comes through the future.
+  template <typename Task>
+  auto Submit(Task task) -> std::future<decltype(task())> {
+    auto packaged = std::make_shared<std::packaged_task<decltype(task())()>>(std::move(task));
+    std::future<decltype(task())> result = packaged->get_future();
+    {
+      const std::lock_guard<std::mutex> lock(mutex_);
+      tasks_.push_back([packaged] { (*packaged)(); });
+    }
+    wake_.notify_one();
+    return result;
+  }
+
+ private:
+  void Loop() {
+    while (true) {
+      std::function<void()> task;
+      {
+        std::unique_lock<std::mutex> lock(mutex_);
+        wake_.wait(lock, [this] { return stop_ || !tasks_.empty(); });
+        if (tasks_.empty()) return;
+        task = std::move(tasks_.front());
+        tasks_.pop_front();
+      }
+      task();
+    }
+  }
+
+  std::mutex mutex_;
+  std::condition_variable wake_;
+  std::deque<std::function<void()>> tasks_;
+  bool stop_ = false;
+  std::thread thread_;  // last: starts once the rest is ready
+};
 
 int Run(int argc, char** argv) {
   // flags.
@@ -189,6 +247,17 @@ int Run(int argc, char** argv) {
         }
       },
       100, [](const std::string&) {});
+  // say so at once: a generator already running with this id then hears of this one (and
+  // warns) also when this one gives way before its first periodic status
+  {
+    status hello{};
+    hello.header.generator_id = generator_id;
+    hello.header.seed = static_cast<int64_t>(seed);
+    hello.header.utime = now_us();
+    hello.process = "stackgen";
+    hello.name = name;
+    bus.Publish(kStatusChannel, hello);
+  }
 
   // hear which reliable consumers are there before the first scene (they credit every 0.2 s)
   const auto listen = [&](double seconds, const std::function<bool()>& done) {
@@ -272,17 +341,19 @@ int Run(int argc, char** argv) {
   // scene is the same either way: a pure function of its seq); with views_per_pile V, V scenes
   // in a row show each state
   const int views = generator.views_per_pile();
+  Worker physics_worker;
+  Worker encode_worker;
   std::future<SettledPile> ahead;
   std::optional<SettledPile> current;
   const auto settle_ahead = [&] {
     const int64_t next_first = current ? current->first_seq + views : first_seq;
     if (count != 0 && next_first >= count) return;
     if (current) {
-      ahead = std::async(std::launch::async,
-                         [&generator, state = *current] { return generator.SettleNext(state); });
+      ahead = physics_worker.Submit(
+          [&generator, state = *current] { return generator.SettleNext(state); });
     } else {
-      ahead = std::async(std::launch::async,
-                         [&generator, next_first] { return generator.Settle(next_first); });
+      ahead =
+          physics_worker.Submit([&generator, next_first] { return generator.Settle(next_first); });
     }
   };
   settle_ahead();
@@ -346,12 +417,11 @@ int Run(int argc, char** argv) {
     }
     if (encoding.valid()) publish_encoded();
     if (g_stop) break;
-    encoding =
-        std::async(std::launch::async, [&generator, rendered = std::move(rendered)]() mutable {
-          StageTimes encode_times;
-          scene message = generator.Encode(std::move(rendered), &encode_times);
-          return std::make_pair(std::move(message), encode_times);
-        });
+    encoding = encode_worker.Submit([&generator, rendered = std::move(rendered)]() mutable {
+      StageTimes encode_times;
+      scene message = generator.Encode(std::move(rendered), &encode_times);
+      return std::make_pair(std::move(message), encode_times);
+    });
   }
   if (encoding.valid() && !g_stop) publish_encoded();
   // work in flight for scenes that will not be published (stopped by a signal)

@@ -527,7 +527,7 @@ class PileWorld {
       btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, tote_shape);
       info.m_friction = Root(bin.friction);
       info.m_restitution = Root(bin.restitution);
-      bin_body_ = w_.AddBody(info);
+      w_.AddBody(info);
       bottom_z_mm_ = tote_bottom_z_mm;
       return;
     }
@@ -550,7 +550,7 @@ class PileWorld {
     btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, compound);
     info.m_friction = Root(bin.friction);
     info.m_restitution = Root(bin.restitution);
-    bin_body_ = w_.AddBody(info);
+    w_.AddBody(info);
     bottom_z_mm_ = -std::max(t, kMinFloorThicknessMm);
   }
 
@@ -631,12 +631,10 @@ class PileWorld {
   }
 
   btDiscreteDynamicsWorld& world() { return *w_.world; }
-  const btRigidBody* bin_body() const { return bin_body_; }
 
  private:
   const std::vector<TypeModel>& types_;
   World w_;
-  btRigidBody* bin_body_ = nullptr;
   double bottom_z_mm_ = 0;
   std::vector<btCompoundShape*> shape_of_type_;
   std::vector<btVector3> inertia_of_type_;
@@ -873,10 +871,10 @@ std::vector<int> PileSimulator::PickOrder(
                                 " poses");
   }
   PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm);
-  std::vector<const btCollisionObject*> bodies;
   double top_mm = m.bin.inner_height_mm;
   for (size_t i = 0; i < types.size(); ++i) {
-    bodies.push_back(w.AddPart(types[i], world_from_object[i]));
+    // a ray's hit tells the part by its index (the bin keeps Bullet's -1)
+    w.AddPart(types[i], world_from_object[i])->setUserIndex(static_cast<int>(i));
     top_mm =
         std::max(top_mm, world_from_object[i].translation().z() + m.types[types[i]].max_extent_mm);
   }
@@ -897,9 +895,8 @@ std::vector<int> PileSimulator::PickOrder(
       // the parts along the ray, nearest first (the bin's floor ends it)
       std::vector<std::pair<btScalar, int>> along;
       for (int h = 0; h < callback.m_collisionObjects.size(); ++h) {
-        const auto it = std::find(bodies.begin(), bodies.end(), callback.m_collisionObjects[h]);
-        const int part = it == bodies.end() ? -1 : static_cast<int>(it - bodies.begin());
-        along.emplace_back(callback.m_hitFractions[h], part);
+        along.emplace_back(callback.m_hitFractions[h],
+                           callback.m_collisionObjects[h]->getUserIndex());
       }
       std::sort(along.begin(), along.end());
       for (size_t h = 0; h < along.size() && along[h].second >= 0; ++h) {

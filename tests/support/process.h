@@ -157,4 +157,18 @@ class Process {
   bool exited_ = false;
 };
 
+/// Runs `program` with `args` to the end (at most `timeout_s`, then SIGKILL and -1), output to
+/// `log_prefix`.out and .err; returns its exit code and hands back what it printed.
+inline int RunToEnd(const std::string& program, const std::vector<std::string>& args,
+                    const std::string& log_prefix, std::string* out, std::string* err,
+                    double timeout_s) {
+  std::vector<std::string> argv = {program};
+  argv.insert(argv.end(), args.begin(), args.end());
+  Process process(argv, log_prefix);
+  const int code = process.Wait(timeout_s);
+  *out = process.Stdout();
+  *err = process.Stderr();
+  return code;
+}
+
 }  // namespace stackgen::testing

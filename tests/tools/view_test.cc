@@ -64,13 +64,7 @@ int CountColour(const cv::Mat& sheet, const cv::Rect& region, const cv::Vec3b& c
 // runs stackgen-view with `args` to the end; returns its exit code
 int RunToEnd(const std::vector<std::string>& args, const std::string& log_prefix, std::string* out,
              std::string* err) {
-  std::vector<std::string> argv = {kProgram};
-  argv.insert(argv.end(), args.begin(), args.end());
-  Process process(argv, log_prefix);
-  const int code = process.Wait(60);
-  *out = process.Stdout();
-  *err = process.Stderr();
-  return code;
+  return testing::RunToEnd(kProgram, args, log_prefix, out, err, 60);
 }
 
 // publishes `message` on the scene channel and gives the receiver a moment

@@ -31,13 +31,7 @@ const std::string kProgram = std::string(STACKGEN_BIN_DIR) + "/stackgen-coco";
 // runs stackgen-coco with `args` to the end; returns its exit code
 int RunToEnd(const std::vector<std::string>& args, const std::string& log_prefix, std::string* out,
              std::string* err) {
-  std::vector<std::string> argv = {kProgram};
-  argv.insert(argv.end(), args.begin(), args.end());
-  Process process(argv, log_prefix);
-  const int code = process.Wait(30);
-  *out = process.Stdout();
-  *err = process.Stderr();
-  return code;
+  return testing::RunToEnd(kProgram, args, log_prefix, out, err, 30);
 }
 
 // --help documents every flag and its default, and exits 0.

@@ -216,7 +216,9 @@ TEST(SceneGeneratorTest, PickSequenceEmptiesTheBin) {
     }
     if (level == 5) break;
     const SettledPile next = generator.SettleNext(state);
-    if (level < 4) EXPECT_NE(next.seed, state.seed);
+    if (level < 4) {
+      EXPECT_NE(next.seed, state.seed);
+    }
     state = next;
   }
   const scene empty = generator.Generate(8, nullptr);

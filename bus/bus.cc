@@ -5,6 +5,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cstdio>
@@ -77,14 +78,23 @@ std::string ResolveLcmUrl(const std::string& flag_value) {
 }
 
 struct Bus::Impl {
-  // what LCM's callback gets as its context.
+  // what LCM's callback gets as its context: one per channel, so that a message is checked once
+  // (its counter would look replayed to a second check) and then handed to each handler.
   struct Subscriber {
     Impl* impl;
-    BytesHandler handler;
+    std::string channel;
+    std::vector<BytesHandler> handlers;
+    lcm::Subscription* subscription = nullptr;
+    int queue_capacity = 0;
   };
 
   std::string url;
   BusOptions options;
+  // signs what is published, checks what is received (auth.h); a buffer for sealed bytes
+  std::unique_ptr<MessageAuth> auth;
+  std::vector<uint8_t> sealed;
+  // refusals already reported on stderr, by kind (one line each, then only counted)
+  int64_t reported_unsigned = 0, reported_forged = 0, reported_replayed = 0;
   // the fault-injection engine (SplitMix64) and what it dropped
   uint64_t fault_state = 0;
   int64_t fault_dropped = 0;
@@ -108,13 +118,38 @@ struct Bus::Impl {
     return drop;
   }
 
-  static void Dispatch(const lcm::ReceiveBuffer* buffer, const std::string& /*channel*/,
+  // says on stderr why the first message of each kind was refused
+  void ReportRefusal(const std::string& why) {
+    const AuthCounters now = auth->counters();
+    int64_t* reported = now.unsigned_messages > reported_unsigned ? &reported_unsigned
+                        : now.forged > reported_forged            ? &reported_forged
+                                                                  : &reported_replayed;
+    if (*reported == 0) {
+      std::fprintf(stderr, "warning: %s; further ones are only counted (status: refused)\n",
+                   why.c_str());
+    }
+    reported_unsigned = now.unsigned_messages;
+    reported_forged = now.forged;
+    reported_replayed = now.replayed;
+  }
+
+  static void Dispatch(const lcm::ReceiveBuffer* buffer, const std::string& channel,
                        Subscriber* subscriber) {
     Impl* impl = subscriber->impl;
     if (impl->pending_error) return;
     if (impl->Drop(impl->options.drop_receive_fraction)) return;
     try {
-      subscriber->handler(static_cast<const uint8_t*>(buffer->data), buffer->data_size);
+      // the key check; refused messages go no further
+      std::string why;
+      const int64_t size = impl->auth->Open(channel, static_cast<const uint8_t*>(buffer->data),
+                                            buffer->data_size, WallClockMicros(), &why);
+      if (size < 0) {
+        impl->ReportRefusal(why);
+        return;
+      }
+      for (const BytesHandler& handler : subscriber->handlers) {
+        handler(static_cast<const uint8_t*>(buffer->data), static_cast<size_t>(size));
+      }
     } catch (...) {
       impl->pending_error = std::current_exception();
     }
@@ -132,6 +167,18 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
   impl_->options = options;
   impl_->fault_state = options.fault_seed;
   CheckMulticastRoute(url);
+  // the key before the bus: a key file that cannot be used is one line, and nothing is opened
+  const bool is_log = url.rfind("file://", 0) == 0;
+  impl_->auth = std::make_unique<MessageAuth>(ResolveBusKeyFile(options.key_file), !is_log);
+  if (!impl_->auth->keyed() && url.rfind("udpm://", 0) == 0) {
+    static std::atomic<bool> warned{false};
+    if (!warned.exchange(true)) {
+      std::fprintf(stderr,
+                   "warning: no bus key (--bus-key-file or STACKGEN_BUS_KEY_FILE): every process "
+                   "that can send to %s is trusted\n",
+                   url.c_str());
+    }
+  }
   // LCM says why it cannot open a URL on stderr ("Error: LCM provider "x" not found"): that text
   // goes into the one error line instead (anything else it prints is passed on)
   std::string said;
@@ -172,10 +219,21 @@ int64_t Bus::fault_dropped() const { return impl_->fault_dropped; }
 
 bool Bus::log_ended() const { return impl_->log_ended; }
 
+bool Bus::keyed() const { return impl_->auth->keyed(); }
+
+AuthCounters Bus::auth_counters() const { return impl_->auth->counters(); }
+
+double Bus::auth_seconds() const { return impl_->auth->seconds(); }
+
 const DecodeLimits& Bus::decode_limits() const { return impl_->options.decode_limits; }
 
 void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t size) {
   if (impl_->Drop(impl_->options.drop_publish_fraction)) return;
+  if (impl_->auth->keyed()) {
+    impl_->auth->Seal(channel, data, size, &impl_->sealed);
+    data = impl_->sealed.data();
+    size = impl_->sealed.size();
+  }
   if (impl_->lcm->publish(channel, data, static_cast<unsigned int>(size)) != 0) {
     throw std::runtime_error("cannot publish " + std::to_string(size) + " bytes on channel " +
                              channel + " (" + impl_->url + ")");
@@ -183,14 +241,26 @@ void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t s
 }
 
 void Bus::SubscribeBytes(const std::string& channel, BytesHandler handler, int queue_capacity) {
-  impl_->subscribers.push_back(Impl::Subscriber{impl_.get(), std::move(handler)});
+  // a second handler on a channel joins the first subscription (the larger queue wins)
+  for (Impl::Subscriber& subscriber : impl_->subscribers) {
+    if (subscriber.channel != channel) continue;
+    subscriber.handlers.push_back(std::move(handler));
+    if (queue_capacity > subscriber.queue_capacity) {
+      subscriber.queue_capacity = queue_capacity;
+      subscriber.subscription->setQueueCapacity(queue_capacity);
+    }
+    return;
+  }
+  impl_->subscribers.push_back(Impl::Subscriber{impl_.get(), channel, {std::move(handler)}});
+  Impl::Subscriber& subscriber = impl_->subscribers.back();
   // lcm treats the channel as a regular expression; ours are plain names.
-  lcm::Subscription* subscription =
-      impl_->lcm->subscribeFunction(channel, &Impl::Dispatch, &impl_->subscribers.back());
-  if (subscription == nullptr) {
+  subscriber.subscription = impl_->lcm->subscribeFunction(channel, &Impl::Dispatch, &subscriber);
+  if (subscriber.subscription == nullptr) {
+    impl_->subscribers.pop_back();
     throw std::runtime_error("cannot subscribe to channel " + channel);
   }
-  subscription->setQueueCapacity(queue_capacity);
+  subscriber.queue_capacity = queue_capacity;
+  subscriber.subscription->setQueueCapacity(queue_capacity);
 }
 
 int Bus::HandleFor(int timeout_ms) {

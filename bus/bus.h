@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "bus/auth.h"
 #include "bus/bounded_decode.h"
 
 namespace stackgen {
@@ -37,6 +38,11 @@ struct BusOptions {
   uint64_t fault_seed = 1;
   /// What decoding one received message may allocate (see DecodeBounded).
   DecodeLimits decode_limits;
+  /// The bus key file (see auth.h): "" (the default) means ResolveBusKeyFile's choice,
+  /// $STACKGEN_BUS_KEY_FILE when set. With a key every message published is signed and every
+  /// message received must be signed with it (others are refused and counted: auth_counters).
+  /// Without one a udpm:// bus warns once per process on stderr that it trusts every sender.
+  std::string key_file;
 };
 
 /// Parses a --fault-drop value: a number in [0, 1). Throws std::invalid_argument naming `flag`.
@@ -58,7 +64,8 @@ class Bus {
  public:
   /// Opens the bus at `url` (udpm://, memq://, file://). For udpm:// it first checks that
   /// multicast can be sent and throws a one-line error saying how to enable it if not.
-  /// `options` sets fault injection (none by default).
+  /// `options` sets fault injection (none by default) and the bus key; a key file that cannot be
+  /// used throws a one-line error naming it.
   explicit Bus(const std::string& url, const BusOptions& options = {});
   ~Bus();
   Bus(const Bus&) = delete;
@@ -120,6 +127,13 @@ class Bus {
 
   /// True once a file:// bus has handed out the last event of its log.
   bool log_ended() const;
+
+  /// True when the bus signs and checks messages with a key.
+  bool keyed() const;
+  /// Messages received and refused by the key check (all zero without a key).
+  AuthCounters auth_counters() const;
+  /// Seconds spent signing and checking messages with the key so far (0 without one).
+  double auth_seconds() const;
 
  private:
   using BytesHandler = std::function<void(const uint8_t* data, size_t size)>;

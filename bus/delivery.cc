@@ -8,6 +8,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include <openssl/evp.h>
 #include <stackgen/credit.hpp>
 #include <stackgen/resend_request.hpp>
 
@@ -23,8 +24,18 @@ constexpr int kMaxSeqsPerRequest = 256;
 // the ids a scene may carry (--generator-id is 0..65535; seqs as the COCO id layout allows)
 constexpr int32_t kMaxGeneratorId = 65535;
 constexpr int64_t kMaxSeq = 999999998;
-// a window larger than this is taken as this
-constexpr int32_t kMaxWindow = 1000000;
+// the largest window a consumer may offer (stackgen-coco's and the feed's --window limit); a
+// credit offering more, or less than 0, is refused
+constexpr int32_t kMaxWindow = 10000;
+// the longest consumer name taken (stackgen-coco's holds its host and dataset folder)
+constexpr size_t kMaxConsumerName = 4096;
+// consumers held off for offering no window, remembered at most
+constexpr size_t kMaxHeldOff = 1024;
+// a consumer not heard for this long is not listening (paused, stopped): its tail is not resent
+// (credits come every 0.2 s)
+constexpr double kListeningS = 1.0;
+// tail resends to a consumer that took none of the last back off, doubling up to this
+constexpr double kMaxTailResendIntervalS = 5.0;
 
 double SecondsSince(Clock::time_point then, Clock::time_point now) {
   return std::chrono::duration<double>(now - then).count();
@@ -38,6 +49,37 @@ int64_t UnixMicros() {
 
 }  // namespace
 
+std::string RunName(int64_t base_seed, const std::string& config_path,
+                    const std::string& config_pbtxt) {
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int length = 0;
+  if (EVP_Digest(config_pbtxt.data(), config_pbtxt.size(), digest, &length, EVP_sha256(),
+                 nullptr) != 1) {
+    throw std::runtime_error("OpenSSL cannot compute a SHA-256");
+  }
+  std::string hex;
+  const char* digits = "0123456789abcdef";
+  for (unsigned int i = 0; i < 8 && i < length; ++i) {
+    hex += digits[digest[i] >> 4];
+    hex += digits[digest[i] & 15];
+  }
+  return "seed " + std::to_string(base_seed) + ", config " + config_path + " (sha256 " + hex + ")";
+}
+
+bool SameRun(const std::string& a, const std::string& b) {
+  // the seed (up to the first comma) and the digest (the last parenthesis) of each
+  const auto key = [](const std::string& run) -> std::string {
+    const size_t comma = run.find(',');
+    const size_t digest = run.rfind(" (sha256 ");
+    if (run.rfind("seed ", 0) != 0 || comma == std::string::npos || digest == std::string::npos ||
+        digest < comma) {
+      return run;
+    }
+    return run.substr(0, comma) + run.substr(digest);
+  };
+  return key(a) == key(b);
+}
+
 // ---------------------------------------------------------------------------------------------
 // SceneServer
 
@@ -50,6 +92,11 @@ struct SceneServer::Impl {
     int32_t window = 0;
     Clock::time_point last_heard;
     Clock::time_point last_tail_resend;
+    // when last_received last grew; tail resends since then (each waits twice the one before)
+    Clock::time_point last_progress;
+    int tail_resends = 0;
+    // since when it offers no window (window 0), if it does
+    std::optional<Clock::time_point> closed_since;
   };
   // a published scene kept for resending
   struct Kept {
@@ -62,6 +109,9 @@ struct SceneServer::Impl {
   Regenerate regenerate;
   Notice notice;
   std::map<std::string, Consumer> consumers;
+  // consumers dropped for offering no window longer than the consumer timeout: not registered
+  // again until a credit offers one
+  std::set<std::string> held_off;
   std::deque<Kept> ring;
   int64_t next_seq = -1;  // one past the last seq published; -1 before the first
   Clock::time_point last_publish_time;
@@ -70,28 +120,65 @@ struct SceneServer::Impl {
   int64_t resent = 0;
   int64_t regenerated = 0;
   int64_t bad_messages = 0;
+  std::set<std::string> refused_kinds;  // kinds of refused messages already reported
+  std::string run_conflict;
+
+  // counts a message no stackgen consumer sends and says why, once per kind
+  void Refuse(const std::string& what) {
+    ++bad_messages;
+    if (refused_kinds.size() < 16 && refused_kinds.insert(what.substr(0, what.find(':'))).second) {
+      notice("refused " + what + " (further ones are only counted)");
+    }
+  }
 
   void OnCredit(const credit& message) {
     const int32_t target = message.header.generator_id;
     if (target != options.generator_id && target != -1) return;
     // a credit no stackgen consumer sends is counted and ignored
-    if (message.consumer.empty() || message.header.seq < -1 || message.header.seq > kMaxSeq ||
-        message.last_received_seq < -1 || message.last_received_seq > kMaxSeq) {
-      ++bad_messages;
+    if (message.consumer.empty() || message.consumer.size() > kMaxConsumerName) {
+      Refuse("a credit with a consumer name of " + std::to_string(message.consumer.size()) +
+             " bytes");
+      return;
+    }
+    if (message.header.seq < -1 || message.header.seq > kMaxSeq || message.last_received_seq < -1 ||
+        message.last_received_seq > kMaxSeq) {
+      Refuse("a credit with seqs out of range: " + message.consumer + " stored through " +
+             std::to_string(message.header.seq) + ", received " +
+             std::to_string(message.last_received_seq));
+      return;
+    }
+    if (message.window < 0 || message.window > kMaxWindow) {
+      Refuse("a credit with a window out of 0.." + std::to_string(kMaxWindow) + ": " +
+             message.consumer + " offers " + std::to_string(message.window));
       return;
     }
     const Clock::time_point now = Clock::now();
     auto found = consumers.find(message.consumer);
     if (message.leaving) {
+      held_off.erase(message.consumer);
       if (found != consumers.end()) {
         consumers.erase(found);
         notice("reliable consumer " + message.consumer + " left");
       }
       return;
     }
+    // a consumer holding scenes of another run must not be continued by this one
+    if (!options.run.empty() && !message.run.empty() && !SameRun(message.run, options.run)) {
+      ++bad_messages;
+      if (run_conflict.empty()) {
+        run_conflict = message.consumer + " holds scenes of generator " +
+                       std::to_string(options.generator_id) + " from another run (" + message.run +
+                       ") than this one (" + options.run + ")";
+      }
+      return;
+    }
+    // one that offered no window for too long registers again only with a window
+    if (message.window == 0 && held_off.count(message.consumer) != 0) return;
+    held_off.erase(message.consumer);
     if (found == consumers.end()) {
       found = consumers.emplace(message.consumer, Consumer{}).first;
       found->second.last_tail_resend = now;
+      found->second.last_progress = now;
       notice("reliable consumer " + message.consumer + " registered");
     }
     Consumer& consumer = found->second;
@@ -100,22 +187,57 @@ struct SceneServer::Impl {
     if (target == -1 && consumer.addressed) return;
     consumer.addressed = consumer.addressed || target != -1;
     consumer.stored_through = message.header.seq;
-    consumer.last_received = std::max(message.last_received_seq, message.header.seq);
-    consumer.window = std::clamp(message.window, 0, kMaxWindow);
+    const int64_t received = std::max(message.last_received_seq, message.header.seq);
+    if (received > consumer.last_received) {
+      consumer.last_progress = now;
+      consumer.tail_resends = 0;
+    }
+    consumer.last_received = received;
+    consumer.window = message.window;
+    // no window (a consumer that has all it wants holds the generator until it leaves): for
+    // longer than the consumer timeout, it is no longer waited for
+    if (message.window > 0) {
+      consumer.closed_since.reset();
+    } else if (!consumer.closed_since) {
+      consumer.closed_since = now;
+    } else if (SecondsSince(*consumer.closed_since, now) > options.consumer_timeout_s) {
+      notice("reliable consumer " + message.consumer + " has offered no window for " +
+             std::to_string(static_cast<int>(SecondsSince(*consumer.closed_since, now))) +
+             " s: no longer waited for (it registers again once it offers one)");
+      consumers.erase(found);
+      if (held_off.size() >= kMaxHeldOff) held_off.erase(held_off.begin());
+      held_off.insert(message.consumer);
+    }
   }
 
   // only a registered consumer's requests, and only for seqs it can take (its window): a stray
   // request cannot make the generator regenerate its whole history
   void OnResend(const resend_request& message) {
     if (message.header.generator_id != options.generator_id) return;
+    // what no SceneClient sends: too many seqs, not ascending, never published
+    const int64_t last_published = next_seq - 1;
+    if (message.seqs.size() > static_cast<size_t>(kMaxSeqsPerRequest)) {
+      Refuse("a resend request for " + std::to_string(message.seqs.size()) + " seqs (at most " +
+             std::to_string(kMaxSeqsPerRequest) + ") from " + message.consumer);
+      return;
+    }
+    for (size_t i = 0; i < message.seqs.size(); ++i) {
+      const int64_t seq = message.seqs[i];
+      if (seq < 0 || seq > last_published || (i > 0 && seq <= message.seqs[i - 1])) {
+        Refuse("a resend request for seqs not ascending or never published (" +
+               std::to_string(seq) + "; published up to " + std::to_string(last_published) +
+               ") from " + message.consumer);
+        return;
+      }
+    }
     const auto found = consumers.find(message.consumer);
     if (found == consumers.end()) return;
     const Consumer& consumer = found->second;
+    // only seqs it has not stored and can take: a request cannot make the generator regenerate
+    // its history
     const int64_t last =
-        std::min(next_seq - 1, consumer.stored_through + std::max<int64_t>(1, consumer.window));
-    int served = 0;
+        std::min(last_published, consumer.stored_through + std::max<int64_t>(1, consumer.window));
     for (const int64_t seq : message.seqs) {
-      if (++served > kMaxSeqsPerRequest) break;
       if (seq > consumer.stored_through && seq <= last) requested.insert(seq);
     }
   }
@@ -205,12 +327,24 @@ void SceneServer::Service(int timeout_ms) {
       SecondsSince(impl.last_publish_time, now) >= impl.options.tail_resend_s) {
     for (auto& [name, consumer] : impl.consumers) {
       if (consumer.last_received >= last_published) continue;
-      if (SecondsSince(consumer.last_tail_resend, now) < impl.options.tail_resend_s) continue;
+      // not listening (paused or stopped: no credit for a while): nothing is resent to it
+      if (SecondsSince(consumer.last_heard, now) > kListeningS) continue;
+      // a consumer still taking scenes in has them queued, not lost: wait until it stops
+      // progressing; each resend it takes nothing from doubles the wait for the next
+      const double wait_s =
+          std::min(kMaxTailResendIntervalS,
+                   impl.options.tail_resend_s *
+                       static_cast<double>(1 << std::min(consumer.tail_resends, 16)));
+      if (SecondsSince(consumer.last_tail_resend, now) < wait_s ||
+          SecondsSince(consumer.last_progress, now) < impl.options.tail_resend_s) {
+        continue;
+      }
       const int64_t last = std::min(last_published, consumer.stored_through + consumer.window);
       for (int64_t seq = consumer.last_received + 1; seq <= last; ++seq) {
         impl.requested.insert(seq);
       }
       consumer.last_tail_resend = now;
+      ++consumer.tail_resends;
     }
   }
 
@@ -243,6 +377,7 @@ int SceneServer::reliable_consumers() const { return static_cast<int>(impl_->con
 int64_t SceneServer::resent() const { return impl_->resent; }
 int64_t SceneServer::regenerated() const { return impl_->regenerated; }
 int64_t SceneServer::bad_messages() const { return impl_->bad_messages; }
+const std::string& SceneServer::run_conflict() const { return impl_->run_conflict; }
 
 // ---------------------------------------------------------------------------------------------
 // SceneClient
@@ -255,6 +390,7 @@ struct SceneClient::Impl {
     int64_t last_received = -1;
     std::map<int64_t, Clock::time_point> asked;  // missing seq -> when last asked for
     bool credit_due = true;
+    std::string run;  // the RunName its scenes come from ("": unknown)
   };
 
   Bus* bus = nullptr;
@@ -339,6 +475,10 @@ struct SceneClient::Impl {
     message.window = Window();
     message.last_received_seq = last_received;
     message.leaving = leaving;
+    if (generator_id >= 0) {
+      const auto stream = streams.find(generator_id);
+      if (stream != streams.end()) message.run = stream->second.run;
+    }
     bus->Publish(kCreditChannel, message);
   }
 };
@@ -380,6 +520,13 @@ void SceneClient::Restore(int32_t generator_id, const std::vector<int64_t>& seqs
       ++impl_->stored_total;
     }
   }
+}
+
+void SceneClient::SetRun(int32_t generator_id, const std::string& run) {
+  if (!impl_->Tracked(generator_id)) return;
+  Impl::Stream& stream = impl_->StreamOf(generator_id);
+  if (stream.run != run) stream.credit_due = true;
+  stream.run = run;
 }
 
 bool SceneClient::Received(int32_t generator_id, int64_t seq) {

@@ -26,6 +26,16 @@
 
 namespace stackgen {
 
+/// What names a generator's run in credits and datasets, so that a dataset is never continued by
+/// another run: "seed S, config PATH (sha256 HEX)", HEX the first 16 hex digits of the SHA-256
+/// of the effective config text (OpenSSL). Throws std::runtime_error if OpenSSL cannot hash.
+std::string RunName(int64_t base_seed, const std::string& config_path,
+                    const std::string& config_pbtxt);
+
+/// True when two RunNames name the same run: the same seed and config contents (the paths may
+/// differ: the same config on another host). Text that is not a RunName equals only itself.
+bool SameRun(const std::string& a, const std::string& b);
+
 /// How a SceneServer serves its consumers.
 struct SceneServerOptions {
   /// The generator's id (header.generator_id of its scenes).
@@ -36,17 +46,28 @@ struct SceneServerOptions {
   /// (seconds, default 10).
   double consumer_timeout_s = 10;
   /// A consumer whose credit says it has not received the newest scenes this long after they
-  /// were published gets them again (seconds, default 0.3).
+  /// were published, and this long after it last received one, gets them again (seconds,
+  /// default 0.3). Each such resend after which it received nothing doubles the wait for the
+  /// next (up to 5 s), and a consumer not heard for 1 s (paused, stopped) gets none.
   double tail_resend_s = 0.3;
   /// A seq resent less than this ago is not resent again for another request (seconds,
   /// default 0.1), so that several consumers asking for it at once cost one resend.
   double min_resend_interval_s = 0.1;
+  /// This generator's RunName; empty: not checked. A credit naming another run (a consumer that
+  /// holds scenes of another seed or config) registers nothing and sets run_conflict().
+  std::string run;
 };
 
 /// The generator's side: publishes scenes on STACKGEN_SCENE, keeps the recent ones, follows
 /// the credits of reliable consumers and serves resend requests. Subscribes to STACKGEN_CREDIT
-/// and STACKGEN_RESEND on the bus given; messages there that do not decode, or that address
-/// another generator, are skipped (the former counted). Not thread-safe.
+/// and STACKGEN_RESEND on the bus given; messages there that address another generator are
+/// skipped; those that do not decode or that no SceneClient sends are counted (bad_messages) and
+/// skipped, the first of each kind said in a notice: a credit with an empty or over-long name,
+/// seqs outside -1..999999998 or a window outside 0..10000; a resend request for more than 256
+/// seqs, for seqs not ascending or never published. A consumer that offers no window (0) for
+/// longer than the consumer timeout is no longer waited for until it offers one. Resend
+/// requests are served only for seqs the consumer has not stored and can take (its window). Not
+/// thread-safe.
 class SceneServer {
  public:
   /// Returns the encoded scene `seq` made again (for a seq older than the ring).
@@ -88,8 +109,11 @@ class SceneServer {
   int64_t resent() const;
   /// Scenes regenerated (older than the ring) and published again.
   int64_t regenerated() const;
-  /// Credit and resend messages that did not decode.
+  /// Credit and resend messages that did not decode or were refused.
   int64_t bad_messages() const;
+  /// Empty, or one line naming the first consumer whose credit named another run than
+  /// options.run, and both runs: the generator must not go on for it.
+  const std::string& run_conflict() const;
 
  private:
   struct Impl;
@@ -164,6 +188,11 @@ class SceneClient {
 
   /// Seqs stored by an earlier run of the same consumer (--resume); not counted as received.
   void Restore(int32_t generator_id, const std::vector<int64_t>& seqs);
+
+  /// The RunName of the run whose scenes of `generator_id` the consumer holds (from its
+  /// dataset, or the generator's STACKGEN_CONFIG): its credits to that generator carry it, so a
+  /// generator of another run refuses to continue the dataset. Ignored for ids not tracked.
+  void SetRun(int32_t generator_id, const std::string& run);
 
   /// Scene `seq` of `generator_id` arrived. True when it is new and should be stored; false when
   /// it was stored or skipped before (counted as a duplicate), or its ids are out of range.

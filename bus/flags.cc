@@ -131,6 +131,13 @@ void FlagParser::LcmUrl(std::string* out) {
   });
 }
 
+void FlagParser::BusKeyFile(std::string* out) {
+  Add("--bus-key-file", true, [out](const std::string& value) {
+    if (value.empty()) throw UsageError("--bus-key-file wants a file, got \"\"");
+    *out = value;
+  });
+}
+
 void FlagParser::FaultDrop(double* out) {
   Add("--fault-drop", true, [out](const std::string& value) {
     try {

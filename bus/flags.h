@@ -3,8 +3,9 @@
 // The command-line layer of every stackgen process (stackgen, the consumers, the tools): one
 // parser for their flags, so that every program reads `--name value` and `--name=value` alike and
 // reports a bad command line in one line, `<program>: error: <text> (see --help)` on stderr, with
-// exit status 2 (--help: exit status 0). It also hosts the two bus flags every bus process shares,
-// `--lcm-url URL` and `--fault-drop F`, so they mean the same everywhere.
+// exit status 2 (--help: exit status 0). It also hosts the three bus flags every bus process
+// shares,
+// `--lcm-url URL`, `--bus-key-file PATH` and `--fault-drop F`, so they mean the same everywhere.
 //
 // The command line, as Parse reads it:
 // - `--name value` or `--name=value` for a flag that takes a value; the value may start with '-'
@@ -96,6 +97,10 @@ class FlagParser {
   /// --lcm-url URL, the bus to use; "default" (or leaving the flag out) sets "", which means
   /// ResolveLcmUrl's choice. An empty value is a usage error.
   void LcmUrl(std::string* out);
+
+  /// --bus-key-file PATH, the bus key (auth.h); leaving it out means $STACKGEN_BUS_KEY_FILE when
+  /// set (ResolveBusKeyFile). An empty value is a usage error.
+  void BusKeyFile(std::string* out);
 
   /// --fault-drop F, the fraction of received messages the bus drops on purpose: a number in
   /// [0, 1) (ParseDropFraction and its error).

@@ -153,7 +153,8 @@ void LogWriter::Close() {
   if (!flushed) throw std::runtime_error("cannot write " + impl_->path);
 }
 
-LogAppender::LogAppender(const std::string& path) : path_(path) {
+LogAppender::LogAppender(const std::string& path, const std::string& key_file)
+    : path_(path), auth_(std::make_unique<MessageAuth>(key_file, false)) {
   fd_ = open(path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
   if (fd_ < 0) throw std::runtime_error("cannot open " + path + ": " + std::strerror(errno));
 }
@@ -164,6 +165,11 @@ LogAppender::~LogAppender() {
 
 void LogAppender::AppendBytes(const std::string& channel, const uint8_t* data, size_t size,
                               int64_t utime) {
+  if (auth_->keyed()) {
+    auth_->Seal(channel, data, size, &sealed_);
+    data = sealed_.data();
+    size = sealed_.size();
+  }
   if (channel.empty() || static_cast<int64_t>(channel.size()) >= kMaxChannelLength ||
       size > static_cast<size_t>(INT32_MAX)) {
     throw std::runtime_error("cannot append an event of " + std::to_string(size) +

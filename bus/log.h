@@ -12,6 +12,7 @@
 #include <string>
 #include <vector>
 
+#include "bus/auth.h"
 #include "bus/bus.h"
 
 namespace stackgen {
@@ -107,8 +108,9 @@ class LogWriter {
 class LogAppender {
  public:
   /// Opens `path` for appending, creating it (mode 0644) when missing; throws std::runtime_error
-  /// naming it on failure.
-  explicit LogAppender(const std::string& path);
+  /// naming it on failure. With a bus key file (`key_file`, see auth.h) every event is signed as
+  /// a Bus would sign it, so the log replays under that key; "" signs nothing.
+  explicit LogAppender(const std::string& path, const std::string& key_file = "");
   ~LogAppender();
   LogAppender(const LogAppender&) = delete;
   LogAppender& operator=(const LogAppender&) = delete;
@@ -124,6 +126,8 @@ class LogAppender {
 
  private:
   std::string path_;
+  std::unique_ptr<MessageAuth> auth_;
+  std::vector<uint8_t> sealed_;
   int fd_ = -1;
   int64_t next_event_ = 0;
   std::string failed_;  // why an earlier write failed part way; empty while none has

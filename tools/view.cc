@@ -81,14 +81,15 @@ struct Flags {
   int columns = 4;
   int tile_width = 400;
   double timeout_s = 60.0;
-  double fault_drop = 0;  // bus only
+  double fault_drop = 0;     // bus only
+  std::string bus_key_file;  // bus only ("": $STACKGEN_BUS_KEY_FILE)
 };
 
 void PrintHelp() {
   std::printf(
       "Usage: %s --coco DIR --out SHEET.png [--count N] [--columns C] [--tile-width W]\n"
       "       %s --lcm-url URL --out SHEET.png [--count N] [--columns C] [--tile-width W]\n"
-      "                    [--timeout S] [--fault-drop F]\n"
+      "                    [--timeout S] [--bus-key-file FILE] [--fault-drop F]\n"
       "\n"
       "Draws a contact sheet: a grid of scenes, each scene's image with the visible mask of every\n"
       "instance outlined and its instance id written on it, in the colour of its label:\n"
@@ -123,6 +124,8 @@ void PrintHelp() {
       "  --timeout S      bus only: seconds to wait for N scenes, > 0 (default 60). When fewer\n"
       "                   arrive the sheet shows those received; none is an error. SIGINT or\n"
       "                   SIGTERM stops the wait the same way.\n"
+      "  --bus-key-file FILE  bus only: the bus key; scenes not signed with it are refused\n"
+      "                   and counted (default: $STACKGEN_BUS_KEY_FILE; none: warns).\n"
       "  --fault-drop F   bus only: drop the fraction F in [0, 1) of the messages received,\n"
       "                   from a fixed seed (tests and demos; default 0).\n"
       "  --help           print this help and exit.\n"
@@ -151,13 +154,14 @@ Flags ParseFlags(int argc, char** argv) {
   parser.Int("--tile-width", &flags.tile_width, 16, 4096);
   parser.Double("--timeout", &flags.timeout_s, stackgen::Interval::OpenClosed(0, 86400));
   parser.FaultDrop(&flags.fault_drop);
+  parser.BusKeyFile(&flags.bus_key_file);
   // the rules between flags
   const auto check = [&flags, &parser] {
     flags.bus = parser.Given("--lcm-url");
     if (flags.coco_dir.empty() == !flags.bus) {
       throw stackgen::UsageError("give either --coco DIR or --lcm-url URL");
     }
-    for (const char* bus_only : {"--timeout", "--fault-drop"}) {
+    for (const char* bus_only : {"--timeout", "--fault-drop", "--bus-key-file"}) {
       if (parser.Given(bus_only) && !flags.coco_dir.empty()) {
         throw stackgen::UsageError(std::string(bus_only) + " applies to --lcm-url only");
       }
@@ -649,6 +653,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
   stackgen::BusOptions bus_options;
   bus_options.drop_receive_fraction = flags.fault_drop;
   bus_options.fault_seed = 0x5EE;
+  bus_options.key_file = flags.bus_key_file;
   stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url), bus_options);
   bus.Subscribe<stackgen::scene>(
       stackgen::kSceneChannel,
@@ -692,6 +697,10 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
     message.duplicates = repeated;
     message.bad_messages = undecodable + invalid;
     message.fault_dropped = bus.fault_dropped();
+    const stackgen::AuthCounters refused = bus.auth_counters();
+    message.refused_unsigned = refused.unsigned_messages;
+    message.refused_forged = refused.forged;
+    message.refused_replayed = refused.replayed;
     bus.Publish(stackgen::kStatusChannel, message);
   };
 

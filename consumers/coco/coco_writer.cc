@@ -569,6 +569,10 @@ void CocoWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64
     entry.generator_id = static_cast<int32_t>(generator_id);
     entry.seq = seq;
     entry.seed = record.at("image").at("stackgen").at("seed").get<int64_t>();
+    if (scene.contains("run")) {
+      if (!scene["run"].is_string()) throw corrupt("scene.run is not a string");
+      runs_[entry.generator_id] = scene["run"].get<std::string>();
+    }
     const int64_t image_id = ImageId(entry.generator_id, seq);
     if (index_.count(image_id) != 0) throw corrupt(scene_name + " is recorded twice");
     const json& image = record["image"];
@@ -1040,18 +1044,19 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
   for (const auto& [class_id, class_name] : scene_categories) {
     categories.push_back({class_id, class_name});
   }
-  const json scene_record = {
-      {"journal_version", kJournalVersion},
-      {"generator_id", scene.header.generator_id},
-      {"seq", scene.header.seq},
-      {"num_annotations", scene_annotations},
-      {"num_crowd", scene_crowd},
-      {"num_dropped", scene_dropped},
-      {"categories", std::move(categories)},
-      {"min_visib_fract",
-       options_.min_visib_fract ? json(*options_.min_visib_fract) : json(nullptr)},
-      {"image_length", image_text.size()},
-      {"annotations_length", annotations.size()}};
+  json scene_record = {{"journal_version", kJournalVersion},
+                       {"generator_id", scene.header.generator_id},
+                       {"seq", scene.header.seq},
+                       {"num_annotations", scene_annotations},
+                       {"num_crowd", scene_crowd},
+                       {"num_dropped", scene_dropped},
+                       {"categories", std::move(categories)},
+                       {"min_visib_fract",
+                        options_.min_visib_fract ? json(*options_.min_visib_fract) : json(nullptr)},
+                       {"image_length", image_text.size()},
+                       {"annotations_length", annotations.size()}};
+  const auto run = runs_.find(scene.header.generator_id);
+  if (run != runs_.end()) scene_record["run"] = run->second;
   std::string line;
   line.append(kImagePrefix).append(image_text).append(kAnnotationsPrefix).append(annotations);
   line.append(kScenePrefix).append(scene_record.dump()).append("}\n");
@@ -1222,6 +1227,8 @@ bool CocoWriter::Has(int32_t generator_id, int64_t seq) const {
   if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) return false;
   return index_.count(ImageId(generator_id, seq)) != 0;
 }
+
+void CocoWriter::SetRun(int32_t generator_id, const std::string& run) { runs_[generator_id] = run; }
 
 std::map<int32_t, std::vector<int64_t>> CocoWriter::StoredSeqs() const {
   // the index is sorted by generator, then seq

@@ -69,7 +69,8 @@ struct CocoWriterOptions {
 /// between records); SCENE is
 ///   {"annotations_length":n,"categories":[[class_id,"class_name"],...],"generator_id":g,
 ///    "image_length":n,"journal_version":1,"min_visib_fract":x or null,"num_annotations":n,
-///    "num_crowd":n,"num_dropped":n,"seq":s}
+///    "num_crowd":n,"num_dropped":n,"run":"seed S, config PATH (sha256 HEX)","seq":s}
+/// ("run" only once the generator's run is known: see SetRun)
 /// where image_length and annotations_length are the byte lengths of IMAGE and of the text
 /// between the brackets of "annotations". A line is complete once its '\n' is written; a last
 /// line without one is a torn write, cut off on resume.
@@ -165,6 +166,13 @@ class CocoWriter {
   /// Every stored seq, ascending, per generator_id.
   std::map<int32_t, std::vector<int64_t>> StoredSeqs() const;
 
+  /// The run (a RunName, bus/delivery.h) each generator's scenes come from: read from the
+  /// journal on resume (its last scene that names one), or set by SetRun.
+  const std::map<int32_t, std::string>& Runs() const { return runs_; }
+  /// Scenes of `generator_id` added from now on are journalled as coming from `run` (the journal
+  /// line's SCENE gets "run":run), so that a resumed dataset knows which run to continue.
+  void SetRun(int32_t generator_id, const std::string& run);
+
   /// Scenes reloaded from the journal when the writer was opened with resume (0 without).
   int64_t resumed_scenes() const { return resumed_scenes_; }
   /// Bytes of a torn last journal line cut off when the writer was opened with resume (0 if the
@@ -232,6 +240,7 @@ class CocoWriter {
   std::vector<StagedScene> staged_;                   // added, not committed, in order
   std::map<int64_t, int64_t> staged_seeds_;           // their image ids -> header.seed
   std::map<int32_t, std::string> staged_categories_;  // classes first seen in staged scenes
+  std::map<int32_t, std::string> runs_;               // generator_id -> RunName of its scenes
   int64_t num_annotations_ = 0;
   int64_t num_crowd_ = 0;
   int64_t num_dropped_ = 0;

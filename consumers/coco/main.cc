@@ -15,8 +15,10 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 
+#include <stackgen/config_text.hpp>
 #include <stackgen/scene.hpp>
 #include <stackgen/status.hpp>
 
@@ -46,6 +48,7 @@ struct Flags {
   std::string out;
   int64_t count = 0;
   std::string lcm_url;
+  std::string bus_key_file;               // "": $STACKGEN_BUS_KEY_FILE
   std::optional<double> min_visib_fract;  // unset: follow the generator's labels
   bool resume = false;
   int64_t window = 8;
@@ -55,8 +58,8 @@ struct Flags {
 
 void PrintHelp() {
   std::printf(
-      "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL] [--min-visib-fract F]\n"
-      "       [--window N] [--group-commit N] [--fault-drop F]\n"
+      "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL] [--bus-key-file FILE]\n"
+      "       [--min-visib-fract F] [--window N] [--group-commit N] [--fault-drop F]\n"
       "\n"
       "Writes every scene published on %s into a COCO instances dataset:\n"
       "DIR/annotations.json and DIR/images/<generator_id>_<seq:06>.png (.jpg for JPEG scenes).\n"
@@ -88,6 +91,9 @@ void PrintHelp() {
       "                        it does not hold; --count counts the scenes already there.\n"
       "  --lcm-url URL         LCM URL to listen on (default: $STACKGEN_LCM_URL when set, else\n"
       "                        %s).\n"
+      "  --bus-key-file FILE   the bus key shared with the generators: messages not signed with\n"
+      "                        it are refused and counted, credits are signed (default:\n"
+      "                        $STACKGEN_BUS_KEY_FILE; none: warns that the bus is open).\n"
       "  --window N            scenes a generator may run ahead of what is stored, 1..10000\n"
       "                        (default 8).\n"
       "  --group-commit N      scenes made durable together, 1..10000 (default 16): scenes\n"
@@ -116,6 +122,7 @@ Flags ParseFlags(int argc, char** argv) {
   parser.Int("--count", &flags.count, 0, INT64_MAX);
   parser.Switch("--resume", &flags.resume);
   parser.LcmUrl(&flags.lcm_url);
+  parser.BusKeyFile(&flags.bus_key_file);
   parser.Int("--window", &flags.window, 1, 10000);
   parser.Int("--group-commit", &flags.group_commit, 1, 10000);
   parser.FaultDrop(&flags.fault_drop);
@@ -178,6 +185,7 @@ int main(int argc, char** argv) {
     stackgen::BusOptions bus_options;
     bus_options.drop_receive_fraction = flags.fault_drop;
     bus_options.fault_seed = 0xC0C0;
+    bus_options.key_file = flags.bus_key_file;
     bus_owner =
         std::make_unique<stackgen::Bus>(stackgen::ResolveLcmUrl(flags.lcm_url), bus_options);
     stackgen::Bus& bus = *bus_owner;
@@ -207,7 +215,38 @@ int main(int argc, char** argv) {
       for (const auto& [generator_id, seqs] : writer->StoredSeqs()) {
         client->Restore(generator_id, seqs);
       }
+      // the runs the dataset holds go out with the credits: a generator of another run
+      // (--seed or config) refuses to continue it
+      for (const auto& [generator_id, run] : writer->Runs()) client->SetRun(generator_id, run);
     }
+
+    // each generator's run, from its STACKGEN_CONFIG: recorded with its first scene stored (and
+    // sent with the credits); a generator whose run differs from the one the dataset holds for
+    // its id gets its scenes refused
+    std::map<int32_t, std::string> heard_runs;
+    std::set<int32_t> foreign_runs;
+    bus.Subscribe<stackgen::config_text>(
+        stackgen::kConfigChannel,
+        [&](const stackgen::config_text& config) {
+          const int32_t generator_id = config.header.generator_id;
+          if (generator_id < 0 || generator_id > 65535 || config.header.seed < 0) return;
+          const std::string run = stackgen::RunName(config.header.seed, config.path, config.pbtxt);
+          const auto stored = writer->Runs().find(generator_id);
+          if (stored == writer->Runs().end()) {
+            if (heard_runs.size() < 1024 || heard_runs.count(generator_id) != 0) {
+              heard_runs[generator_id] = run;
+            }
+          } else if (stackgen::SameRun(stored->second, run)) {
+            foreign_runs.erase(generator_id);
+          } else if (foreign_runs.insert(generator_id).second) {
+            std::fprintf(stderr,
+                         "%s: refusing the scenes of generator %d: it runs %s, but %s holds "
+                         "scenes of %s\n",
+                         kProgram, generator_id, run.c_str(), flags.out.c_str(),
+                         stored->second.c_str());
+          }
+        },
+        16, [](const std::string&) {});
 
     // counters of what did not make it into the dataset
     int64_t decode_errors = 0;
@@ -232,6 +271,18 @@ int main(int argc, char** argv) {
           if (enough()) return;
           const int32_t generator_id = scene.header.generator_id;
           const int64_t seq = scene.header.seq;
+          if (foreign_runs.count(generator_id) != 0) {
+            ++invalid_scenes;
+            return;
+          }
+          // its generator's run, heard before, goes with the first scene stored
+          if (writer->Runs().count(generator_id) == 0) {
+            const auto heard = heard_runs.find(generator_id);
+            if (heard != heard_runs.end()) {
+              writer->SetRun(generator_id, heard->second);
+              if (client) client->SetRun(generator_id, heard->second);
+            }
+          }
           // the writer first: it checks the scene whole (its image decoded) and refuses a
           // repeat. A copy that fails the checks tells the client nothing, so a damaged or a
           // stranger's copy cannot take the real scene's place: that seq is asked for again,
@@ -305,6 +356,10 @@ int main(int argc, char** argv) {
       message.reasked = counters.reasked;
       message.bad_messages = decode_errors + invalid_scenes;
       message.fault_dropped = bus.fault_dropped();
+      const stackgen::AuthCounters refused = bus.auth_counters();
+      message.refused_unsigned = refused.unsigned_messages;
+      message.refused_forged = refused.forged;
+      message.refused_replayed = refused.replayed;
       bus.Publish(stackgen::kStatusChannel, message);
       last_status = now;
       stored_at_last_status = writer->num_images();
@@ -353,6 +408,16 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "%s: skipped %lld undecodable messages, refused %lld invalid scenes\n",
                    kProgram, static_cast<long long>(decode_errors),
                    static_cast<long long>(invalid_scenes));
+    }
+    if (bus.keyed()) {
+      const stackgen::AuthCounters refused = bus.auth_counters();
+      const int64_t stored = writer->num_images();
+      std::printf(
+          "%s: bus key: %.3f ms per scene stored signing and checking messages; refused %lld "
+          "unsigned, %lld forged or altered, %lld replayed\n",
+          kProgram, stored > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(stored) : 0.0,
+          static_cast<long long>(refused.unsigned_messages), static_cast<long long>(refused.forged),
+          static_cast<long long>(refused.replayed));
     }
     if (client) {
       const stackgen::DeliveryCounters counters = client->counters();

@@ -165,6 +165,9 @@ py::dict CountersDict(const StreamCounters& c) {
   d["bad_messages"] = c.bad_messages;
   d["dropped_behind"] = c.dropped_behind;
   d["fault_dropped"] = c.fault_dropped;
+  d["refused_unsigned"] = c.refused_unsigned;
+  d["refused_forged"] = c.refused_forged;
+  d["refused_replayed"] = c.refused_replayed;
   d["queued"] = c.queued;
   return d;
 }
@@ -384,7 +387,8 @@ PYBIND11_MODULE(_native, m) {
                        int32_t window, std::vector<int32_t> generator_ids, int32_t shard_index,
                        int32_t shard_count, int64_t count, int queue, bool repeats,
                        bool decode_instance_map, bool decode_depth, int decode_threads,
-                       const std::string& name, double fault_drop, bool publish_status) {
+                       const std::string& name, double fault_drop, bool publish_status,
+                       const std::string& bus_key_file) {
              SceneStreamOptions options;
              options.url = url;
              options.channel = channel;
@@ -402,6 +406,7 @@ PYBIND11_MODULE(_native, m) {
              options.name = name;
              options.fault_drop = fault_drop;
              options.publish_status = publish_status;
+             options.bus_key_file = bus_key_file;
              py::gil_scoped_release release;
              return std::make_unique<SceneStream>(options);
            }),
@@ -409,7 +414,7 @@ PYBIND11_MODULE(_native, m) {
            py::arg("generator_ids"), py::arg("shard_index"), py::arg("shard_count"),
            py::arg("count"), py::arg("queue"), py::arg("repeats"), py::arg("decode_instance_map"),
            py::arg("decode_depth"), py::arg("decode_threads"), py::arg("name"),
-           py::arg("fault_drop"), py::arg("publish_status"))
+           py::arg("fault_drop"), py::arg("publish_status"), py::arg("bus_key_file") = "")
       .def(
           "next",
           [](SceneStream& stream, std::optional<double> timeout_s) {
@@ -450,14 +455,16 @@ PYBIND11_MODULE(_native, m) {
       .def_property_readonly("is_log", &SceneStream::is_log);
 
   py::class_<LogAppender>(m, "LogAppender")
-      .def(py::init([](const std::string& path) {
+      .def(py::init([](const std::string& path, const std::string& bus_key_file) {
              try {
-               return std::make_unique<LogAppender>(path);
+               return std::make_unique<LogAppender>(path, ResolveBusKeyFile(bus_key_file));
              } catch (const std::runtime_error& error) {
                throw FeedError(error.what());
              }
            }),
-           py::arg("path"))
+           py::arg("path"), py::arg("bus_key_file") = "",
+           "Appends events to an LCM log; with a bus key (bus_key_file, else "
+           "$STACKGEN_BUS_KEY_FILE) each is signed so the log replays under that key.")
       .def(
           "append",
           [](LogAppender& log, const std::string& channel, const py::bytes& data, int64_t utime) {

@@ -83,7 +83,8 @@ struct SceneStream::Impl {
   SceneStreamOptions options;
   std::string url;
   std::string name;
-  std::string log_path;  // empty: a live bus
+  std::string log_path;                   // empty: a live bus
+  std::unique_ptr<MessageAuth> log_auth;  // a log's events are checked with the bus key
   pid_t pid = 0;
 
   // live: the bus and, when reliable, the delivery client; used by the thread only
@@ -274,6 +275,9 @@ struct SceneStream::Impl {
     message.reasked = now.reasked;
     message.bad_messages = now.bad_messages;
     message.fault_dropped = now.fault_dropped;
+    message.refused_unsigned = now.refused_unsigned;
+    message.refused_forged = now.refused_forged;
+    message.refused_replayed = now.refused_replayed;
     bus->Publish(kStatusChannel, message);
   }
 
@@ -319,6 +323,10 @@ struct SceneStream::Impl {
       {
         const std::lock_guard<std::mutex> lock(mutex);
         counters.fault_dropped = bus->fault_dropped();
+        const AuthCounters refused = bus->auth_counters();
+        counters.refused_unsigned = refused.unsigned_messages;
+        counters.refused_forged = refused.forged;
+        counters.refused_replayed = refused.replayed;
       }
       const auto now = Clock::now();
       if (options.publish_status && now - last_status >= std::chrono::seconds(1)) {
@@ -349,17 +357,31 @@ struct SceneStream::Impl {
           return;
         }
         ++scene_events;
+        // the key check, as on a live bus (no age: a log is old)
+        std::string refused;
+        const int64_t body = log_auth->Open(event.channel, event.data, event.size, 0, &refused);
+        if (body < 0) {
+          const AuthCounters counted = log_auth->counters();
+          {
+            const std::lock_guard<std::mutex> lock(mutex);
+            counters.refused_unsigned = counted.unsigned_messages;
+            counters.refused_forged = counted.forged;
+            counters.refused_replayed = counted.replayed;
+          }
+          Report(refused);
+          return;
+        }
+        const size_t size = static_cast<size_t>(body);
         // another shard's scene is skipped before it is decoded: the header's seq and
         // generator_id follow the fingerprint (big-endian int64 and int32)
-        if (event.size >= 20 &&
-            ReadBigEndian(event.data, 8) == static_cast<uint64_t>(scene::getHash())) {
+        if (size >= 20 && ReadBigEndian(event.data, 8) == static_cast<uint64_t>(scene::getHash())) {
           const int64_t peeked_seq = static_cast<int64_t>(ReadBigEndian(event.data + 8, 8));
           const int32_t peeked_id = static_cast<int32_t>(ReadBigEndian(event.data + 16, 4));
           if (peeked_seq < 0 || !Wanted(peeked_id, peeked_seq)) return;
         }
         scene message;
         std::string why;
-        if (!DecodeBounded(event.data, event.size, DecodeLimits{}, &message, &why)) {
+        if (!DecodeBounded(event.data, size, DecodeLimits{}, &message, &why)) {
           throw FeedError(log_path + ": the event at byte " + std::to_string(event.offset) +
                           " on " + options.channel +
                           " is not a stackgen.scene of this build: " + why);
@@ -485,10 +507,17 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
     if (!IsLcmLog(impl.log_path)) {
       throw FeedError(impl.log_path + " is not an LCM log (it does not start with an LCM event)");
     }
+    try {
+      impl.log_auth =
+          std::make_unique<MessageAuth>(ResolveBusKeyFile(impl.options.bus_key_file), false);
+    } catch (const std::exception& error) {
+      throw FeedError(error.what());
+    }
   } else {
     BusOptions bus_options;
     bus_options.drop_receive_fraction = options.fault_drop;
     bus_options.fault_seed = 0xFEED;
+    bus_options.key_file = options.bus_key_file;
     try {
       impl.bus = std::make_unique<Bus>(impl.url, bus_options);
     } catch (const std::exception& error) {

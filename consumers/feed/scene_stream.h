@@ -62,6 +62,9 @@ struct SceneStreamOptions {
   int decode_threads = 2;
   /// The consumer's name in credits and status; empty: "stackgen-feed@<host>:<pid>[/shard i/k]".
   std::string name;
+  /// The bus key file (bus/auth.h); empty: $STACKGEN_BUS_KEY_FILE when set, else none. A log is
+  /// checked with it too (it replays with the key it was recorded under).
+  std::string bus_key_file;
   /// Drop this fraction of received messages on purpose, [0, 1) (tests and demos).
   double fault_drop = 0;
   /// Live bus: publish the stream's counters on STACKGEN_STATUS every second.
@@ -85,6 +88,11 @@ struct StreamCounters {
   int64_t dropped_behind = 0;
   /// Messages the bus dropped on purpose (fault_drop).
   int64_t fault_dropped = 0;
+  /// Messages refused by the bus key check (see bus/auth.h): not signed, forged or altered,
+  /// replayed. On a log: events refused the same way (no replay by age).
+  int64_t refused_unsigned = 0;
+  int64_t refused_forged = 0;
+  int64_t refused_replayed = 0;
   /// Scenes waiting in the queue now.
   int64_t queued = 0;
 };

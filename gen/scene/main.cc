@@ -50,6 +50,8 @@ flags:
                       (default: 0)
   --lcm-url URL       LCM bus (default: $STACKGEN_LCM_URL, else
                       udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304)
+  --bus-key-file FILE sign every message with this shared key and refuse messages not signed
+                      with it (default: $STACKGEN_BUS_KEY_FILE; none: warns that the bus is open)
   --cache-dir DIR     where convex decompositions are cached
                       (default: $XDG_CACHE_HOME/stackgen, else ~/.cache/stackgen)
   --resume            continue at the seq the reliable consumers (dataset writers) have
@@ -88,6 +90,20 @@ std::string DefaultCacheDir() {
 std::string FormatMs(double total_ms, int64_t scenes) {
   char text[32];
   std::snprintf(text, sizeof(text), "%.1f", scenes > 0 ? total_ms / scenes : 0.0);
+  return text;
+}
+
+// what the bus key cost, or that there was none: the end of the summary line
+std::string AuthSummary(const Bus& bus, int64_t scenes) {
+  if (!bus.keyed()) return "bus open (no key)";
+  const AuthCounters refused = bus.auth_counters();
+  char text[200];
+  std::snprintf(text, sizeof(text),
+                "bus key: %.3f ms per scene signing and checking, refused %lld unsigned, %lld "
+                "forged or altered, %lld replayed",
+                scenes > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(scenes) : 0.0,
+                static_cast<long long>(refused.unsigned_messages),
+                static_cast<long long>(refused.forged), static_cast<long long>(refused.replayed));
   return text;
 }
 
@@ -163,6 +179,7 @@ int Run(int argc, char** argv) {
   parser.Int("--seed", &seed_flag, 0, INT64_MAX);
   parser.Int("--generator-id", &generator_id, 0, 65535);
   parser.LcmUrl(&lcm_url);
+  parser.BusKeyFile(&bus_options.key_file);
   parser.String("--cache-dir", &cache_dir);
   parser.Switch("--resume", &resume);
   parser.Switch("--check", &check);
@@ -178,9 +195,9 @@ int Run(int argc, char** argv) {
   const LoadedConfig config = LoadConfig(config_path);
   Bus bus(ResolveLcmUrl(lcm_url), bus_options);
   SceneGenerator generator(config, generator_id, seed, cache_dir);
-  std::printf("stackgen: generator %d, seed %llu, config %s, bus %s\n%s\n", generator_id,
+  std::printf("stackgen: generator %d, seed %llu, config %s, bus %s (%s)\n%s\n", generator_id,
               static_cast<unsigned long long>(seed), config.path.c_str(), bus.url().c_str(),
-              generator.Description().c_str());
+              bus.keyed() ? "signed" : "open: no bus key", generator.Description().c_str());
   std::fflush(stdout);
   if (check) {
     std::printf("stackgen: --check: the config, the bus and the renderer are usable\n");
@@ -205,6 +222,9 @@ int Run(int argc, char** argv) {
   server_options.generator_id = generator_id;
   server_options.ring_size = ring_size;
   server_options.consumer_timeout_s = consumer_timeout_s;
+  // a dataset of another run (seed or config) is not continued by this one
+  server_options.run =
+      RunName(static_cast<int64_t>(seed), config.path, EffectiveConfigText(config.config));
   SceneServer server(
       &bus, server_options,
       [&](int64_t seq) {
@@ -259,11 +279,20 @@ int Run(int argc, char** argv) {
     bus.Publish(kStatusChannel, hello);
   }
 
+  // serves the consumers; one that holds scenes of another run stops this one with an error
+  const auto serve = [&](int timeout_ms) {
+    server.Service(timeout_ms);
+    if (!server.run_conflict().empty()) {
+      throw std::runtime_error(server.run_conflict() +
+                               ": continue it with that run's --seed and --config, or give the "
+                               "writer another --out");
+    }
+  };
   // hear which reliable consumers are there before the first scene (they credit every 0.2 s)
   const auto listen = [&](double seconds, const std::function<bool()>& done) {
     const Clock::time_point until = Clock::now() + std::chrono::duration_cast<Clock::duration>(
                                                        std::chrono::duration<double>(seconds));
-    while (!g_stop && Clock::now() < until && !done()) server.Service(20);
+    while (!g_stop && Clock::now() < until && !done()) serve(20);
   };
   listen(0.5, [] { return false; });
   int64_t first_seq = 0;
@@ -323,6 +352,10 @@ int Run(int argc, char** argv) {
     message.held_back_s = held_back_s;
     message.bad_messages = server.bad_messages();
     message.fault_dropped = bus.fault_dropped();
+    const stackgen::AuthCounters refused = bus.auth_counters();
+    message.refused_unsigned = refused.unsigned_messages;
+    message.refused_forged = refused.forged;
+    message.refused_replayed = refused.replayed;
     bus.Publish(kStatusChannel, message);
     last_status = now;
     published_at_last_status = published;
@@ -331,7 +364,7 @@ int Run(int argc, char** argv) {
   // serves consumers for `timeout_ms`, counting the time as held back
   const auto wait_for_consumers = [&](int timeout_ms) {
     const Clock::time_point wait_start = Clock::now();
-    server.Service(timeout_ms);
+    serve(timeout_ms);
     held_back_s += std::chrono::duration<double>(Clock::now() - wait_start).count();
     publish_periodic(false);
   };
@@ -377,7 +410,7 @@ int Run(int argc, char** argv) {
     publish_ms += std::chrono::duration<double, std::milli>(Clock::now() - publish_start).count();
     ++published;
     next_seq = seq + 1;
-    server.Service(0);
+    serve(0);
     publish_periodic(false);
 
     if (progress) {
@@ -440,13 +473,14 @@ int Run(int argc, char** argv) {
       "stackgen: %lld scenes in %.1f s (%.2f scenes/s)%s; per scene: physics %s ms, render %s "
       "ms, annotate %s ms, publish %s ms; %d drops redrawn (%d unsettled, %d outside the bin, %d "
       "interpenetrating); held back %.1f s by reliable consumers, %lld resent, %lld "
-      "regenerated\n",
+      "regenerated; %s\n",
       static_cast<long long>(published), elapsed, elapsed > 0 ? published / elapsed : 0.0,
       g_stop ? ", stopped by signal" : "", FormatMs(times.physics_ms, published).c_str(),
       FormatMs(times.render_ms, published).c_str(), FormatMs(times.annotate_ms, published).c_str(),
       FormatMs(times.encode_ms + publish_ms, published).c_str(), times.redraws,
       times.redraws_unsettled, times.redraws_outside, times.redraws_penetrating, held_back_s,
-      static_cast<long long>(server.resent()), static_cast<long long>(server.regenerated()));
+      static_cast<long long>(server.resent()), static_cast<long long>(server.regenerated()),
+      AuthSummary(bus, published).c_str());
   return 0;
 }
 

@@ -233,7 +233,121 @@ TEST_F(DeliveryFixture, StrayResendRequestsAreNotServed) {
   stray.seqs = {1, 5};
   bus_->Publish(kResendChannel, stray);
   server_->Service(0);
-  EXPECT_EQ(server_->resent(), 1);  // seq 1 only: 5 was never published
+  // 5 was never published: no SceneClient asks for it, the whole request is refused and counted
+  EXPECT_EQ(server_->resent(), 0);
+  EXPECT_EQ(server_->bad_messages(), 1);
+  stray.num_seqs = 1;
+  stray.seqs = {1};
+  bus_->Publish(kResendChannel, stray);
+  server_->Service(0);
+  EXPECT_EQ(server_->resent(), 1);
+}
+
+// credits and resend requests that no SceneClient sends are refused and counted, and register
+// nobody: windows below 0 or above 10000, seqs out of range, no name; resend requests for more
+// than 256 seqs or for seqs out of order.
+TEST_F(DeliveryFixture, AbsurdCreditsAndRequestsAreRefused) {
+  SetUpLink(SceneServerOptions{}, Client(2));
+  server_->Publish(0, EncodedScene(0, 0));
+  const auto send_credit = [this](const std::string& name, int64_t stored, int32_t window) {
+    credit message{};
+    message.header.generator_id = 0;
+    message.header.seq = stored;
+    message.consumer = name;
+    message.window = window;
+    message.last_received_seq = -1;
+    bus_->Publish(kCreditChannel, message);
+    server_->Service(0);
+  };
+  send_credit("huge-window", -1, 10001);
+  send_credit("negative-window", -1, -1);
+  send_credit("", -1, 4);
+  send_credit("bad-seq", -2, 4);
+  send_credit("bad-seq", int64_t{1} << 40, 4);
+  EXPECT_EQ(server_->reliable_consumers(), 0);
+  EXPECT_EQ(server_->bad_messages(), 5);
+  EXPECT_TRUE(server_->MayPublish(1000));
+
+  send_credit("fine", -1, 10000);
+  EXPECT_EQ(server_->reliable_consumers(), 1);
+  resend_request request{};
+  request.header.generator_id = 0;
+  request.consumer = "fine";
+  request.num_seqs = 300;
+  request.seqs.assign(300, 0);
+  bus_->Publish(kResendChannel, request);
+  request.num_seqs = 2;
+  request.seqs = {0, 0};
+  bus_->Publish(kResendChannel, request);
+  server_->Service(0);
+  EXPECT_EQ(server_->bad_messages(), 7);
+  EXPECT_EQ(server_->resent() + server_->regenerated(), 0);
+  ASSERT_FALSE(notices_.empty());
+}
+
+// a consumer that offers no window holds the generator for the consumer timeout, then is no
+// longer waited for, and its window-0 credits do not register it again; a window does.
+TEST_F(DeliveryFixture, NoWindowHoldsOnlyForTheTimeout) {
+  SceneServerOptions server_options;
+  server_options.consumer_timeout_s = 0.05;
+  SetUpLink(server_options, Client(1));
+  const auto send_credit = [this](int32_t window) {
+    credit message{};
+    message.header.generator_id = 0;
+    message.header.seq = -1;
+    message.consumer = "closed";
+    message.window = window;
+    message.last_received_seq = -1;
+    bus_->Publish(kCreditChannel, message);
+    server_->Service(0);
+  };
+  send_credit(0);
+  EXPECT_FALSE(server_->MayPublish(0));
+  std::this_thread::sleep_for(std::chrono::milliseconds(30));
+  send_credit(0);
+  EXPECT_FALSE(server_->MayPublish(0));
+  std::this_thread::sleep_for(std::chrono::milliseconds(40));
+  send_credit(0);
+  EXPECT_TRUE(server_->MayPublish(0));
+  ASSERT_FALSE(notices_.empty());
+  EXPECT_NE(notices_.back().find("no window"), std::string::npos) << notices_.back();
+  send_credit(0);
+  EXPECT_EQ(server_->reliable_consumers(), 0);
+  send_credit(3);
+  EXPECT_EQ(server_->reliable_consumers(), 1);
+  EXPECT_FALSE(server_->MayPublish(3));
+}
+
+// a consumer that stops taking scenes (paused: its credits stop) gets no tail resends once it
+// has been silent for a second; one that keeps crediting without receiving gets them ever more
+// rarely (0.01 s, then 0.02, 0.04, ...), not every tail_resend_s.
+TEST_F(DeliveryFixture, TailResendsBackOff) {
+  SceneServerOptions server_options;
+  server_options.tail_resend_s = 0.01;
+  server_options.min_resend_interval_s = 0;
+  SetUpLink(server_options, Client(4));
+  Exchange();
+  // the client receives nothing from here on: every copy it is sent is dropped
+  drop_ = {{0, 0}, {0, 1}};
+  server_->Publish(0, EncodedScene(0, 0));
+  server_->Publish(1, EncodedScene(0, 1));
+  const auto start = std::chrono::steady_clock::now();
+  while (std::chrono::steady_clock::now() - start < std::chrono::milliseconds(300)) {
+    client_->Service();
+    server_->Service(1);
+    drop_ = {{0, 0}, {0, 1}};
+  }
+  // at a fixed 0.01 s it would be about 30 rounds of 2 scenes; backing off, 5 or so
+  EXPECT_GE(server_->resent(), 4);
+  EXPECT_LE(server_->resent(), 2 * 7);
+  // paused: no credit for over a second, then no more tail resends at all
+  std::this_thread::sleep_for(std::chrono::milliseconds(1100));
+  const int64_t before = server_->resent();
+  for (int round = 0; round < 20; ++round) {
+    server_->Service(0);
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  EXPECT_EQ(server_->resent(), before);
 }
 
 // a consumer that goes silent is dropped after the timeout, with a notice; one that leaves is

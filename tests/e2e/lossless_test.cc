@@ -229,7 +229,7 @@ TEST_F(LosslessTest, WriterKilledAndResumed) {
 }
 
 // kill -9 of the generator mid-run, then a restart with --resume: it continues where the writer
-// stands, and the dataset is complete.
+// stands, and the dataset is complete. A restart with another --seed or config is refused first.
 TEST_F(LosslessTest, GeneratorKilledAndResumed) {
   const std::string url = testing::FreeMulticastUrl();
   const std::string out = scratch_.path() + "/killed-generator";
@@ -243,6 +243,22 @@ TEST_F(LosslessTest, GeneratorKilledAndResumed) {
   }
   const int stored = ImagesStored(out);
   ASSERT_LT(stored, kScenes);
+  // another run cannot continue the dataset: another --seed, or another config, is refused with
+  // one line naming both runs, and nothing is added (the writer refuses its scenes as well)
+  const std::string tiny = std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/logs/tiny.pbtxt";
+  const std::vector<std::vector<std::string>> other_runs = {{"--resume", "--seed", "6"},
+                                                            {"--resume", "--config", tiny}};
+  for (const std::vector<std::string>& other : other_runs) {
+    std::vector<std::string> argv = Generator(url, cache_, other);
+    Process wrong(argv, out + "-wrong");
+    EXPECT_EQ(wrong.Wait(120), 1) << wrong.Stdout();
+    const std::string error = wrong.Stderr();
+    EXPECT_NE(error.find("from another run (seed 5, "), std::string::npos) << error;
+    EXPECT_NE(error.find(other[2] == "6" ? "than this one (seed 6" : "tiny.pbtxt"),
+              std::string::npos)
+        << error;
+    EXPECT_EQ(ImagesStored(out), stored);
+  }
   Process resumed(Generator(url, cache_, {"--resume"}), out + "-gen2");
   ASSERT_EQ(resumed.Wait(600), 0) << resumed.Stderr();
   // it continued at the writer's seq, not at 0

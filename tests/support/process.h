@@ -87,6 +87,37 @@ inline std::string ReadFile(const std::string& path) {
   return text.str();
 }
 
+/// Sets (or, with nullptr, unsets) an environment variable for the processes started while it
+/// lives, and restores it after. E.g. ScopedEnv("STACKGEN_BUS_KEY_FILE", nullptr) for a log
+/// recorded without a bus key.
+class ScopedEnv {
+ public:
+  ScopedEnv(const char* name, const char* value) : name_(name) {
+    const char* old = std::getenv(name);
+    had_ = old != nullptr;
+    if (had_) old_ = old;
+    if (value != nullptr) {
+      setenv(name, value, 1);
+    } else {
+      unsetenv(name);
+    }
+  }
+  ~ScopedEnv() {
+    if (had_) {
+      setenv(name_.c_str(), old_.c_str(), 1);
+    } else {
+      unsetenv(name_.c_str());
+    }
+  }
+  ScopedEnv(const ScopedEnv&) = delete;
+  ScopedEnv& operator=(const ScopedEnv&) = delete;
+
+ private:
+  std::string name_;
+  std::string old_;
+  bool had_ = false;
+};
+
 /// A child process whose stdout and stderr go to files.
 class Process {
  public:
@@ -122,11 +153,7 @@ class Process {
     const auto deadline =
         std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
     while (std::chrono::steady_clock::now() < deadline) {
-      int status = 0;
-      if (waitpid(pid_, &status, WNOHANG) == pid_) {
-        exited_ = true;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-      }
+      if (Exited()) return code_;
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
     kill(pid_, SIGKILL);
@@ -146,6 +173,17 @@ class Process {
     return false;
   }
 
+  /// True once the process has exited (without waiting); Wait then returns its exit code.
+  bool Exited() {
+    if (exited_) return true;
+    int status = 0;
+    if (waitpid(pid_, &status, WNOHANG) != pid_) return false;
+    exited_ = true;
+    code_ = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    return true;
+  }
+
+  pid_t pid() const { return pid_; }
   void Signal(int signal_number) const { kill(pid_, signal_number); }
   std::string Stdout() const { return ReadFile(out_path_); }
   std::string Stderr() const { return ReadFile(err_path_); }
@@ -155,6 +193,7 @@ class Process {
   std::string err_path_;
   pid_t pid_ = -1;
   bool exited_ = false;
+  int code_ = -1;
 };
 
 /// Runs `program` with `args` to the end (at most `timeout_s`, then SIGKILL and -1), output to

@@ -136,6 +136,10 @@ class Stream:
         "stackgen-feed@<host>:<pid>").
     fault_drop: drop this fraction of received messages on purpose, [0, 1) (tests, demos).
     status: publish the stream's counters on STACKGEN_STATUS every second (live bus).
+    bus_key_file: the bus key (see the README, "Trust"): scenes not signed with it are refused
+        and counted (counters "refused_unsigned", "refused_forged", "refused_replayed"), and
+        credits are signed; a log is checked with it too. None: $STACKGEN_BUS_KEY_FILE when set,
+        else no key (a warning: the bus is open).
 
     Raises StreamError (one line naming the URL, file or value) for a bus that cannot be opened
     (a bad URL, no multicast route), a missing log or one that is not an LCM log, a log event on
@@ -148,7 +152,7 @@ class Stream:
     def __init__(self, lcm_url=None, reliable=True, window=8, generator_ids=None, timeout=None,
                  count=0, shard=(0, 1), queue=16, instance_map=True, depth=False, repeats=False,
                  decode_threads=2, channel=SCENE_CHANNEL, name=None, fault_drop=0.0,
-                 status=True):
+                 status=True, bus_key_file=None):
         if lcm_url is not None and (not isinstance(lcm_url, str) or lcm_url == ""):
             raise ValueError("lcm_url must be a non-empty URL string or None, got %r" % (lcm_url,))
         if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
@@ -161,6 +165,8 @@ class Stream:
         shard_index = _check_int("shard index", shard_index, 0, shard_count - 1)
         ids = [] if generator_ids is None else [
             _check_int("generator id", g, 0, 65535) for g in generator_ids]
+        if bus_key_file is not None and (not isinstance(bus_key_file, str) or bus_key_file == ""):
+            raise ValueError("bus_key_file must be a non-empty path or None, got %r" % (bus_key_file,))
         if not isinstance(fault_drop, (int, float)) or not 0 <= fault_drop < 1:
             raise ValueError("fault_drop must be in [0, 1), got %r" % (fault_drop,))
         self.timeout = timeout
@@ -172,7 +178,8 @@ class Stream:
             repeats=bool(repeats), decode_instance_map=bool(instance_map),
             decode_depth=bool(depth),
             decode_threads=_check_int("decode_threads", decode_threads, 1, 16), name=name or "",
-            fault_drop=float(fault_drop), publish_status=bool(status))
+            fault_drop=float(fault_drop), publish_status=bool(status),
+            bus_key_file=bus_key_file or "")
 
     def __iter__(self):
         return self

@@ -11,6 +11,9 @@ import stackgen
 import stackgen.torch as sgt
 from conftest import TINY_LOG
 
+# the fixture log is unsigned (conftest.no_bus_key)
+pytestmark = pytest.mark.usefixtures("no_bus_key")
+
 URL = "file://" + TINY_LOG
 # every geometric lever on, with large ranges, and the photometric ones
 EVERYTHING = dict(hflip=0.5, vflip=0.5, crop=0.7, crop_scale=(0.4, 1.0), zoom=0.7,

@@ -132,7 +132,7 @@ def _read_in_child(stream, queue):
 
 # a stream opened in one process cannot be read in another (a DataLoader worker that inherited
 # it would share its socket and its scenes): the worker gets one line saying to open its own
-def test_stream_cannot_be_shared_between_processes():
+def test_stream_cannot_be_shared_between_processes(no_bus_key):
     stream = stackgen.Stream(URL)
     context = multiprocessing.get_context("fork")
     queue = context.Queue()
@@ -152,7 +152,7 @@ def _close_in_child(stream, queue):
 
 # a forked process that inherited a stream (and dropped it on the way out) neither stops the
 # parent's threads nor waits on its locks: close is a no-op there and counters are empty
-def test_stream_closed_in_a_forked_process():
+def test_stream_closed_in_a_forked_process(no_bus_key):
     stream = stackgen.Stream(URL)
     assert stream.next(timeout=5) is not None
     context = multiprocessing.get_context("fork")
@@ -192,7 +192,7 @@ def test_bad_arguments(tmp_path):
 
 # the lcm-gen Python types in the package decode the bytes of the recorded log as the C++
 # stream does
-def test_python_message_types_decode_the_log():
+def test_python_message_types_decode_the_log(no_bus_key):
     raw = [data for channel, data in log_events(TINY_LOG) if channel == "STACKGEN_SCENE"]
     streamed = list(stackgen.Stream(URL))
     assert len(raw) == len(streamed) == 4

@@ -8,6 +8,7 @@ import os
 
 import cv2
 import numpy as np
+import pytest
 from torch.utils.data import DataLoader
 
 import stackgen
@@ -232,3 +233,26 @@ def test_bad_copy_does_not_move_where_a_stream_joins(tmp_path, processes):
         processes(generator_argv(url, 3, tmp_path / "cache", generator_id=5), "stackgen")
         seqs = [scene.seq for scene in stream]
     assert seqs == [0, 1, 2]
+
+
+# with another bus key than the generator's, a stream takes no scene: each is refused as forged
+# and counted; a key file that cannot serve is one line naming it
+def test_stream_with_another_key_takes_nothing(tmp_path, processes):
+    bad = tmp_path / "short.key"
+    bad.write_text("short\n")
+    bad.chmod(0o600)
+    with pytest.raises(stackgen.StreamError) as error:
+        stackgen.Stream(free_url(), bus_key_file=str(bad))
+    assert str(bad) in str(error.value) and "\n" not in str(error.value)
+    other = tmp_path / "other.key"
+    other.write_text("another deployment's key, 32 bytes or more of it\n")
+    other.chmod(0o600)
+    url = free_url()
+    with stackgen.Stream(url, reliable=False, bus_key_file=str(other)) as stream:
+        generator = processes(generator_argv(url, 3, tmp_path / "cache"), "stackgen")
+        assert generator.wait(120) == 0, generator.stderr()
+        with pytest.raises(stackgen.StreamTimeout):
+            stream.next(timeout=1)
+        counters = stream.counters
+    assert counters["refused_forged"] >= 3
+    assert counters["received"] == 0

@@ -1,0 +1,217 @@
+// Trust (design.md): a generator and a writer that share a bus key, attacked by strangers on the
+// same multicast group: stackgen-forger (tests/e2e/forger.cc) with no key and with another key
+// forges scenes, impersonates the writer, offers a window of 0, floods resend requests and fuzzes
+// every channel; lcm-logplayer replays a recording of the run into it. Every such message is
+// refused and counted, the generator is not held back, and the dataset equals a clean run's.
+
+#include <sys/stat.h>
+
+#include <chrono>
+#include <csignal>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <regex>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "tests/support/process.h"
+
+namespace stackgen {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+using testing::Process;
+
+constexpr int kScenes = 12;
+const std::string kBin = STACKGEN_BIN_DIR;
+const std::string kForger = std::string(STACKGEN_TEST_BIN_DIR) + "/stackgen-forger";
+
+std::vector<std::string> Coco(const std::string& out, const std::string& url) {
+  return {kBin + "/stackgen-coco", "--out",     out, "--count",
+          std::to_string(kScenes), "--lcm-url", url};
+}
+
+std::vector<std::string> Generator(const std::string& url, const std::string& cache) {
+  return {kBin + "/stackgen", "--count", std::to_string(kScenes), "--seed", "5", "--lcm-url", url,
+          "--cache-dir",      cache,     "--consumer-timeout",    "5"};
+}
+
+// the resident memory of a process now, kB (0 once it is gone)
+int64_t ResidentKb(pid_t pid) {
+  std::ifstream status("/proc/" + std::to_string(pid) + "/status");
+  std::string line;
+  while (std::getline(status, line)) {
+    if (line.rfind("VmRSS:", 0) == 0) return std::stoll(line.substr(6));
+  }
+  return 0;
+}
+
+// the three refusal counts a summary line ends with: "refused U unsigned, F forged or altered,
+// R replayed"; -1s when the line is missing
+std::vector<int64_t> Refused(const std::string& output) {
+  const std::regex pattern(R"(refused (\d+) unsigned, (\d+) forged or altered, (\d+) replayed)");
+  std::smatch match;
+  if (!std::regex_search(output, match, pattern)) return {-1, -1, -1};
+  return {std::stoll(match[1]), std::stoll(match[2]), std::stoll(match[3])};
+}
+
+json Annotations(const std::string& dataset) {
+  json parsed = json::parse(testing::ReadFile(dataset + "/annotations.json"));
+  parsed.erase("info");
+  return parsed;
+}
+
+// the same annotations (info aside) and the same image files, byte for byte
+void ExpectSameDataset(const std::string& expected, const std::string& actual) {
+  const json a = Annotations(expected), b = Annotations(actual);
+  EXPECT_EQ(a["images"].size(), static_cast<size_t>(kScenes));
+  EXPECT_EQ(a, b) << actual << " differs from " << expected;
+  std::map<std::string, std::string> files;
+  for (const auto& entry : fs::directory_iterator(expected + "/images")) {
+    files[entry.path().filename()] = testing::ReadFile(entry.path());
+  }
+  int compared = 0;
+  for (const auto& entry : fs::directory_iterator(actual + "/images")) {
+    const std::string name = entry.path().filename();
+    ASSERT_EQ(files.count(name), 1u) << "extra file " << name << " in " << actual;
+    EXPECT_TRUE(files[name] == testing::ReadFile(entry.path())) << name << " differs";
+    ++compared;
+  }
+  EXPECT_EQ(compared, static_cast<int>(files.size()));
+}
+
+// images (not .tmp) in a dataset folder
+int ImagesStored(const std::string& dataset) {
+  std::error_code error;
+  int count = 0;
+  for (const auto& entry : fs::directory_iterator(dataset + "/images", error)) {
+    if (entry.path().extension() != ".tmp") ++count;
+  }
+  return count;
+}
+
+class TrustTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    ASSERT_NE(std::getenv("STACKGEN_BUS_KEY_FILE"), nullptr)
+        << "the suite runs with a bus key (tests/CMakeLists.txt); run this through ctest";
+    cache_ = scratch_.path() + "/cache";
+    reference_ = scratch_.path() + "/reference";
+    // the reference: a plain run with the key and no stranger; its peak memory too
+    const std::string url = testing::FreeMulticastUrl();
+    Process coco(Coco(reference_, url), reference_ + "-coco");
+    ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+    Process generator(Generator(url, cache_), reference_ + "-gen");
+    Watch(generator, coco, &reference_peak_gen_kb_, &reference_peak_coco_kb_);
+    ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
+    ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+  }
+
+  // samples both processes' memory every 50 ms until the generator exits (at most 600 s)
+  static void Watch(Process& generator, Process& coco, int64_t* peak_gen_kb,
+                    int64_t* peak_coco_kb) {
+    for (int i = 0; i < 12000; ++i) {
+      const int64_t gen_kb = ResidentKb(generator.pid());
+      if (gen_kb == 0 || generator.Exited()) break;
+      *peak_gen_kb = std::max(*peak_gen_kb, gen_kb);
+      *peak_coco_kb = std::max(*peak_coco_kb, ResidentKb(coco.pid()));
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+  }
+
+  testing::ScratchDir scratch_{"trust"};
+  std::string cache_;
+  std::string reference_;
+  int64_t reference_peak_gen_kb_ = 0;
+  int64_t reference_peak_coco_kb_ = 0;
+};
+
+// Strangers without the key, or with another one, forge scenes, impersonate the writer (all
+// stored, leaving), offer a window of 0 and flood resend requests for the whole run, and a
+// recording of the run's first seconds is replayed into it: each kind is refused and counted by
+// both processes, the generator finishes, and the dataset is the clean run's.
+TEST_F(TrustTest, StrangersAreRefusedAndCounted) {
+  const std::string logger = testing::FindOnPath("lcm-logger");
+  const std::string player = testing::FindOnPath("lcm-logplayer");
+  if (logger.empty() || player.empty()) {
+    GTEST_SKIP() << "lcm-logger or lcm-logplayer not on PATH (Debian package liblcm-bin)";
+  }
+  const std::string url = testing::FreeMulticastUrl();
+  const std::string out = scratch_.path() + "/attacked";
+  const std::string wrong_key = scratch_.path() + "/wrong.key";
+  std::ofstream(wrong_key) << "not the key of this deployment, but long enough to be one\n";
+  chmod(wrong_key.c_str(), 0600);
+
+  const std::string recording = scratch_.path() + "/recording.lcmlog";
+  Process record({logger, "--lcm-url", url, "--quiet", recording}, out + "-logger");
+  Process coco(Coco(out, url), out + "-coco");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  Process stranger({kForger, "--lcm-url", url, "--seconds", "600"}, out + "-stranger");
+  Process impostor({kForger, "--lcm-url", url, "--seconds", "600", "--bus-key-file", wrong_key},
+                   out + "-impostor");
+  Process generator(Generator(url, cache_), out + "-gen");
+  // the first scenes recorded, then played back into the running pipeline
+  for (int i = 0; i < 6000 && ImagesStored(out) < 3 && !generator.Exited(); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  record.Signal(SIGINT);
+  record.Wait(10);
+  Process replay({player, "--lcm-url", url, recording}, out + "-replay");
+
+  ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
+  ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+  replay.Wait(60);
+  ExpectSameDataset(reference_, out);
+
+  // the generator refused credits and resend requests of each kind; the writer, scenes
+  const std::vector<int64_t> generator_refused = Refused(generator.Stdout());
+  const std::vector<int64_t> writer_refused = Refused(coco.Stdout());
+  for (size_t kind = 0; kind < 3; ++kind) {
+    EXPECT_GT(generator_refused[kind], 0) << "kind " << kind << ": " << generator.Stdout();
+    EXPECT_GT(writer_refused[kind], 0) << "kind " << kind << ": " << coco.Stdout();
+  }
+  // the one offering no window never registered; the stranger did hear the writer's name
+  stranger.Signal(SIGINT);
+  EXPECT_EQ(stranger.Wait(10), 0);
+  EXPECT_EQ(generator.Stderr().find("stranger"), std::string::npos) << generator.Stderr();
+  EXPECT_NE(stranger.Stdout().find("writer stackgen-coco@"), std::string::npos)
+      << stranger.Stdout();
+}
+
+// Thousands of random and mutated messages on every channel, unsigned and signed (those signed
+// on channels that cannot add a scene), leave both processes running with memory near a clean
+// run's, and the dataset intact.
+TEST_F(TrustTest, FuzzLeavesBothRunning) {
+  const std::string url = testing::FreeMulticastUrl();
+  const std::string out = scratch_.path() + "/fuzzed";
+  Process coco(Coco(out, url), out + "-coco");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  Process fuzzer({kForger, "--lcm-url", url, "--seconds", "4", "--no-attacks", "--fuzz", "4000",
+                  "--signed-fuzz", "--bus-key-file", std::getenv("STACKGEN_BUS_KEY_FILE")},
+                 out + "-fuzzer");
+  Process generator(Generator(url, cache_), out + "-gen");
+  int64_t peak_gen_kb = 0, peak_coco_kb = 0;
+  Watch(generator, coco, &peak_gen_kb, &peak_coco_kb);
+  ASSERT_EQ(fuzzer.Wait(60), 0) << fuzzer.Stderr();
+  EXPECT_NE(fuzzer.Stdout().find("4000 fuzzed"), std::string::npos) << fuzzer.Stdout();
+  ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
+  ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+  ExpectSameDataset(reference_, out);
+  // bounded: within 64 MB of the clean run's peak (a scene is about 1 MB encoded)
+  EXPECT_LT(peak_gen_kb, reference_peak_gen_kb_ + 65536)
+      << "generator peak " << peak_gen_kb << " kB, clean run " << reference_peak_gen_kb_;
+  EXPECT_LT(peak_coco_kb, reference_peak_coco_kb_ + 65536)
+      << "writer peak " << peak_coco_kb << " kB, clean run " << reference_peak_coco_kb_;
+  // and the fuzz reached them: refused by the key check, or signed and then refused as invalid
+  const std::vector<int64_t> writer_refused = Refused(coco.Stdout());
+  EXPECT_GT(writer_refused[0], 0) << coco.Stdout();
+}
+
+}  // namespace
+}  // namespace stackgen

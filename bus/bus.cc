@@ -125,8 +125,8 @@ struct Bus::Impl {
                         : now.forged > reported_forged            ? &reported_forged
                                                                   : &reported_replayed;
     if (*reported == 0) {
-      std::fprintf(stderr, "warning: %s; further ones are only counted (status: refused)\n",
-                   why.c_str());
+      std::fprintf(stderr, "%s: warning: %s; further ones are only counted (status: refused)\n",
+                   program_invocation_short_name, why.c_str());
     }
     reported_unsigned = now.unsigned_messages;
     reported_forged = now.forged;
@@ -174,9 +174,9 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
     static std::atomic<bool> warned{false};
     if (!warned.exchange(true)) {
       std::fprintf(stderr,
-                   "warning: no bus key (--bus-key-file or STACKGEN_BUS_KEY_FILE): every process "
-                   "that can send to %s is trusted\n",
-                   url.c_str());
+                   "%s: warning: no bus key (--bus-key-file or STACKGEN_BUS_KEY_FILE): every "
+                   "process that can send to %s is trusted\n",
+                   program_invocation_short_name, url.c_str());
     }
   }
   // LCM says why it cannot open a URL on stderr ("Error: LCM provider "x" not found"): that text

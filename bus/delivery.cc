@@ -387,6 +387,9 @@ struct SceneClient::Impl {
   struct Stream {
     int64_t stored_through = -1;
     std::set<int64_t> done_above;  // stored or skipped seqs (of this shard) above stored_through
+    // received and handed to the consumer, neither stored nor skipped yet (a writer's group
+    // waiting for its commit, a learner's queue): not missing, never asked for again
+    std::set<int64_t> pending;
     int64_t last_received = -1;
     std::map<int64_t, Clock::time_point> asked;  // missing seq -> when last asked for
     bool credit_due = true;
@@ -450,6 +453,7 @@ struct SceneClient::Impl {
   // true when `seq` was not done before
   bool MarkDone(int32_t generator_id, int64_t seq) {
     Stream& stream = StreamOf(generator_id);
+    stream.pending.erase(seq);
     if (seq <= stream.stored_through || !stream.done_above.insert(seq).second) return false;
     stream.asked.erase(seq);
     Advance(*this, stream);
@@ -549,6 +553,12 @@ bool SceneClient::Received(int32_t generator_id, int64_t seq) {
     stream.last_received = seq;
     stream.credit_due = true;
   }
+  if (!stream.pending.insert(seq).second) {
+    // handed over already and not yet stored or skipped: a repeat all the same
+    ++impl_->counters.duplicates;
+    return false;
+  }
+  stream.asked.erase(seq);
   return true;
 }
 
@@ -583,7 +593,10 @@ void SceneClient::Service() {
     std::vector<int64_t> ask;
     for (int64_t seq = stream.stored_through + 1;
          seq <= last && static_cast<int>(ask.size()) < kMaxSeqsPerRequest; ++seq) {
-      if (!impl.InShard(seq) || stream.done_above.count(seq) != 0) continue;
+      if (!impl.InShard(seq) || stream.done_above.count(seq) != 0 ||
+          stream.pending.count(seq) != 0) {
+        continue;
+      }
       const auto asked = stream.asked.find(seq);
       if (asked != stream.asked.end() &&
           SecondsSince(asked->second, now) < impl.options.reask_after_s) {
@@ -640,7 +653,8 @@ DeliveryCounters SceneClient::counters() const {
   for (const auto& [generator_id, stream] : impl_->streams) {
     const int64_t span = impl_->ShardSeqsThrough(stream.last_received) -
                          impl_->ShardSeqsThrough(stream.stored_through);
-    counters.lost += std::max<int64_t>(0, span - static_cast<int64_t>(stream.done_above.size()));
+    counters.lost += std::max<int64_t>(
+        0, span - static_cast<int64_t>(stream.done_above.size() + stream.pending.size()));
   }
   return counters;
 }

@@ -194,8 +194,10 @@ class SceneClient {
   /// generator of another run refuses to continue the dataset. Ignored for ids not tracked.
   void SetRun(int32_t generator_id, const std::string& run);
 
-  /// Scene `seq` of `generator_id` arrived. True when it is new and should be stored; false when
-  /// it was stored or skipped before (counted as a duplicate), or its ids are out of range.
+  /// Scene `seq` of `generator_id` arrived. True when it is new and should be stored: it is then
+  /// pending (never asked for again) until Stored or Skipped, which must follow. False when it
+  /// was stored or skipped before, or is pending (counted as a duplicate), or its ids are out of
+  /// range.
   bool Received(int32_t generator_id, int64_t seq);
   /// The scene Received said was new is now durably stored.
   void Stored(int32_t generator_id, int64_t seq);

@@ -122,6 +122,27 @@ TEST_F(DeliveryFixture, GapIsResentFromTheRing) {
   EXPECT_EQ(counters.stored, 3);
 }
 
+// a scene received and not yet stored (a writer's group waiting for its commit) is not missing:
+// it is never asked for again, not counted lost, and a second copy of it is a duplicate.
+TEST_F(DeliveryFixture, PendingSceneIsNotAskedForAgain) {
+  SetUpLink(SceneServerOptions{}, Client(8));
+  Exchange();
+  drop_ = {{0, 0}, {0, 1}};
+  for (int64_t seq = 0; seq < 2; ++seq) server_->Publish(seq, EncodedScene(0, seq));
+  bus_->HandleFor(0);
+  EXPECT_TRUE(client_->Received(0, 0));
+  EXPECT_TRUE(client_->Received(0, 1));
+  for (int round = 0; round < 3; ++round) Exchange();
+  EXPECT_EQ(server_->resent() + server_->regenerated(), 0);
+  EXPECT_EQ(client_->counters().lost, 0);
+  EXPECT_EQ(client_->counters().reasked, 0);
+  EXPECT_FALSE(client_->Received(0, 1));
+  EXPECT_EQ(client_->counters().duplicates, 1);
+  client_->Stored(0, 0);
+  client_->Stored(0, 1);
+  EXPECT_EQ(client_->StoredThrough(0), 1);
+}
+
 // a seq older than the ring is regenerated (the callback gets that seq) and stored.
 TEST_F(DeliveryFixture, BeyondTheRingIsRegenerated) {
   SceneServerOptions server_options;

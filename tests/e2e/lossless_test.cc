@@ -24,6 +24,7 @@
 
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "tests/support/datasets.h"
 #include "tests/support/process.h"
 
 namespace stackgen {
@@ -31,7 +32,10 @@ namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
+using testing::ExpectSameDataset;
+using testing::ImagesStored;
 using testing::Process;
+using testing::WaitForImages;
 
 constexpr int kScenes = 14;
 constexpr const char* kSeed = "5";
@@ -55,51 +59,6 @@ std::vector<std::string> Generator(const std::string& url, const std::string& ca
       "--cache-dir",      cache,     "--consumer-timeout",    "5"};
   argv.insert(argv.end(), extra.begin(), extra.end());
   return argv;
-}
-
-// images (not .tmp) in a dataset folder
-int ImagesStored(const std::string& dataset) {
-  std::error_code error;
-  int count = 0;
-  for (const auto& entry : fs::directory_iterator(dataset + "/images", error)) {
-    if (entry.path().extension() != ".tmp") ++count;
-  }
-  return count;
-}
-
-// waits until the dataset holds `count` images; false after `timeout_s`
-bool WaitForImages(const std::string& dataset, int count, double timeout_s) {
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  while (std::chrono::steady_clock::now() < deadline) {
-    if (ImagesStored(dataset) >= count) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  }
-  return false;
-}
-
-json Annotations(const std::string& dataset) {
-  json parsed = json::parse(testing::ReadFile(dataset + "/annotations.json"));
-  parsed.erase("info");
-  return parsed;
-}
-
-// the same annotations (info aside) and the same image files, byte for byte
-void ExpectSameDataset(const std::string& expected, const std::string& actual) {
-  const json a = Annotations(expected), b = Annotations(actual);
-  EXPECT_EQ(a["images"].size(), static_cast<size_t>(kScenes));
-  EXPECT_EQ(a, b) << actual << " differs from " << expected;
-  std::map<std::string, std::string> files;
-  for (const auto& entry : fs::directory_iterator(expected + "/images")) {
-    files[entry.path().filename()] = testing::ReadFile(entry.path());
-  }
-  int compared = 0;
-  for (const auto& entry : fs::directory_iterator(actual + "/images")) {
-    const std::string name = entry.path().filename();
-    ASSERT_EQ(files.count(name), 1u) << "extra file " << name << " in " << actual;
-    EXPECT_TRUE(files[name] == testing::ReadFile(entry.path())) << name << " differs";
-    ++compared;
-  }
-  EXPECT_EQ(compared, static_cast<int>(files.size()));
 }
 
 // listens on STACKGEN_STATUS in a thread of its own; keeps the last status of each process
@@ -206,7 +165,7 @@ TEST_F(LosslessTest, InjectedLossGivesTheSameDataset) {
   EXPECT_NE(summary.find(std::to_string(kScenes) + " images"), std::string::npos) << summary;
   EXPECT_NE(summary.find(", 0 missing"), std::string::npos) << summary;
   EXPECT_EQ(summary.find(", 0 messages dropped on purpose"), std::string::npos) << summary;
-  ExpectSameDataset(reference_, out);
+  ExpectSameDataset(reference_, out, kScenes);
 }
 
 // kill -9 of the writer mid-run, then the same writer again with --resume: every scene once.
@@ -225,7 +184,7 @@ TEST_F(LosslessTest, WriterKilledAndResumed) {
   ASSERT_EQ(resumed.Wait(600), 0) << resumed.Stderr();
   EXPECT_NE(resumed.Stdout().find("resumed"), std::string::npos) << resumed.Stdout();
   ASSERT_EQ(generator.Wait(120), 0) << generator.Stderr();
-  ExpectSameDataset(reference_, out);
+  ExpectSameDataset(reference_, out, kScenes);
 }
 
 // kill -9 of the generator mid-run, then a restart with --resume: it continues where the writer
@@ -267,7 +226,7 @@ TEST_F(LosslessTest, GeneratorKilledAndResumed) {
   ASSERT_NE(at, std::string::npos) << said;
   EXPECT_GE(std::stoll(said.substr(at + 16)), stored - 2) << said;
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
-  ExpectSameDataset(reference_, out);
+  ExpectSameDataset(reference_, out, kScenes);
 }
 
 // two generators with distinct ids publish into the same channels; the writer stores every scene
@@ -285,14 +244,14 @@ TEST_F(LosslessTest, TwoGenerators) {
   ASSERT_EQ(second.Wait(600), 0) << second.Stderr();
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
 
-  const json dataset = Annotations(out);
+  const json dataset = testing::DatasetAnnotations(out);
   std::map<int, int> per_generator;
   for (const json& image : dataset["images"]) {
     ++per_generator[image["stackgen"]["generator_id"].get<int>()];
   }
   EXPECT_EQ(per_generator, (std::map<int, int>{{0, kScenes}, {1, kScenes}}));
   // generator 0's images are the reference's
-  const json reference = Annotations(reference_);
+  const json reference = testing::DatasetAnnotations(reference_);
   for (const json& image : reference["images"]) {
     const std::string name = image["file_name"];
     EXPECT_TRUE(testing::ReadFile(reference_ + "/images/" + name) ==
@@ -347,7 +306,7 @@ TEST_F(LosslessTest, FullDiskStopsCleanlyAndResumes) {
   Process resumed(Coco(out, url, {"--resume"}), scratch_.path() + "/full-disk-coco2");
   ASSERT_EQ(resumed.Wait(600), 0) << resumed.Stderr();
   ASSERT_EQ(generator.Wait(120), 0) << generator.Stderr();
-  ExpectSameDataset(reference_, out);
+  ExpectSameDataset(reference_, out, kScenes);
 }
 
 // two network namespaces joined by a veth pair stand for two hosts of a LAN: the generator in
@@ -390,7 +349,7 @@ TEST_F(LosslessTest, AcrossANetworkLink) {
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
   EXPECT_NE(generator.Stderr().find("reliable consumer stackgen-coco@"), std::string::npos)
       << generator.Stderr();
-  ExpectSameDataset(reference_, out);
+  ExpectSameDataset(reference_, out, kScenes);
 }
 
 // the live stream recorded with tools/record (lcm-logger) and read back from the log
@@ -429,8 +388,8 @@ TEST_F(LosslessTest, RecordedStreamReplaysToTheSameDataset) {
       {kBin + "/stackgen-coco", "--lcm-url", "file://" + log + "?speed=0", "--out", replayed},
       replayed + "-coco");
   ASSERT_EQ(replay.Wait(120), 0) << replay.Stderr();
-  ExpectSameDataset(reference_, live);
-  ExpectSameDataset(reference_, replayed);
+  ExpectSameDataset(reference_, live, kScenes);
+  ExpectSameDataset(reference_, replayed, kScenes);
 }
 
 }  // namespace

@@ -8,24 +8,22 @@
 
 #include <chrono>
 #include <csignal>
-#include <filesystem>
 #include <fstream>
-#include <map>
 #include <regex>
 #include <string>
 #include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
-#include <nlohmann/json.hpp>
 
+#include "tests/support/datasets.h"
 #include "tests/support/process.h"
 
 namespace stackgen {
 namespace {
 
-namespace fs = std::filesystem;
-using nlohmann::json;
+using testing::ExpectSameDataset;
+using testing::ImagesStored;
 using testing::Process;
 
 constexpr int kScenes = 12;
@@ -59,41 +57,6 @@ std::vector<int64_t> Refused(const std::string& output) {
   std::smatch match;
   if (!std::regex_search(output, match, pattern)) return {-1, -1, -1};
   return {std::stoll(match[1]), std::stoll(match[2]), std::stoll(match[3])};
-}
-
-json Annotations(const std::string& dataset) {
-  json parsed = json::parse(testing::ReadFile(dataset + "/annotations.json"));
-  parsed.erase("info");
-  return parsed;
-}
-
-// the same annotations (info aside) and the same image files, byte for byte
-void ExpectSameDataset(const std::string& expected, const std::string& actual) {
-  const json a = Annotations(expected), b = Annotations(actual);
-  EXPECT_EQ(a["images"].size(), static_cast<size_t>(kScenes));
-  EXPECT_EQ(a, b) << actual << " differs from " << expected;
-  std::map<std::string, std::string> files;
-  for (const auto& entry : fs::directory_iterator(expected + "/images")) {
-    files[entry.path().filename()] = testing::ReadFile(entry.path());
-  }
-  int compared = 0;
-  for (const auto& entry : fs::directory_iterator(actual + "/images")) {
-    const std::string name = entry.path().filename();
-    ASSERT_EQ(files.count(name), 1u) << "extra file " << name << " in " << actual;
-    EXPECT_TRUE(files[name] == testing::ReadFile(entry.path())) << name << " differs";
-    ++compared;
-  }
-  EXPECT_EQ(compared, static_cast<int>(files.size()));
-}
-
-// images (not .tmp) in a dataset folder
-int ImagesStored(const std::string& dataset) {
-  std::error_code error;
-  int count = 0;
-  for (const auto& entry : fs::directory_iterator(dataset + "/images", error)) {
-    if (entry.path().extension() != ".tmp") ++count;
-  }
-  return count;
 }
 
 class TrustTest : public ::testing::Test {
@@ -167,7 +130,7 @@ TEST_F(TrustTest, StrangersAreRefusedAndCounted) {
   ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
   replay.Wait(60);
-  ExpectSameDataset(reference_, out);
+  ExpectSameDataset(reference_, out, kScenes);
 
   // the generator refused credits and resend requests of each kind; the writer, scenes
   const std::vector<int64_t> generator_refused = Refused(generator.Stdout());
@@ -202,7 +165,7 @@ TEST_F(TrustTest, FuzzLeavesBothRunning) {
   EXPECT_NE(fuzzer.Stdout().find("4000 fuzzed"), std::string::npos) << fuzzer.Stdout();
   ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
-  ExpectSameDataset(reference_, out);
+  ExpectSameDataset(reference_, out, kScenes);
   // bounded: within 64 MB of the clean run's peak (a scene is about 1 MB encoded)
   EXPECT_LT(peak_gen_kb, reference_peak_gen_kb_ + 65536)
       << "generator peak " << peak_gen_kb << " kB, clean run " << reference_peak_gen_kb_;

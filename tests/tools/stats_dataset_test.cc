@@ -5,6 +5,7 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -107,9 +108,48 @@ TEST(StatsDatasetTest, CocoIgnoreRegionsOnlyWithAllInstances) {
   EXPECT_EQ(every.not_annotated, 0);
 }
 
+// A log recorded with a bus key is read with it: labels signed with another key or not signed
+// (sent by strangers while it was recorded) are left out.
+TEST(StatsDatasetTest, SignedLogLeavesOutForgeries) {
+  const char* key = std::getenv("STACKGEN_BUS_KEY_FILE");
+  ASSERT_NE(key, nullptr) << "the suite runs with a bus key (tests/CMakeLists.txt)";
+  const ScratchDir scratch;
+  const std::string other_key = scratch.path() + "/other.key";
+  std::ofstream(other_key) << "a stranger's key, 32 bytes or more of it\n";
+  fs::permissions(other_key, fs::perms::owner_read | fs::perms::owner_write);
+  const std::string path = scratch.path() + "/signed.lcmlog";
+  {
+    LogAppender ours(path, key);
+    LogAppender theirs(path, other_key);
+    LogAppender unsigned_log(path, "");
+    for (int64_t seq = 0; seq < 3; ++seq) {
+      stackgen::labels labels{};
+      labels.header.seq = seq;
+      labels.num_instances = 1;
+      stackgen::instance instance{};
+      instance.class_name = "corner_connector";
+      instance.world_from_object = ToPoseMessage(Eigen::Isometry3d::Identity());
+      instance.annotated = true;
+      labels.instances.push_back(instance);
+      const std::vector<uint8_t> bytes = EncodeMessage(labels);
+      ours.AppendBytes(kLabelsChannel, bytes.data(), bytes.size(), 100 + seq);
+      // the forgeries claim other scenes
+      labels.header.seq = 10 + seq;
+      const std::vector<uint8_t> forged = EncodeMessage(labels);
+      theirs.AppendBytes(kLabelsChannel, forged.data(), forged.size(), 100 + seq);
+      unsigned_log.AppendBytes(kLabelsChannel, forged.data(), forged.size(), 100 + seq);
+    }
+  }
+  const Dataset dataset = ReadDataset(path, {});
+  EXPECT_EQ(dataset.scenes, 3);
+  EXPECT_EQ(dataset.samples.size(), 3u);
+}
+
 // A log: instances of every labels message, other channels skipped, a truncated last event
 // ignored and reported; a corrupt header is an error naming the file and byte.
 TEST(StatsDatasetTest, ReadsLcmLog) {
+  // LogWriter writes unsigned events: read without the suite's bus key
+  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
   const ScratchDir scratch;
   const std::string path = scratch.path() + "/run.lcmlog";
   {

@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -16,6 +17,7 @@
 #include <tuple>
 #include <utility>
 
+#include "bus/auth.h"
 #include "bus/channels.h"
 #include "bus/log.h"
 #include "gen/annotate/pose.h"
@@ -229,11 +231,23 @@ void ReadLcmLog(const std::string& path, const ReadOptions& options, Dataset* da
   // scenes by (generator_id, seq): the labels and the scene of one render count once
   std::set<std::pair<int32_t, int64_t>> seen;
   int64_t messages = 0;
+  // a log recorded with a bus key is read with it ($STACKGEN_BUS_KEY_FILE): what a stranger
+  // sent on the bus while it was recorded is left out; without a key nothing is checked
+  MessageAuth auth(ResolveBusKeyFile(""), false);
+  std::string first_refusal;
   try {
-    const LogSummary summary = ReadLog(path, [&](const LogEvent& event) {
-      const bool is_labels = event.channel == kLabelsChannel;
-      const bool is_scene = event.channel == kSceneChannel;
+    const LogSummary summary = ReadLog(path, [&](const LogEvent& logged) {
+      const bool is_labels = logged.channel == kLabelsChannel;
+      const bool is_scene = logged.channel == kSceneChannel;
       if (!is_labels && !is_scene) return;
+      std::string why;
+      const int64_t body = auth.Open(logged.channel, logged.data, logged.size, 0, &why);
+      if (body < 0) {
+        if (first_refusal.empty()) first_refusal = why;
+        return;
+      }
+      LogEvent event = logged;
+      event.size = static_cast<size_t>(body);
       ++messages;
       const std::string where =
           path + ": event " + std::to_string(event.number) + " on " + event.channel;
@@ -259,9 +273,14 @@ void ReadLcmLog(const std::string& path, const ReadOptions& options, Dataset* da
   } catch (const DecodeError& error) {
     throw std::runtime_error(path + ": " + error.what());
   }
+  if (auth.counters().total() > 0) {
+    std::fprintf(stderr, "stackgen-stats: warning: %s: left out %lld messages (%s)\n", path.c_str(),
+                 static_cast<long long>(auth.counters().total()), first_refusal.c_str());
+  }
   if (messages == 0) {
     throw std::runtime_error(path + ": the log holds no " + std::string(kLabelsChannel) + " or " +
-                             kSceneChannel + " messages");
+                             kSceneChannel + " messages" +
+                             (first_refusal.empty() ? "" : " that pass the bus key check"));
   }
   dataset->scenes = static_cast<int64_t>(seen.size());
 }

@@ -13,6 +13,7 @@
 #include <stackgen/resend_request.hpp>
 
 #include "bus/channels.h"
+#include "bus/scene_contract.h"
 
 namespace stackgen {
 namespace {
@@ -21,9 +22,6 @@ using Clock = std::chrono::steady_clock;
 
 // the most seqs one resend request carries
 constexpr int kMaxSeqsPerRequest = 256;
-// the ids a scene may carry (--generator-id is 0..65535; seqs as the COCO id layout allows)
-constexpr int32_t kMaxGeneratorId = 65535;
-constexpr int64_t kMaxSeq = 999999998;
 // the largest window a consumer may offer (stackgen-coco's and the feed's --window limit); a
 // credit offering more, or less than 0, is refused
 constexpr int32_t kMaxWindow = 10000;
@@ -534,7 +532,7 @@ void SceneClient::SetRun(int32_t generator_id, const std::string& run) {
 }
 
 bool SceneClient::Received(int32_t generator_id, int64_t seq) {
-  if (!impl_->Tracked(generator_id) || seq < 0 || seq > kMaxSeq) return false;
+  if (!impl_->Tracked(generator_id) || !SceneIdsInRange(generator_id, seq)) return false;
   Impl::Stream& stream = impl_->StreamOf(generator_id, seq);
   // another shard's scene: it only shows how far the generator has got
   if (!impl_->InShard(seq)) {
@@ -563,14 +561,16 @@ bool SceneClient::Received(int32_t generator_id, int64_t seq) {
 }
 
 void SceneClient::Stored(int32_t generator_id, int64_t seq) {
-  if (!impl_->Tracked(generator_id) || seq < 0 || seq > kMaxSeq || !impl_->InShard(seq)) return;
+  if (!impl_->Tracked(generator_id) || !SceneIdsInRange(generator_id, seq) || !impl_->InShard(seq))
+    return;
   ++impl_->counters.stored;
   ++impl_->stored_total;
   impl_->MarkDone(generator_id, seq);
 }
 
 void SceneClient::Skipped(int32_t generator_id, int64_t seq) {
-  if (!impl_->Tracked(generator_id) || seq < 0 || seq > kMaxSeq || !impl_->InShard(seq)) return;
+  if (!impl_->Tracked(generator_id) || !SceneIdsInRange(generator_id, seq) || !impl_->InShard(seq))
+    return;
   impl_->MarkDone(generator_id, seq);
 }
 

@@ -22,7 +22,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "bus/rle_counts.h"
+#include "bus/bounded_decode.h"
+#include "bus/scene_contract.h"
 
 namespace stackgen {
 namespace {
@@ -32,10 +33,10 @@ using nlohmann::json;
 
 // id layout: image id = generator_id * 1e9 + seq + 1, annotation id = image id * 1000 +
 // instance_id; these bounds keep both unique and inside int64
+// (kMaxGeneratorId and kMaxSeq of bus/scene_contract.h keep them there)
 constexpr int64_t kSeqsPerGenerator = 1000000000;
-constexpr int64_t kMaxSeq = kSeqsPerGenerator - 2;
-constexpr int32_t kMaxGeneratorId = 9000000;
-constexpr int32_t kMaxInstanceId = 999;
+static_assert(kMaxSeq < kSeqsPerGenerator - 1, "a seq's image id would reach the next generator");
+constexpr int32_t kMaxCocoInstanceId = 999;
 
 constexpr const char* kAnnotationsFile = "annotations.json";
 constexpr const char* kJournalFile = "annotations.journal";
@@ -84,25 +85,12 @@ void CheckPose(const stackgen::pose& pose, const std::string& scene_name,
 void CheckMask(const std::string& counts, int32_t expected, uint64_t image_area,
                const std::string& scene_name, const std::string& field,
                const std::string& count_field) {
-  if (counts.empty()) Fail(scene_name, field + " is empty");
-  std::vector<uint32_t> runs;
-  try {
-    runs = ParseRleCounts(counts);
-  } catch (const std::runtime_error& error) {
-    Fail(scene_name, field + " is not a COCO RLE string: " + error.what());
-  }
-  uint64_t total = 0, area = 0;
-  for (size_t k = 0; k < runs.size(); ++k) {
-    total += runs[k];
-    if (k % 2 == 1) area += runs[k];
-  }
-  if (total != image_area) {
-    Fail(scene_name, field + " covers " + std::to_string(total) + " pixels, the image has " +
-                         std::to_string(image_area));
-  }
-  if (area != static_cast<uint64_t>(expected)) {
-    Fail(scene_name, field + " holds " + std::to_string(area) + " pixels, " + count_field + " is " +
-                         std::to_string(expected));
+  std::string why;
+  const int64_t pixels = MaskPixels(counts, static_cast<int64_t>(image_area), &why);
+  if (pixels < 0) Fail(scene_name, field + " " + why);
+  if (pixels != expected) {
+    Fail(scene_name, field + " holds " + std::to_string(pixels) + " pixels, " + count_field +
+                         " is " + std::to_string(expected));
   }
 }
 
@@ -114,49 +102,6 @@ bool IsUtf8(const std::string& text) {
   } catch (const json::type_error&) {
     return false;
   }
-}
-
-uint32_t BigEndian32(const uint8_t* bytes) {
-  return (uint32_t{bytes[0]} << 24) | (uint32_t{bytes[1]} << 16) | (uint32_t{bytes[2]} << 8) |
-         uint32_t{bytes[3]};
-}
-
-// width and height from a PNG's IHDR chunk, without decoding; false if it is not a PNG
-bool PngSize(const std::vector<uint8_t>& data, int64_t* width, int64_t* height) {
-  static const uint8_t kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  if (data.size() < 24 || !std::equal(kSignature, kSignature + 8, data.begin()) ||
-      std::string(data.begin() + 12, data.begin() + 16) != "IHDR") {
-    return false;
-  }
-  *width = BigEndian32(&data[16]);
-  *height = BigEndian32(&data[20]);
-  return true;
-}
-
-// width and height from a JPEG's start-of-frame segment, without decoding; false if none
-bool JpegSize(const std::vector<uint8_t>& data, int64_t* width, int64_t* height) {
-  if (data.size() < 4 || data[0] != 0xff || data[1] != 0xd8) return false;
-  size_t p = 2;
-  while (p + 1 < data.size()) {
-    // a marker: 0xff (maybe repeated as fill), then its code
-    if (data[p] != 0xff) return false;
-    while (p < data.size() && data[p] == 0xff) ++p;
-    if (p >= data.size()) return false;
-    const uint8_t marker = data[p++];
-    if (marker == 0x01 || (marker >= 0xd0 && marker <= 0xd8)) continue;  // no length
-    if (marker == 0xd9 || marker == 0xda) return false;  // end of image or scan: no frame
-    if (p + 2 > data.size()) return false;
-    const size_t length = (size_t{data[p]} << 8) | data[p + 1];
-    // SOF0..SOF15 except DHT (c4), JPG (c8), DAC (cc): precision, height, width
-    if (marker >= 0xc0 && marker <= 0xcf && marker != 0xc4 && marker != 0xc8 && marker != 0xcc) {
-      if (p + 7 > data.size()) return false;
-      *height = (int64_t{data[p + 3]} << 8) | data[p + 4];
-      *width = (int64_t{data[p + 5]} << 8) | data[p + 6];
-      return true;
-    }
-    p += length;
-  }
-  return false;
 }
 
 // images/<generator_id>_<seq:06>.png, .jpg for a JPEG scene
@@ -563,7 +508,8 @@ void CocoWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64
     const int64_t seq = scene.at("seq").get<int64_t>();
     const std::string scene_name =
         "scene " + std::to_string(generator_id) + "/" + std::to_string(seq);
-    if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) {
+    if (generator_id < 0 || generator_id > kMaxGeneratorId ||
+        !SceneIdsInRange(static_cast<int32_t>(generator_id), seq)) {
       throw corrupt(scene_name + " is outside the id layout");
     }
     entry.generator_id = static_cast<int32_t>(generator_id);
@@ -753,7 +699,6 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
     Fail(name, "color.size " + std::to_string(color.size) + " differs from the " +
                    std::to_string(color.data.size()) + " bytes of color.data");
   }
-  int64_t encoded_width = 0, encoded_height = 0;
   switch (color.encoding) {
     case stackgen::image::ENCODING_RAW: {
       const int64_t expected = int64_t{color.width} * color.height * channels;
@@ -764,23 +709,14 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
       break;
     }
     case stackgen::image::ENCODING_PNG:
-      if (!PngSize(color.data, &encoded_width, &encoded_height)) {
-        Fail(name, "color.data is not a PNG file (encoding PNG)");
-      }
+    case stackgen::image::ENCODING_JPEG: {
+      // the file's own header (PNG IHDR, JPEG SOFn) against the declared size and format
+      std::string why;
+      if (!CheckEncodedImageDims(color, &why)) Fail(name, "color.data: " + why);
       break;
-    case stackgen::image::ENCODING_JPEG:
-      if (!JpegSize(color.data, &encoded_width, &encoded_height)) {
-        Fail(name, "color.data is not a JPEG file with a frame header (encoding JPEG)");
-      }
-      break;
+    }
     default:
       Fail(name, "color.encoding " + std::to_string(color.encoding) + " is not RAW, PNG or JPEG");
-  }
-  if (color.encoding != stackgen::image::ENCODING_RAW &&
-      (encoded_width != color.width || encoded_height != color.height)) {
-    Fail(name, "color.data holds a " + std::to_string(encoded_width) + " x " +
-                   std::to_string(encoded_height) + " image, color.width x color.height is " +
-                   std::to_string(color.width) + " x " + std::to_string(color.height));
   }
   // a PNG or JPEG file is stored as it came: it must decode, whole (libpng checks every chunk's
   // CRC and zlib the data's checksum, so a flipped bit or a cut shows; a JPEG must also end
@@ -813,9 +749,9 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
     const stackgen::instance& instance = scene.instances[i];
     const std::string field = "instances[" + std::to_string(i) + "]";
     // ids and class
-    if (instance.instance_id < 1 || instance.instance_id > kMaxInstanceId) {
+    if (instance.instance_id < 1 || instance.instance_id > kMaxCocoInstanceId) {
       Fail(name, field + ".instance_id " + std::to_string(instance.instance_id) + " outside 1.." +
-                     std::to_string(kMaxInstanceId) +
+                     std::to_string(kMaxCocoInstanceId) +
                      " (annotation id = image id * 1000 + instance_id)");
     }
     if (!instance_ids.insert(instance.instance_id).second) {
@@ -927,8 +863,7 @@ void CocoWriter::AppendToJournal(const std::string& line) {
 bool CocoWriter::Add(const stackgen::scene& scene) {
   // store each (generator_id, seq) once; the same ids with another seed come from another run
   const std::string scene_name = SceneName(scene);
-  if (scene.header.generator_id < 0 || scene.header.generator_id > kMaxGeneratorId ||
-      scene.header.seq < 0 || scene.header.seq > kMaxSeq) {
+  if (!SceneIdsInRange(scene.header.generator_id, scene.header.seq)) {
     Fail(scene_name, "generator_id or seq outside the id layout (generator_id 0.." +
                          std::to_string(kMaxGeneratorId) + ", seq 0.." + std::to_string(kMaxSeq) +
                          ")");
@@ -1224,7 +1159,7 @@ int64_t CocoWriter::StoredThrough(int32_t generator_id) const {
 }
 
 bool CocoWriter::Has(int32_t generator_id, int64_t seq) const {
-  if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) return false;
+  if (!SceneIdsInRange(generator_id, seq)) return false;
   return index_.count(ImageId(generator_id, seq)) != 0;
 }
 

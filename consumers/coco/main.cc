@@ -26,6 +26,7 @@
 #include "bus/channels.h"
 #include "bus/delivery.h"
 #include "bus/flags.h"
+#include "bus/scene_contract.h"
 #include "consumers/coco/coco_writer.h"
 
 namespace {
@@ -229,7 +230,10 @@ int main(int argc, char** argv) {
         stackgen::kConfigChannel,
         [&](const stackgen::config_text& config) {
           const int32_t generator_id = config.header.generator_id;
-          if (generator_id < 0 || generator_id > 65535 || config.header.seed < 0) return;
+          if (generator_id < 0 || generator_id > stackgen::kMaxGeneratorId ||
+              config.header.seed < 0) {
+            return;
+          }
           const std::string run = stackgen::RunName(config.header.seed, config.path, config.pbtxt);
           const auto stored = writer->Runs().find(generator_id);
           if (stored == writer->Runs().end()) {

@@ -10,12 +10,11 @@
 
 #include "bus/bounded_decode.h"
 #include "bus/rle_counts.h"
+#include "bus/scene_contract.h"
 
 namespace stackgen::feed {
 namespace {
 
-// the largest instance id an INSTANCE16 map can hold
-constexpr int32_t kMaxInstanceId = 65535;
 // the most mask pixels one scene may hold (instances x width x height): 4 Gi, a bound
 // against a message that would make the full masks fill memory
 constexpr int64_t kMaxMaskPixels = int64_t{1} << 32;
@@ -40,21 +39,6 @@ bool FinitePose(const pose& p) {
 bool BoxInside(const int32_t box[4], int width, int height) {
   return box[0] >= 0 && box[1] >= 0 && box[2] >= 0 && box[3] >= 0 &&
          int64_t{box[0]} + box[2] <= width && int64_t{box[1]} + box[3] <= height;
-}
-
-// the pixels of a compressed RLE string over `area` pixels; throws std::runtime_error
-int64_t RleArea(const std::string& counts, int64_t area) {
-  const std::vector<uint32_t> runs = ParseRleCounts(counts);
-  int64_t total = 0, inside = 0;
-  for (size_t k = 0; k < runs.size(); ++k) {
-    total += runs[k];
-    if (k % 2 == 1) inside += runs[k];
-  }
-  if (total != area) {
-    throw std::runtime_error("covers " + std::to_string(total) + " pixels, the image has " +
-                             std::to_string(area));
-  }
-  return inside;
 }
 
 // checks an image of the scene: its format, its size against the camera's, its encoded header
@@ -226,16 +210,16 @@ bool CheckScene(const scene& message, std::string* why) {
         {&object.mask_obj_rle, object.px_count_all}};
     const char* fields[2] = {"mask_visib_rle", "mask_obj_rle"};
     for (int m = 0; m < 2; ++m) {
-      try {
-        const int64_t inside = RleArea(*masks[m].first, area);
-        if (inside != masks[m].second) {
-          return Refuse(name + "." + fields[m] + " holds " + std::to_string(inside) +
-                            " pixels, its count says " + std::to_string(masks[m].second),
-                        why);
-        }
-      } catch (const std::runtime_error& error) {
+      std::string problem;
+      const int64_t inside = MaskPixels(*masks[m].first, area, &problem);
+      if (inside < 0) {
         return Refuse(
-            name + "." + fields[m] + " is not a COCO RLE mask of the image: " + error.what(), why);
+            name + "." + fields[m] + " is not a COCO RLE mask of the image: it " + problem, why);
+      }
+      if (inside != masks[m].second) {
+        return Refuse(name + "." + fields[m] + " holds " + std::to_string(inside) +
+                          " pixels, its count says " + std::to_string(masks[m].second),
+                      why);
       }
     }
   }

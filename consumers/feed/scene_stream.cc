@@ -24,6 +24,7 @@
 #include "bus/channels.h"
 #include "bus/delivery.h"
 #include "bus/log.h"
+#include "bus/scene_contract.h"
 
 namespace stackgen::feed {
 namespace {
@@ -31,9 +32,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using SceneKey = std::pair<int32_t, int64_t>;  // generator_id, seq
 
-// the ids a scene may carry (as bus/delivery.h tracks them)
-constexpr int32_t kMaxGeneratorId = 65535;
-constexpr int64_t kMaxSeq = 999999998;
 // problems reported one by one on stderr; later ones are only counted
 constexpr int kMaxReported = 10;
 // best effort: scene keys remembered to recognise a repeat (a resend for a reliable consumer)
@@ -182,7 +180,7 @@ struct SceneStream::Impl {
   void OnLiveScene(const scene& message) {
     const int32_t generator_id = message.header.generator_id;
     const int64_t seq = message.header.seq;
-    if (generator_id < 0 || generator_id > kMaxGeneratorId || seq < 0 || seq > kMaxSeq) {
+    if (!SceneIdsInRange(generator_id, seq)) {
       CountBad();
       Report("scene " + std::to_string(generator_id) + "/" + std::to_string(seq) +
              ": generator_id or seq out of range");

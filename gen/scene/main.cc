@@ -27,6 +27,7 @@
 #include "bus/channels.h"
 #include "bus/delivery.h"
 #include "bus/flags.h"
+#include "bus/scene_contract.h"
 #include "gen/config/config.h"
 #include "gen/scene/scene_generator.h"
 
@@ -177,7 +178,7 @@ int Run(int argc, char** argv) {
   parser.String("--config", &config_path);
   parser.Int("--count", &count, 0, INT64_MAX);
   parser.Int("--seed", &seed_flag, 0, INT64_MAX);
-  parser.Int("--generator-id", &generator_id, 0, 65535);
+  parser.Int("--generator-id", &generator_id, 0, kMaxGeneratorId);
   parser.LcmUrl(&lcm_url);
   parser.BusKeyFile(&bus_options.key_file);
   parser.String("--cache-dir", &cache_dir);

@@ -1,11 +1,107 @@
 #include "bus/scene_contract.h"
 
+#include <cmath>
+#include <cstdio>
+#include <initializer_list>
+#include <set>
 #include <stdexcept>
 #include <vector>
 
+#include "bus/bounded_decode.h"
 #include "bus/rle_counts.h"
 
 namespace stackgen {
+namespace {
+
+bool Refuse(const std::string& text, std::string* why) {
+  if (why != nullptr) *why = text;
+  return false;
+}
+
+std::string Number(double value) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%g", value);
+  return text;
+}
+
+// every value of `values` finite; else names the first that is not: "<field>[k] is not finite"
+bool CheckFinite(const double* values, int count, const std::string& field, std::string* why) {
+  for (int k = 0; k < count; ++k) {
+    if (!std::isfinite(values[k])) {
+      return Refuse(field + "[" + std::to_string(k) + "] is not finite", why);
+    }
+  }
+  return true;
+}
+
+bool CheckPose(const pose& p, const std::string& field, std::string* why) {
+  return CheckFinite(p.translation_mm, 3, field + ".translation_mm", why) &&
+         CheckFinite(p.rotation, 9, field + ".rotation", why) &&
+         CheckFinite(p.quaternion_wxyz, 4, field + ".quaternion_wxyz", why);
+}
+
+// an image of the scene: format, the camera's size, its bytes and encoding, its file header
+bool CheckImage(const image& m, const std::string& field, int width, int height,
+                std::initializer_list<int8_t> formats, const char* format_names, std::string* why) {
+  bool known = false;
+  for (const int8_t format : formats) known = known || m.pixel_format == format;
+  if (!known) {
+    return Refuse(
+        field + ".pixel_format " + std::to_string(m.pixel_format) + " is not " + format_names, why);
+  }
+  if (m.width != width || m.height != height) {
+    return Refuse(field + ".width x " + field + ".height " + std::to_string(m.width) + " x " +
+                      std::to_string(m.height) + " differs from camera " + std::to_string(width) +
+                      " x " + std::to_string(height),
+                  why);
+  }
+  if (m.size < 0 || static_cast<size_t>(m.size) != m.data.size()) {
+    return Refuse(field + ".size " + std::to_string(m.size) + " differs from the " +
+                      std::to_string(m.data.size()) + " bytes of " + field + ".data",
+                  why);
+  }
+  if (m.encoding != image::ENCODING_RAW && m.encoding != image::ENCODING_PNG &&
+      m.encoding != image::ENCODING_JPEG) {
+    return Refuse(field + ".encoding " + std::to_string(m.encoding) + " is not RAW, PNG or JPEG",
+                  why);
+  }
+  std::string problem;
+  if (!CheckEncodedImageDims(m, &problem)) {
+    return Refuse(field + (m.encoding == image::ENCODING_RAW ? ".size: " : ".data: ") + problem,
+                  why);
+  }
+  return true;
+}
+
+// a box [x, y, w, h] inside a width x height image
+bool CheckBox(const int32_t box[4], const std::string& field, int width, int height,
+              std::string* why) {
+  if (box[0] >= 0 && box[1] >= 0 && box[2] >= 0 && box[3] >= 0 &&
+      int64_t{box[0]} + box[2] <= width && int64_t{box[1]} + box[3] <= height) {
+    return true;
+  }
+  return Refuse(field + " [" + std::to_string(box[0]) + ", " + std::to_string(box[1]) + ", " +
+                    std::to_string(box[2]) + ", " + std::to_string(box[3]) +
+                    "] is not inside the " + std::to_string(width) + " x " +
+                    std::to_string(height) + " image",
+                why);
+}
+
+// a mask over the image holding `expected` pixels (the value of `count_field`)
+bool CheckMask(const std::string& counts, int32_t expected, int64_t area, const std::string& field,
+               const std::string& count_field, std::string* why) {
+  std::string problem;
+  const int64_t pixels = MaskPixels(counts, area, &problem);
+  if (pixels < 0) return Refuse(field + " " + problem, why);
+  if (pixels != expected) {
+    return Refuse(field + " holds " + std::to_string(pixels) + " pixels, " + count_field + " is " +
+                      std::to_string(expected),
+                  why);
+  }
+  return true;
+}
+
+}  // namespace
 
 int64_t MaskPixels(const std::string& counts, int64_t image_pixels, std::string* why) {
   const auto refuse = [why](const std::string& text) -> int64_t {
@@ -30,6 +126,124 @@ int64_t MaskPixels(const std::string& counts, int64_t image_pixels, std::string*
                   std::to_string(image_pixels));
   }
   return inside;
+}
+
+bool CheckScene(const scene& message, std::string* why) {
+  // the header
+  if (message.header.generator_id < 0 || message.header.generator_id > kMaxGeneratorId) {
+    return Refuse("header.generator_id " + std::to_string(message.header.generator_id) +
+                      " outside 0.." + std::to_string(kMaxGeneratorId),
+                  why);
+  }
+  if (message.header.seq < 0 || message.header.seq > kMaxSeq) {
+    return Refuse("header.seq " + std::to_string(message.header.seq) + " outside 0.." +
+                      std::to_string(kMaxSeq),
+                  why);
+  }
+
+  // the camera
+  const camera_info& camera = message.camera;
+  const int width = camera.width, height = camera.height;
+  if (width <= 0 || height <= 0 || int64_t{width} * height > DecodeLimits{}.max_image_pixels) {
+    return Refuse("camera.width x camera.height " + std::to_string(width) + " x " +
+                      std::to_string(height) + " is not a positive size of at most " +
+                      std::to_string(DecodeLimits{}.max_image_pixels) + " pixels",
+                  why);
+  }
+  const std::pair<const char*, double> positive[3] = {
+      {"camera.fx", camera.fx},
+      {"camera.fy", camera.fy},
+      {"camera.depth_scale_mm", camera.depth_scale_mm}};
+  for (const auto& [field, value] : positive) {
+    if (!(std::isfinite(value) && value > 0)) {
+      return Refuse(std::string(field) + " " + Number(value) + " is not a positive number", why);
+    }
+  }
+  const double principal[2] = {camera.cx, camera.cy};
+  if (!CheckFinite(principal, 2, "camera.cx, camera.cy", why) ||
+      !CheckPose(camera.world_from_camera, "camera.world_from_camera", why)) {
+    return false;
+  }
+
+  // the images: colour always, depth and the instance map when sent
+  if (message.color.size == 0) return Refuse("the scene has no color image", why);
+  if (!CheckImage(message.color, "color", width, height, {image::PIXEL_RGB8, image::PIXEL_GRAY8},
+                  "RGB8 or GRAY8", why)) {
+    return false;
+  }
+  if (message.depth.size != 0 &&
+      !CheckImage(message.depth, "depth", width, height, {image::PIXEL_DEPTH16}, "DEPTH16", why)) {
+    return false;
+  }
+  if (message.instance_map.size != 0 &&
+      !CheckImage(message.instance_map, "instance_map", width, height, {image::PIXEL_INSTANCE16},
+                  "INSTANCE16", why)) {
+    return false;
+  }
+
+  // the instances
+  if (message.num_instances < 0 ||
+      static_cast<size_t>(message.num_instances) != message.instances.size()) {
+    return Refuse("num_instances " + std::to_string(message.num_instances) + " differs from the " +
+                      std::to_string(message.instances.size()) + " entries of instances",
+                  why);
+  }
+  const int64_t area = int64_t{width} * height;
+  if (static_cast<int64_t>(message.instances.size()) * area > kMaxSceneMaskPixels) {
+    return Refuse(std::to_string(message.instances.size()) + " instances of " +
+                      std::to_string(width) + " x " + std::to_string(height) +
+                      " pixels: more mask pixels than " + std::to_string(kMaxSceneMaskPixels),
+                  why);
+  }
+  std::set<int32_t> ids;
+  for (size_t k = 0; k < message.instances.size(); ++k) {
+    const instance& object = message.instances[k];
+    const std::string field = "instances[" + std::to_string(k) + "]";
+    if (object.instance_id < 1 || object.instance_id > kMaxInstanceId) {
+      return Refuse(field + ".instance_id " + std::to_string(object.instance_id) + " outside 1.." +
+                        std::to_string(kMaxInstanceId),
+                    why);
+    }
+    if (!ids.insert(object.instance_id).second) {
+      return Refuse(field + ".instance_id " + std::to_string(object.instance_id) + " repeated",
+                    why);
+    }
+    if (object.class_id < 1) {
+      return Refuse(field + ".class_id " + std::to_string(object.class_id) + " is not >= 1", why);
+    }
+    if (object.class_name.empty()) return Refuse(field + ".class_name is empty", why);
+    if (!CheckPose(object.camera_from_object, field + ".camera_from_object", why) ||
+        !CheckPose(object.world_from_object, field + ".world_from_object", why) ||
+        !CheckFinite(object.posture_deg, 3, field + ".posture_deg", why)) {
+      return false;
+    }
+    if (!(object.visib_fract >= 0.0 && object.visib_fract <= 1.0)) {
+      return Refuse(field + ".visib_fract " + Number(object.visib_fract) + " outside [0, 1]", why);
+    }
+    if (object.px_count_visib < 0 || object.px_count_visib > object.px_count_all) {
+      return Refuse(field + ".px_count_visib " + std::to_string(object.px_count_visib) +
+                        " is not in 0..px_count_all (" + std::to_string(object.px_count_all) + ")",
+                    why);
+    }
+    if (!CheckBox(object.bbox_obj, field + ".bbox_obj", width, height, why) ||
+        !CheckBox(object.bbox_visib, field + ".bbox_visib", width, height, why) ||
+        !CheckMask(object.mask_visib_rle, object.px_count_visib, area, field + ".mask_visib_rle",
+                   "px_count_visib", why) ||
+        !CheckMask(object.mask_obj_rle, object.px_count_all, area, field + ".mask_obj_rle",
+                   "px_count_all", why)) {
+      return false;
+    }
+    // the generator's label: annotated, ignored or neither; both need visible pixels
+    if (object.annotated && object.ignored) {
+      return Refuse(field + ".ignored and " + field + ".annotated are both true", why);
+    }
+    if ((object.annotated || object.ignored) && object.px_count_visib == 0) {
+      return Refuse(field + (object.annotated ? ".annotated" : ".ignored") +
+                        " is true but px_count_visib is 0",
+                    why);
+    }
+  }
+  return true;
 }
 
 }  // namespace stackgen

@@ -2,11 +2,14 @@
 
 // The contract of a scene message that every consumer (and the generator) shares, so that no
 // consumer keeps a copy of its own (design.md: consumers never include gen/, so it lives in bus/,
-// which both may use): the id limits and the mask counts. The checks of the encoded images are
-// in bounded_decode.h (CheckEncodedImageDims), the run-length parser in rle_counts.h.
+// which both may use): the id limits, the mask counts and CheckScene, which a consumer runs once
+// on every scene that comes off the bus. The checks of the encoded image headers are in
+// bounded_decode.h (CheckEncodedImageDims), the run-length parser in rle_counts.h.
 
 #include <cstdint>
 #include <string>
+
+#include <stackgen/scene.hpp>
 
 namespace stackgen {
 
@@ -27,5 +30,25 @@ inline bool SceneIdsInRange(int32_t generator_id, int64_t seq) {
 /// Returns -1 and says why in `*why` (when not null; "is empty", "is not a COCO RLE string:
 /// ...", "covers N pixels, the image has M") when the string is not such a mask.
 int64_t MaskPixels(const std::string& counts, int64_t image_pixels, std::string* why);
+
+/// The most mask pixels one scene may hold (instances x width x height, 4 Gi): a consumer that
+/// decodes every full mask needs that much memory.
+inline constexpr int64_t kMaxSceneMaskPixels = int64_t{1} << 32;
+
+/// Checks that a scene agrees with itself, as every consumer needs before it uses one; returns
+/// false with one line in `*why` (when not null) naming the field at fault and the values:
+/// - header: generator_id and seq within the limits above;
+/// - camera: a positive size within DecodeLimits::max_image_pixels, fx, fy and depth_scale_mm
+///   positive and finite, cx, cy and world_from_camera finite;
+/// - images: colour present (RGB8 or GRAY8), depth (DEPTH16) and instance map (INSTANCE16)
+///   checked when present; each of the camera's size, its size field equal to its bytes, RAW,
+///   PNG or JPEG, RAW of width * height * bytes per pixel, a PNG or JPEG header that declares
+///   that size and format (CheckEncodedImageDims; the image is not decoded);
+/// - instances: num_instances equal to their number, at most kMaxSceneMaskPixels mask pixels;
+///   each with an instance_id in 1..kMaxInstanceId used once, class_id >= 1, a class_name,
+///   finite poses and posture, visib_fract in [0, 1], 0 <= px_count_visib <= px_count_all,
+///   boxes inside the image, masks (MaskPixels) over the image holding px_count_visib and
+///   px_count_all pixels, not both annotated and ignored, and visible pixels when either.
+bool CheckScene(const scene& message, std::string* why);
 
 }  // namespace stackgen

@@ -33,6 +33,7 @@
 #include "bus/bus.h"
 #include "bus/channels.h"
 #include "bus/flags.h"
+#include "bus/scene_contract.h"
 #include "gen/annotate/rle.h"
 
 namespace {
@@ -537,43 +538,26 @@ std::vector<Tile> ReadCocoTiles(const Flags& flags) {
 // the scene as a SceneView; throws std::runtime_error naming the field if it disagrees with
 // itself (sizes, encoding, masks)
 SceneView ViewOfMessage(const stackgen::scene& message) {
+  // the contract every consumer checks (bus/scene_contract.h): sizes, encodings and file
+  // headers, instances, masks and their pixel counts
+  std::string why;
+  if (!stackgen::CheckScene(message, &why)) throw std::runtime_error(why);
   const int width = message.camera.width;
   const int height = message.camera.height;
-  if (width < 1 || width > 8192 || height < 1 || height > 8192) {
+  if (width > 8192 || height > 8192) {
     throw std::runtime_error("camera.width x camera.height " + std::to_string(width) + " x " +
                              std::to_string(height) + " outside 1..8192");
   }
   // the colour image
   const stackgen::image& color = message.color;
-  if (color.width != width || color.height != height) {
-    throw std::runtime_error("color.width x color.height " + std::to_string(color.width) + " x " +
-                             std::to_string(color.height) + " differs from the camera's");
-  }
-  if (color.pixel_format != stackgen::image::PIXEL_RGB8 &&
-      color.pixel_format != stackgen::image::PIXEL_GRAY8) {
-    throw std::runtime_error("color.pixel_format " + std::to_string(color.pixel_format) +
-                             " is not RGB8 or GRAY8");
-  }
-  if (color.size < 0 || static_cast<size_t>(color.size) != color.data.size()) {
-    throw std::runtime_error("color.size " + std::to_string(color.size) + " differs from the " +
-                             std::to_string(color.data.size()) + " bytes of color.data");
-  }
   SceneView scene;
   const bool rgb = color.pixel_format == stackgen::image::PIXEL_RGB8;
   if (color.encoding == stackgen::image::ENCODING_RAW) {
-    const size_t expected = static_cast<size_t>(width) * height * (rgb ? 3 : 1);
-    if (color.data.size() != expected) {
-      throw std::runtime_error("color.size " + std::to_string(color.size) +
-                               " is not width * height * channels = " + std::to_string(expected));
-    }
     const cv::Mat pixels(height, width, rgb ? CV_8UC3 : CV_8UC1,
                          const_cast<uint8_t*>(color.data.data()));
     cv::cvtColor(pixels, scene.image, rgb ? cv::COLOR_RGB2BGR : cv::COLOR_GRAY2BGR);
-  } else if (color.encoding == stackgen::image::ENCODING_PNG ||
-             color.encoding == stackgen::image::ENCODING_JPEG) {
-    // the file header must declare the camera's size before OpenCV allocates for it
-    std::string why;
-    if (!stackgen::CheckEncodedImageDims(color, &why)) throw std::runtime_error("color: " + why);
+  } else {
+    // PNG or JPEG, whose header CheckScene found to declare the camera's size
     scene.image = cv::imdecode(color.data, cv::IMREAD_COLOR);
     if (scene.image.empty()) throw std::runtime_error("color.data does not decode");
     if (scene.image.cols != width || scene.image.rows != height) {
@@ -581,18 +565,8 @@ SceneView ViewOfMessage(const stackgen::scene& message) {
                                std::to_string(scene.image.rows) + " image, the camera is " +
                                std::to_string(width) + " x " + std::to_string(height));
     }
-  } else {
-    throw std::runtime_error("color.encoding " + std::to_string(color.encoding) +
-                             " is not RAW, PNG or JPEG");
   }
 
-  // the instances
-  if (message.num_instances < 0 ||
-      static_cast<size_t>(message.num_instances) != message.instances.size()) {
-    throw std::runtime_error("num_instances " + std::to_string(message.num_instances) +
-                             " differs from the " + std::to_string(message.instances.size()) +
-                             " entries of instances");
-  }
   // each instance's mask is decoded at full size: bound what that may take
   if (message.num_instances > kMaxInstances ||
       static_cast<int64_t>(message.num_instances) * width * height > kMaxMaskBytes) {
@@ -605,22 +579,13 @@ SceneView ViewOfMessage(const stackgen::scene& message) {
   for (size_t k = 0; k < message.instances.size(); ++k) {
     const stackgen::instance& instance = message.instances[k];
     const std::string field = "instances[" + std::to_string(k) + "]";
-    if (instance.annotated && instance.ignored) {
-      throw std::runtime_error(field + ".annotated and .ignored are both true");
-    }
     InstanceView view;
     try {
       view.mask = stackgen::DecodeRle(instance.mask_visib_rle, height, width);
     } catch (const std::exception& error) {
       throw std::runtime_error(field + ".mask_visib_rle: " + error.what());
     }
-    const int visible = cv::countNonZero(view.mask);
-    if (visible != instance.px_count_visib) {
-      throw std::runtime_error(field + ".mask_visib_rle holds " + std::to_string(visible) +
-                               " pixels, px_count_visib is " +
-                               std::to_string(instance.px_count_visib));
-    }
-    if (visible == 0) continue;  // nothing to outline
+    if (instance.px_count_visib == 0) continue;  // nothing to outline
     view.label = instance.annotated ? Label::kAnnotated
                  : instance.ignored ? Label::kIgnored
                                     : Label::kDropped;

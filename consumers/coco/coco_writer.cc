@@ -59,41 +59,6 @@ std::string SceneName(const stackgen::scene& scene) {
   throw InvalidSceneError(scene_name + ": " + text);
 }
 
-void CheckFinite(double value, const std::string& scene_name, const std::string& field) {
-  if (!std::isfinite(value)) {
-    throw InvalidSceneError(scene_name + ": " + field + " is not finite");
-  }
-}
-
-void CheckPose(const stackgen::pose& pose, const std::string& scene_name,
-               const std::string& field) {
-  for (int i = 0; i < 3; ++i) {
-    CheckFinite(pose.translation_mm[i], scene_name,
-                field + ".translation_mm[" + std::to_string(i) + "]");
-  }
-  for (int i = 0; i < 9; ++i) {
-    CheckFinite(pose.rotation[i], scene_name, field + ".rotation[" + std::to_string(i) + "]");
-  }
-  for (int i = 0; i < 4; ++i) {
-    CheckFinite(pose.quaternion_wxyz[i], scene_name,
-                field + ".quaternion_wxyz[" + std::to_string(i) + "]");
-  }
-}
-
-// `counts` (a COCO compressed RLE string, the field `field`) must cover `image_area` pixels
-// and hold `expected` of them (the value of `count_field`)
-void CheckMask(const std::string& counts, int32_t expected, uint64_t image_area,
-               const std::string& scene_name, const std::string& field,
-               const std::string& count_field) {
-  std::string why;
-  const int64_t pixels = MaskPixels(counts, static_cast<int64_t>(image_area), &why);
-  if (pixels < 0) Fail(scene_name, field + " " + why);
-  if (pixels != expected) {
-    Fail(scene_name, field + " holds " + std::to_string(pixels) + " pixels, " + count_field +
-                         " is " + std::to_string(expected));
-  }
-}
-
 // whether `text` is valid UTF-8 (JSON text must be)
 bool IsUtf8(const std::string& text) {
   try {
@@ -655,72 +620,15 @@ int64_t CocoWriter::AnnotationId(int64_t image_id, int32_t instance_id) {
 
 void CocoWriter::Validate(const stackgen::scene& scene) const {
   const std::string name = SceneName(scene);
+  // the contract every consumer checks (bus/scene_contract.h)
+  std::string why;
+  if (!CheckScene(scene, &why)) Fail(name, why);
 
-  // header: ids must fit the id layout
-  if (scene.header.generator_id < 0 || scene.header.generator_id > kMaxGeneratorId) {
-    Fail(name, "header.generator_id " + std::to_string(scene.header.generator_id) + " outside 0.." +
-                   std::to_string(kMaxGeneratorId));
-  }
-  if (scene.header.seq < 0 || scene.header.seq > kMaxSeq) {
-    Fail(name, "header.seq " + std::to_string(scene.header.seq) + " outside 0.." +
-                   std::to_string(kMaxSeq));
-  }
-
-  // camera
-  const stackgen::camera_info& camera = scene.camera;
-  if (camera.width <= 0 || camera.height <= 0) {
-    Fail(name, "camera.width x camera.height " + std::to_string(camera.width) + " x " +
-                   std::to_string(camera.height) + " is not a positive size");
-  }
-  CheckFinite(camera.fx, name, "camera.fx");
-  CheckFinite(camera.fy, name, "camera.fy");
-  CheckFinite(camera.cx, name, "camera.cx");
-  CheckFinite(camera.cy, name, "camera.cy");
-  CheckFinite(camera.depth_scale_mm, name, "camera.depth_scale_mm");
-  CheckPose(camera.world_from_camera, name, "camera.world_from_camera");
-
-  // colour image: size, format, encoding, bytes
-  const stackgen::image& color = scene.color;
-  if (color.width != camera.width || color.height != camera.height) {
-    Fail(name, "color.width x color.height " + std::to_string(color.width) + " x " +
-                   std::to_string(color.height) + " differs from camera " +
-                   std::to_string(camera.width) + " x " + std::to_string(camera.height));
-  }
-  int channels = 0;
-  if (color.pixel_format == stackgen::image::PIXEL_RGB8) {
-    channels = 3;
-  } else if (color.pixel_format == stackgen::image::PIXEL_GRAY8) {
-    channels = 1;
-  } else {
-    Fail(name,
-         "color.pixel_format " + std::to_string(color.pixel_format) + " is not RGB8 or GRAY8");
-  }
-  if (color.size < 0 || static_cast<size_t>(color.size) != color.data.size()) {
-    Fail(name, "color.size " + std::to_string(color.size) + " differs from the " +
-                   std::to_string(color.data.size()) + " bytes of color.data");
-  }
-  switch (color.encoding) {
-    case stackgen::image::ENCODING_RAW: {
-      const int64_t expected = int64_t{color.width} * color.height * channels;
-      if (color.size != expected) {
-        Fail(name, "color.size " + std::to_string(color.size) + " is not width * height * " +
-                       std::to_string(channels) + " = " + std::to_string(expected) + " for RAW");
-      }
-      break;
-    }
-    case stackgen::image::ENCODING_PNG:
-    case stackgen::image::ENCODING_JPEG: {
-      // the file's own header (PNG IHDR, JPEG SOFn) against the declared size and format
-      std::string why;
-      if (!CheckEncodedImageDims(color, &why)) Fail(name, "color.data: " + why);
-      break;
-    }
-    default:
-      Fail(name, "color.encoding " + std::to_string(color.encoding) + " is not RAW, PNG or JPEG");
-  }
   // a PNG or JPEG file is stored as it came: it must decode, whole (libpng checks every chunk's
   // CRC and zlib the data's checksum, so a flipped bit or a cut shows; a JPEG must also end
   // with its end-of-image marker, as libjpeg fills a cut one with grey)
+  const stackgen::image& color = scene.color;
+  const int channels = color.pixel_format == stackgen::image::PIXEL_RGB8 ? 3 : 1;
   if (color.encoding != stackgen::image::ENCODING_RAW) {
     const bool png = color.encoding == stackgen::image::ENCODING_PNG;
     const bool jpeg_ends = color.data.size() >= 2 && color.data[color.data.size() - 2] == 0xff &&
@@ -736,31 +644,17 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
     }
   }
 
-  // instances
-  if (scene.num_instances < 0 ||
-      static_cast<size_t>(scene.num_instances) != scene.instances.size()) {
-    Fail(name, "num_instances " + std::to_string(scene.num_instances) + " differs from the " +
-                   std::to_string(scene.instances.size()) + " entries of instances");
-  }
-  const uint64_t image_area = static_cast<uint64_t>(camera.width) * camera.height;
-  std::set<int32_t> instance_ids;
+  // what COCO and this dataset need beyond it: annotation ids (image id * 1000 + instance_id),
+  // JSON text, one name per class_id across the dataset
   std::map<int32_t, std::string> scene_categories;
   for (size_t i = 0; i < scene.instances.size(); ++i) {
     const stackgen::instance& instance = scene.instances[i];
     const std::string field = "instances[" + std::to_string(i) + "]";
-    // ids and class
-    if (instance.instance_id < 1 || instance.instance_id > kMaxCocoInstanceId) {
+    if (instance.instance_id > kMaxCocoInstanceId) {
       Fail(name, field + ".instance_id " + std::to_string(instance.instance_id) + " outside 1.." +
                      std::to_string(kMaxCocoInstanceId) +
                      " (annotation id = image id * 1000 + instance_id)");
     }
-    if (!instance_ids.insert(instance.instance_id).second) {
-      Fail(name, field + ".instance_id " + std::to_string(instance.instance_id) + " repeated");
-    }
-    if (instance.class_id < 1) {
-      Fail(name, field + ".class_id " + std::to_string(instance.class_id) + " is not >= 1");
-    }
-    if (instance.class_name.empty()) Fail(name, field + ".class_name is empty");
     if (!IsUtf8(instance.class_name)) Fail(name, field + ".class_name is not valid UTF-8");
     // the name stored (or staged) before for this class
     const std::string* known = nullptr;
@@ -774,48 +668,6 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
       Fail(name, field + ".class_name \"" + instance.class_name + "\" differs from \"" +
                      (known != nullptr ? *known : in_scene->second) +
                      "\" seen before for class_id " + std::to_string(instance.class_id));
-    }
-    // numbers
-    CheckPose(instance.camera_from_object, name, field + ".camera_from_object");
-    CheckPose(instance.world_from_object, name, field + ".world_from_object");
-    for (int k = 0; k < 3; ++k) {
-      CheckFinite(instance.posture_deg[k], name, field + ".posture_deg[" + std::to_string(k) + "]");
-    }
-    if (!(instance.visib_fract >= 0.0 && instance.visib_fract <= 1.0)) {
-      Fail(name,
-           field + ".visib_fract " + std::to_string(instance.visib_fract) + " outside [0, 1]");
-    }
-    if (instance.px_count_all < 0 || instance.px_count_visib < 0) {
-      Fail(name, field + ".px_count_all / px_count_visib is negative");
-    }
-    if (instance.px_count_visib > instance.px_count_all) {
-      Fail(name, field + ".px_count_visib " + std::to_string(instance.px_count_visib) +
-                     " exceeds px_count_all " + std::to_string(instance.px_count_all));
-    }
-    // boxes inside the image
-    for (const auto& [box, box_name] : {std::make_pair(instance.bbox_obj, ".bbox_obj"),
-                                        std::make_pair(instance.bbox_visib, ".bbox_visib")}) {
-      if (box[0] < 0 || box[1] < 0 || box[2] < 0 || box[3] < 0 || box[0] + box[2] > camera.width ||
-          box[1] + box[3] > camera.height) {
-        Fail(name, field + box_name + " [" + std::to_string(box[0]) + ", " +
-                       std::to_string(box[1]) + ", " + std::to_string(box[2]) + ", " +
-                       std::to_string(box[3]) + "] is not inside the " +
-                       std::to_string(camera.width) + " x " + std::to_string(camera.height) +
-                       " image");
-      }
-    }
-    // the visible and the full mask must cover the image and hold their pixel counts
-    CheckMask(instance.mask_visib_rle, instance.px_count_visib, image_area, name,
-              field + ".mask_visib_rle", "px_count_visib");
-    CheckMask(instance.mask_obj_rle, instance.px_count_all, image_area, name,
-              field + ".mask_obj_rle", "px_count_all");
-    // the generator's label: annotated, ignored or neither; both need visible pixels
-    if (instance.annotated && instance.ignored) {
-      Fail(name, field + ".ignored and " + field + ".annotated are both true");
-    }
-    if ((instance.annotated || instance.ignored) && instance.px_count_visib == 0) {
-      Fail(name, field + (instance.annotated ? ".annotated" : ".ignored") +
-                     " is true but px_count_visib is 0");
     }
   }
 }

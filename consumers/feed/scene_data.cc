@@ -15,50 +15,9 @@
 namespace stackgen::feed {
 namespace {
 
-// the most mask pixels one scene may hold (instances x width x height): 4 Gi, a bound
-// against a message that would make the full masks fill memory
-constexpr int64_t kMaxMaskPixels = int64_t{1} << 32;
-
 bool Refuse(const std::string& reason, std::string* why) {
   if (why != nullptr) *why = reason;
   return false;
-}
-
-bool Finite(const double* values, int count) {
-  for (int k = 0; k < count; ++k) {
-    if (!std::isfinite(values[k])) return false;
-  }
-  return true;
-}
-
-bool FinitePose(const pose& p) {
-  return Finite(p.translation_mm, 3) && Finite(p.rotation, 9) && Finite(p.quaternion_wxyz, 4);
-}
-
-// a box [x, y, w, h] inside a width x height image
-bool BoxInside(const int32_t box[4], int width, int height) {
-  return box[0] >= 0 && box[1] >= 0 && box[2] >= 0 && box[3] >= 0 &&
-         int64_t{box[0]} + box[2] <= width && int64_t{box[1]} + box[3] <= height;
-}
-
-// checks an image of the scene: its format, its size against the camera's, its encoded header
-bool CheckImage(const image& m, const std::string& field, int width, int height,
-                std::initializer_list<int8_t> formats, std::string* why) {
-  bool known = false;
-  for (const int8_t format : formats) known = known || m.pixel_format == format;
-  if (!known) {
-    return Refuse(field + ".pixel_format " + std::to_string(m.pixel_format) +
-                      " is not one this image may have",
-                  why);
-  }
-  if (m.width != width || m.height != height) {
-    return Refuse(field + " is " + std::to_string(m.width) + "x" + std::to_string(m.height) +
-                      ", the camera " + std::to_string(width) + "x" + std::to_string(height),
-                  why);
-  }
-  std::string problem;
-  if (!CheckEncodedImageDims(m, &problem)) return Refuse(field + ": " + problem, why);
-  return true;
 }
 
 }  // namespace
@@ -131,98 +90,10 @@ cv::Mat DecodeImage(const image& message, const std::string& field) {
   return decoded;
 }
 
-bool CheckScene(const scene& message, std::string* why) {
-  // the camera
-  const camera_info& camera = message.camera;
-  const int width = camera.width, height = camera.height;
-  if (width <= 0 || height <= 0 || int64_t{width} * height > DecodeLimits{}.max_image_pixels) {
-    return Refuse("camera is " + std::to_string(width) + "x" + std::to_string(height), why);
-  }
-  const double intrinsics[5] = {camera.fx, camera.fy, camera.cx, camera.cy, camera.depth_scale_mm};
-  if (!Finite(intrinsics, 5) || camera.fx <= 0 || camera.fy <= 0 || camera.depth_scale_mm <= 0) {
-    return Refuse("camera fx, fy or depth_scale_mm is not a positive number", why);
-  }
-  if (!FinitePose(camera.world_from_camera)) {
-    return Refuse("camera.world_from_camera is not finite", why);
-  }
-
-  // the images
-  if (message.color.size == 0) return Refuse("the scene has no color image", why);
+bool CheckFeedScene(const scene& message, std::string* why) {
+  // the contract every consumer checks, and an instance map: a learner's masks come from it
+  if (!stackgen::CheckScene(message, why)) return false;
   if (message.instance_map.size == 0) return Refuse("the scene has no instance_map image", why);
-  if (!CheckImage(message.color, "color", width, height, {image::PIXEL_RGB8, image::PIXEL_GRAY8},
-                  why) ||
-      !CheckImage(message.instance_map, "instance_map", width, height, {image::PIXEL_INSTANCE16},
-                  why)) {
-    return false;
-  }
-  if (message.depth.size > 0 &&
-      !CheckImage(message.depth, "depth", width, height, {image::PIXEL_DEPTH16}, why)) {
-    return false;
-  }
-
-  // the instances
-  if (message.num_instances != static_cast<int32_t>(message.instances.size())) {
-    return Refuse("num_instances " + std::to_string(message.num_instances) + " but " +
-                      std::to_string(message.instances.size()) + " instances",
-                  why);
-  }
-  const int64_t area = int64_t{width} * height;
-  // the full masks of every instance, decoded (N x H x W bytes), must fit in memory
-  if (static_cast<int64_t>(message.instances.size()) * area > kMaxMaskPixels) {
-    return Refuse(std::to_string(message.instances.size()) + " instances of " +
-                      std::to_string(width) + "x" + std::to_string(height) +
-                      " pixels: more mask pixels than " + std::to_string(kMaxMaskPixels),
-                  why);
-  }
-  std::set<int32_t> ids;
-  for (size_t k = 0; k < message.instances.size(); ++k) {
-    const instance& object = message.instances[k];
-    const std::string name = "instances[" + std::to_string(k) + "]";
-    if (object.instance_id < 1 || object.instance_id > kMaxInstanceId ||
-        !ids.insert(object.instance_id).second) {
-      return Refuse(name + ".instance_id " + std::to_string(object.instance_id) +
-                        " is outside 1..65535 or repeated",
-                    why);
-    }
-    if (object.class_id < 1) {
-      return Refuse(name + ".class_id " + std::to_string(object.class_id) + " is not >= 1", why);
-    }
-    if (!FinitePose(object.camera_from_object) || !FinitePose(object.world_from_object) ||
-        !Finite(object.posture_deg, 3) || !std::isfinite(object.visib_fract) ||
-        object.visib_fract < 0 || object.visib_fract > 1) {
-      return Refuse(name + " has a pose, posture or visib_fract that is not finite or in range",
-                    why);
-    }
-    if (!BoxInside(object.bbox_obj, width, height) ||
-        !BoxInside(object.bbox_visib, width, height)) {
-      return Refuse(name + " has a box outside the image", why);
-    }
-    if (object.px_count_visib < 0 || object.px_count_visib > object.px_count_all) {
-      return Refuse(name + ".px_count_visib " + std::to_string(object.px_count_visib) +
-                        " is not in 0..px_count_all (" + std::to_string(object.px_count_all) + ")",
-                    why);
-    }
-    if (object.annotated && object.ignored) {
-      return Refuse(name + " is both annotated and ignored", why);
-    }
-    const std::pair<const std::string*, int32_t> masks[2] = {
-        {&object.mask_visib_rle, object.px_count_visib},
-        {&object.mask_obj_rle, object.px_count_all}};
-    const char* fields[2] = {"mask_visib_rle", "mask_obj_rle"};
-    for (int m = 0; m < 2; ++m) {
-      std::string problem;
-      const int64_t inside = MaskPixels(*masks[m].first, area, &problem);
-      if (inside < 0) {
-        return Refuse(
-            name + "." + fields[m] + " is not a COCO RLE mask of the image: it " + problem, why);
-      }
-      if (inside != masks[m].second) {
-        return Refuse(name + "." + fields[m] + " holds " + std::to_string(inside) +
-                          " pixels, its count says " + std::to_string(masks[m].second),
-                      why);
-      }
-    }
-  }
   return true;
 }
 

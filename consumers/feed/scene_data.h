@@ -43,13 +43,10 @@ int64_t DecodeRleWindow(const std::string& counts, int height, int width, int x0
 /// if the data does not decode to the size and format the message declares.
 cv::Mat DecodeImage(const image& message, const std::string& field);
 
-/// Checks that a decoded scene message is one a learner can use: camera size (at most 64 Mpx,
-/// and at most 4 Gi mask pixels over all instances) and intrinsics, images (colour and instance map
-/// present, depth optional; sizes, formats and encoded headers), instance ids (1..65535, distinct),
-/// class ids (>= 1), finite poses and fractions, boxes inside the image, pixel counts and both RLE
-/// masks of every instance (each covering the image and holding px_count_visib resp. px_count_all
-/// pixels). Returns false with a one-line reason naming the field in `*why`.
-bool CheckScene(const scene& message, std::string* why);
+/// Checks that a decoded scene message is one a learner can use: the contract every consumer
+/// checks (stackgen::CheckScene, bus/scene_contract.h) and an instance map. Returns false with a
+/// one-line reason naming the field in `*why`.
+bool CheckFeedScene(const scene& message, std::string* why);
 
 /// One scene handed to a learner: the message, and its images decoded once, when first asked
 /// for (by the stream's thread or by the caller). Thread-safe.

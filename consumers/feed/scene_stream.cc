@@ -136,10 +136,10 @@ struct SceneStream::Impl {
     ++counters.bad_messages;
   }
 
-  // whether a scene passes CheckScene; one that does not is counted and reported
+  // whether a scene passes CheckFeedScene; one that does not is counted and reported
   bool Check(const scene& message) {
     std::string why;
-    if (CheckScene(message, &why)) return true;
+    if (CheckFeedScene(message, &why)) return true;
     CountBad();
     Report("scene " + std::to_string(message.header.generator_id) + "/" +
            std::to_string(message.header.seq) + ": " + why);
@@ -191,7 +191,7 @@ struct SceneStream::Impl {
       // another shard's scene still shows the client how far the generator has got, when it
       // is a scene (that shard counts and reports a bad one)
       std::string why;
-      if (client && CheckScene(message, &why)) client->Received(generator_id, seq);
+      if (client && CheckFeedScene(message, &why)) client->Received(generator_id, seq);
       return;
     }
     const SceneKey key{generator_id, seq};

@@ -82,7 +82,7 @@ struct StreamCounters {
   /// Reliable: seqs missing now below the highest received; asked for again on STACKGEN_RESEND.
   int64_t lost = 0;
   int64_t reasked = 0;
-  /// Messages that did not decode or scenes that failed CheckScene, skipped.
+  /// Messages that did not decode or scenes that failed CheckFeedScene, skipped.
   int64_t bad_messages = 0;
   /// Best effort: scenes dropped because the learner was behind (the queue was full).
   int64_t dropped_behind = 0;

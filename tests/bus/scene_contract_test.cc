@@ -1,8 +1,15 @@
 #include "bus/scene_contract.h"
 
+#include <functional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <gtest/gtest.h>
+#include <stackgen/scene.hpp>
+
+#include "bus/channels.h"
+#include "bus/log.h"
 
 namespace stackgen {
 namespace {
@@ -31,6 +38,52 @@ TEST(SceneContractTest, MaskPixels) {
   EXPECT_EQ(MaskPixels("2\x7f", 6, &why), -1);
   EXPECT_EQ(why.rfind("is not a COCO RLE string: ", 0), 0u) << why;
   EXPECT_EQ(MaskPixels("231", 7, nullptr), -1);
+}
+
+// The recorded scenes of the real generator (tests/fixtures/logs/tiny.lcmlog) keep the contract;
+// each kind of break is refused with the field named. Depth and the instance map are checked
+// when sent, not required (the feed requires the map: CheckFeedScene).
+TEST(SceneContractTest, CheckSceneNamesTheField) {
+  std::vector<scene> scenes;
+  ReadLog(std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/logs/tiny.lcmlog",
+          [&](const LogEvent& event) {
+            if (event.channel == kSceneChannel) scenes.push_back(DecodeLogEvent<scene>(event));
+          });
+  ASSERT_EQ(scenes.size(), 4u);
+  std::string why;
+  for (const scene& message : scenes) EXPECT_TRUE(CheckScene(message, &why)) << why;
+  scene without_extras = scenes[0];
+  without_extras.depth = image{};
+  without_extras.instance_map = image{};
+  EXPECT_TRUE(CheckScene(without_extras, &why)) << why;
+
+  const std::vector<std::pair<std::string, std::function<void(scene&)>>> breaks = {
+      {"header.generator_id 70000", [](scene& s) { s.header.generator_id = 70000; }},
+      {"header.seq -1", [](scene& s) { s.header.seq = -1; }},
+      {"camera.depth_scale_mm", [](scene& s) { s.camera.depth_scale_mm = -1; }},
+      {"camera.world_from_camera.rotation[4] is not finite",
+       [](scene& s) { s.camera.world_from_camera.rotation[4] = 1.0 / 0.0; }},
+      {"the scene has no color image",
+       [](scene& s) {
+         s.color.data.clear();
+         s.color.size = 0;
+       }},
+      {"depth.pixel_format", [](scene& s) { s.depth.pixel_format = image::PIXEL_RGB8; }},
+      {"instance_map.data: ", [](scene& s) { s.instance_map.data[1] ^= 0xff; }},
+      {"color.size 1", [](scene& s) { s.color.size = 1; }},
+      {"instances[1].class_name is empty", [](scene& s) { s.instances[1].class_name.clear(); }},
+      {"instances[0].posture_deg[2] is not finite",
+       [](scene& s) { s.instances[0].posture_deg[2] = 0.0 / 0.0; }},
+      {"instances[2].px_count_visib", [](scene& s) { s.instances[2].px_count_visib = -1; }},
+      {"instances[0].mask_obj_rle holds", [](scene& s) { s.instances[0].px_count_all += 1; }},
+  };
+  for (const auto& [field, breaker] : breaks) {
+    scene broken = scenes[0];
+    breaker(broken);
+    why.clear();
+    EXPECT_FALSE(CheckScene(broken, &why)) << field;
+    EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
+  }
 }
 
 }  // namespace

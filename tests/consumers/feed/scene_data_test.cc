@@ -97,11 +97,11 @@ TEST(SceneDataTest, ImagesDecode) {
 }
 
 // the recorded scenes pass the checks; each one broken in one field fails, the field named
-TEST(SceneDataTest, CheckSceneNamesTheField) {
+TEST(SceneDataTest, CheckFeedSceneNamesTheField) {
   const std::vector<scene> scenes = FixtureScenes();
   ASSERT_EQ(scenes.size(), 4u);
   std::string why;
-  for (const scene& message : scenes) EXPECT_TRUE(CheckScene(message, &why)) << why;
+  for (const scene& message : scenes) EXPECT_TRUE(CheckFeedScene(message, &why)) << why;
 
   const std::vector<std::pair<std::string, std::function<void(scene&)>>> breaks = {
       {"instances[1].instance_id", [](scene& s) { s.instances[1].instance_id = 0; }},
@@ -109,27 +109,27 @@ TEST(SceneDataTest, CheckSceneNamesTheField) {
        [](scene& s) { s.instances[2].instance_id = s.instances[0].instance_id; }},
       {"instances[0].mask_visib_rle", [](scene& s) { s.instances[0].px_count_visib -= 1; }},
       {"instances[3].mask_obj_rle", [](scene& s) { s.instances[3].mask_obj_rle = "0"; }},
-      {"instances[0] has a box outside", [](scene& s) { s.instances[0].bbox_visib[2] = 1000; }},
-      {"instances[4] is both",
+      {"instances[0].bbox_visib", [](scene& s) { s.instances[0].bbox_visib[2] = 1000; }},
+      {"instances[4].ignored and instances[4].annotated are both true",
        [](scene& s) {
          s.instances[4].annotated = true;
          s.instances[4].ignored = true;
        }},
-      {"instances[0] has a pose", [](scene& s) { s.instances[0].visib_fract = 1.5; }},
-      {"color is 161x120", [](scene& s) { s.color.width = 161; }},
+      {"instances[0].visib_fract 1.5", [](scene& s) { s.instances[0].visib_fract = 1.5; }},
+      {"color.width x color.height 161 x 120", [](scene& s) { s.color.width = 161; }},
       {"no instance_map",
        [](scene& s) {
          s.instance_map.data.clear();
          s.instance_map.size = 0;
        }},
       {"num_instances", [](scene& s) { s.num_instances += 1; }},
-      {"camera fx", [](scene& s) { s.camera.fx = 0; }},
+      {"camera.fx 0 is not a positive number", [](scene& s) { s.camera.fx = 0; }},
   };
   for (const auto& [field, breaker] : breaks) {
     scene broken = scenes[0];
     breaker(broken);
     why.clear();
-    EXPECT_FALSE(CheckScene(broken, &why)) << field;
+    EXPECT_FALSE(CheckFeedScene(broken, &why)) << field;
     EXPECT_NE(why.find(field), std::string::npos) << field << ": " << why;
   }
 }

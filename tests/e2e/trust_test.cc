@@ -8,6 +8,7 @@
 
 #include <chrono>
 #include <csignal>
+#include <cstdio>
 #include <fstream>
 #include <regex>
 #include <string>
@@ -135,6 +136,12 @@ TEST_F(TrustTest, StrangersAreRefusedAndCounted) {
   // the generator refused credits and resend requests of each kind; the writer, scenes
   const std::vector<int64_t> generator_refused = Refused(generator.Stdout());
   const std::vector<int64_t> writer_refused = Refused(coco.Stdout());
+  std::printf(
+      "refused (unsigned, forged or altered, replayed): generator %lld, %lld, %lld; "
+      "writer %lld, %lld, %lld\n",
+      static_cast<long long>(generator_refused[0]), static_cast<long long>(generator_refused[1]),
+      static_cast<long long>(generator_refused[2]), static_cast<long long>(writer_refused[0]),
+      static_cast<long long>(writer_refused[1]), static_cast<long long>(writer_refused[2]));
   for (size_t kind = 0; kind < 3; ++kind) {
     EXPECT_GT(generator_refused[kind], 0) << "kind " << kind << ": " << generator.Stdout();
     EXPECT_GT(writer_refused[kind], 0) << "kind " << kind << ": " << coco.Stdout();
@@ -166,6 +173,11 @@ TEST_F(TrustTest, FuzzLeavesBothRunning) {
   ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
   ExpectSameDataset(reference_, out, kScenes);
+  std::printf(
+      "peak resident memory, clean run -> fuzzed: generator %lld -> %lld kB, writer %lld "
+      "-> %lld kB\n",
+      static_cast<long long>(reference_peak_gen_kb_), static_cast<long long>(peak_gen_kb),
+      static_cast<long long>(reference_peak_coco_kb_), static_cast<long long>(peak_coco_kb));
   // bounded: within 64 MB of the clean run's peak (a scene is about 1 MB encoded)
   EXPECT_LT(peak_gen_kb, reference_peak_gen_kb_ + 65536)
       << "generator peak " << peak_gen_kb << " kB, clean run " << reference_peak_gen_kb_;

@@ -91,7 +91,9 @@ class Bus {
   /// corrupt one or one too large is refused before anything large is allocated). A message
   /// that does not decode is not passed on: HandleFor throws a DecodeError naming the channel
   /// and the reason, unless `on_decode_error` is given, which then receives the text.
-  /// `queue_capacity` is how many received messages LCM keeps waiting for HandleFor.
+  /// `queue_capacity` is how many received messages LCM keeps waiting for HandleFor. Handlers
+  /// of one channel share one LCM subscription (so each message is checked against the bus key
+  /// once) and its queue, of the largest capacity asked for.
   template <typename Message>
   void Subscribe(const std::string& channel, std::function<void(const Message&)> handler,
                  int queue_capacity = 256,

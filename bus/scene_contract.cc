@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "bus/bounded_decode.h"
-#include "bus/rle_counts.h"
+#include "bus/rle.h"
 
 namespace stackgen {
 namespace {
@@ -111,7 +111,7 @@ int64_t MaskPixels(const std::string& counts, int64_t image_pixels, std::string*
   if (counts.empty()) return refuse("is empty");
   std::vector<uint32_t> runs;
   try {
-    runs = ParseRleCounts(counts);
+    runs = StringToRuns(counts);
   } catch (const std::runtime_error& error) {
     return refuse(std::string("is not a COCO RLE string: ") + error.what());
   }

@@ -4,7 +4,7 @@
 // consumer keeps a copy of its own (design.md: consumers never include gen/, so it lives in bus/,
 // which both may use): the id limits, the mask counts and CheckScene, which a consumer runs once
 // on every scene that comes off the bus. The checks of the encoded image headers are in
-// bounded_decode.h (CheckEncodedImageDims), the run-length parser in rle_counts.h.
+// bounded_decode.h (CheckEncodedImageDims), the run-length codec in rle.h.
 
 #include <cstdint>
 #include <string>

@@ -9,7 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bus/bounded_decode.h"
-#include "bus/rle_counts.h"
+#include "bus/rle.h"
 #include "bus/scene_contract.h"
 
 namespace stackgen::feed {
@@ -21,44 +21,6 @@ bool Refuse(const std::string& reason, std::string* why) {
 }
 
 }  // namespace
-
-int64_t DecodeRleWindow(const std::string& counts, int height, int width, int x0, int y0,
-                        int window_width, int window_height, uint8_t* out) {
-  const std::vector<uint32_t> runs = ParseRleCounts(counts);
-  const int64_t area = int64_t{height} * width;
-  const int64_t x1 = int64_t{x0} + window_width, y1 = int64_t{y0} + window_height;
-  int64_t position = 0, set = 0;
-  for (size_t k = 0; k < runs.size(); ++k) {
-    const int64_t end = position + runs[k];
-    if (end > area) break;
-    // a ones run, column by column: pixel p is row p % height of column p / height
-    if (k % 2 == 1) {
-      for (int64_t p = position; p < end;) {
-        const int64_t column = p / height;
-        const int64_t row = p % height;
-        const int64_t rows = std::min<int64_t>(end - p, height - row);
-        if (column >= x0 && column < x1) {
-          const int64_t first = std::max<int64_t>(row, y0);
-          const int64_t last = std::min<int64_t>(row + rows, y1);
-          uint8_t* pixel = out + (first - y0) * window_width + (column - x0);
-          for (int64_t r = first; r < last; ++r, pixel += window_width) *pixel = 1;
-          set += std::max<int64_t>(0, last - first);
-        }
-        p += rows;
-      }
-    }
-    position = end;
-  }
-  if (position != area) {
-    throw std::runtime_error("the runs do not cover " + std::to_string(height) + "x" +
-                             std::to_string(width) + " pixels");
-  }
-  return set;
-}
-
-int64_t DecodeRleInto(const std::string& counts, int height, int width, uint8_t* out) {
-  return DecodeRleWindow(counts, height, width, 0, 0, width, height, out);
-}
 
 cv::Mat DecodeImage(const image& message, const std::string& field) {
   std::string problem;

@@ -17,6 +17,8 @@
 #include <opencv2/core.hpp>
 #include <stackgen/scene.hpp>
 
+#include "bus/rle.h"
+
 namespace stackgen::feed {
 
 /// A scene or a stream that cannot be used; the text names the scene, field, file or URL.
@@ -24,18 +26,6 @@ class FeedError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
-
-/// Sets to 1 the pixels of the mask `counts` (compressed RLE over `height` x `width` pixels,
-/// column-major as COCO) in `out`, a row-major height x width byte array that the caller has
-/// zeroed. Returns the pixels set. Throws std::runtime_error if the runs do not cover exactly
-/// height * width pixels or the string is malformed.
-int64_t DecodeRleInto(const std::string& counts, int height, int width, uint8_t* out);
-
-/// DecodeRleInto for the window of `window_width` x `window_height` pixels at (x0, y0) of the
-/// mask only: `out` is that window, row-major, zeroed by the caller. Returns the pixels set in
-/// the window. Throws as DecodeRleInto.
-int64_t DecodeRleWindow(const std::string& counts, int height, int width, int x0, int y0,
-                        int window_width, int window_height, uint8_t* out);
 
 /// The image of `field` ("color", "depth", "instance_map") decoded: RGB8 as CV_8UC3 in R, G, B
 /// order, GRAY8 as CV_8UC1, DEPTH16 and INSTANCE16 as CV_16UC1. A RAW image is not copied: the

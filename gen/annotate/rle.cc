@@ -7,10 +7,6 @@
 namespace stackgen {
 namespace {
 
-// one number of the string form holds at most 7 chars (35 bits, enough for a signed difference
-// of two uint32 counts)
-constexpr int kMaxCharsPerNumber = 7;
-
 uint64_t SumRuns(const std::vector<uint32_t>& runs) {
   uint64_t sum = 0;
   for (const uint32_t run : runs) sum += run;
@@ -74,69 +70,6 @@ cv::Mat RunsToMask(const std::vector<uint32_t>& runs, int height, int width) {
   cv::Mat mask(height, width, CV_8UC1);
   if (height > 0 && width > 0) cv::transpose(columns, mask);
   return mask;
-}
-
-std::string RunsToString(const std::vector<uint32_t>& runs) {
-  std::string text;
-  text.reserve(runs.size() * 2);
-  for (size_t i = 0; i < runs.size(); ++i) {
-    // from the fourth count on, store the difference to the count two before
-    int64_t x = runs[i];
-    if (i > 2) x -= static_cast<int64_t>(runs[i - 2]);
-    // 5 bits per char, low bits first; bit 0x20 says another char follows
-    bool more = true;
-    while (more) {
-      int c = static_cast<int>(x & 0x1f);
-      x >>= 5;  // arithmetic shift: negative differences keep their sign
-      more = (c & 0x10) ? x != -1 : x != 0;
-      if (more) c |= 0x20;
-      text.push_back(static_cast<char>(c + 48));
-    }
-  }
-  return text;
-}
-
-std::vector<uint32_t> StringToRuns(const std::string& counts) {
-  std::vector<uint32_t> runs;
-  size_t p = 0;
-  while (p < counts.size()) {
-    const size_t start = p;
-    // gather 5-bit chunks until one without the continuation bit
-    int64_t x = 0;
-    int k = 0;
-    bool more = true;
-    while (more) {
-      if (p >= counts.size()) {
-        throw std::runtime_error("RLE string ends inside the number that starts at offset " +
-                                 std::to_string(start));
-      }
-      if (k >= kMaxCharsPerNumber) {
-        throw std::runtime_error("RLE string has a number of more than " +
-                                 std::to_string(kMaxCharsPerNumber) + " chars at offset " +
-                                 std::to_string(start));
-      }
-      const int ch = static_cast<unsigned char>(counts[p]);
-      if (ch < 48 || ch > 111) {
-        throw std::runtime_error("RLE string has char code " + std::to_string(ch) + " at offset " +
-                                 std::to_string(p) + ", expected '0'..'o'");
-      }
-      const int c = ch - 48;
-      x |= static_cast<int64_t>(c & 0x1f) << (5 * k);
-      more = (c & 0x20) != 0;
-      ++p;
-      ++k;
-      // sign-extend a negative number
-      if (!more && (c & 0x10)) x |= static_cast<int64_t>(-1) * (int64_t{1} << (5 * k));
-    }
-    // undo the difference to the count two before
-    if (runs.size() > 2) x += static_cast<int64_t>(runs[runs.size() - 2]);
-    if (x < 0 || x > static_cast<int64_t>(std::numeric_limits<uint32_t>::max())) {
-      throw std::runtime_error("RLE string gives count " + std::to_string(x) + " at offset " +
-                               std::to_string(start) + ", outside 0..2^32-1");
-    }
-    runs.push_back(static_cast<uint32_t>(x));
-  }
-  return runs;
 }
 
 std::string EncodeRle(const cv::Mat& mask) { return RunsToString(MaskToRuns(mask)); }

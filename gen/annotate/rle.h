@@ -7,11 +7,14 @@
 
 #include <opencv2/core.hpp>
 
+#include "bus/rle.h"
+
 namespace stackgen {
 
-// COCO run-length encoding of binary masks, exactly as cocoapi common/maskApi.c: the mask is read
-// column by column (Fortran order), runs alternate zeros and ones and start with the count of
-// zeros (0 when the first pixel is set). The compressed string form is rleToString/rleFrString.
+// COCO run-length encoding of binary masks as OpenCV matrices, exactly as cocoapi
+// common/maskApi.c: the mask is read column by column (Fortran order), runs alternate zeros and
+// ones and start with the count of zeros (0 when the first pixel is set). The compressed string
+// form (RunsToString, StringToRuns) is bus/rle.h's, which consumers share.
 
 /// Runs of `mask` (CV_8UC1, nonzero = inside), column-major, starting with zeros. An empty (0x0)
 /// mask gives {0}, as rleEncode. Throws std::runtime_error if `mask` is not CV_8UC1.
@@ -20,15 +23,6 @@ std::vector<uint32_t> MaskToRuns(const cv::Mat& mask);
 /// The CV_8UC1 mask (255 inside, 0 outside) of `height` x `width` pixels that `runs` describe.
 /// Throws std::runtime_error if the runs do not add up to height * width or a size is negative.
 cv::Mat RunsToMask(const std::vector<uint32_t>& runs, int height, int width);
-
-/// The compressed string of `runs` (rleToString: 5 bits per char, chars '0'..'o', counts from
-/// the fourth on stored as the difference to the count two before).
-std::string RunsToString(const std::vector<uint32_t>& runs);
-
-/// The runs of a compressed string (rleFrString). Throws std::runtime_error naming the offset if
-/// a char is outside '0'..'o', the string ends inside a number, a number has too many chars, or
-/// a count comes out negative or above 2^32 - 1.
-std::vector<uint32_t> StringToRuns(const std::string& counts);
 
 /// The compressed RLE string of `mask` (CV_8UC1, nonzero = inside). Throws as MaskToRuns.
 std::string EncodeRle(const cv::Mat& mask);

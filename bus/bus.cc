@@ -17,6 +17,7 @@
 #include <lcm/lcm-cpp.hpp>
 
 #include "bus/flags.h"
+#include "bus/splitmix.h"
 
 namespace stackgen {
 namespace {
@@ -95,8 +96,8 @@ struct Bus::Impl {
   std::vector<uint8_t> sealed;
   // refusals already reported on stderr, by kind (one line each, then only counted)
   int64_t reported_unsigned = 0, reported_forged = 0, reported_replayed = 0;
-  // the fault-injection engine (SplitMix64) and what it dropped
-  uint64_t fault_state = 0;
+  // the fault-injection engine and what it dropped
+  SplitMix64 fault_engine{0};
   int64_t fault_dropped = 0;
   // a file:// log was read to its end
   bool log_ended = false;
@@ -109,10 +110,7 @@ struct Bus::Impl {
   // true with probability `fraction`, from the seeded engine
   bool Drop(double fraction) {
     if (fraction <= 0) return false;
-    uint64_t z = (fault_state += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    z ^= z >> 31;
+    const uint64_t z = fault_engine.Next();
     const bool drop = static_cast<double>(z >> 11) * 0x1.0p-53 < fraction;
     if (drop) ++fault_dropped;
     return drop;
@@ -165,7 +163,7 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
   }
   impl_->url = url;
   impl_->options = options;
-  impl_->fault_state = options.fault_seed;
+  impl_->fault_engine = SplitMix64(options.fault_seed);
   CheckMulticastRoute(url);
   // the key before the bus: a key file that cannot be used is one line, and nothing is opened
   const bool is_log = url.rfind("file://", 0) == 0;

@@ -8,6 +8,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "bus/splitmix.h"
 #include "gen/randomize/uniform.h"
 
 namespace stackgen {
@@ -21,23 +22,6 @@ constexpr int kNormalTableBits = 12;
 constexpr int kNormalTableSize = 1 << kNormalTableBits;
 // keeps the salt-and-pepper stream apart from the Gaussian ones.
 constexpr uint64_t kSaltPepperStream = 0x5a17'9e99'e7e1'0001ULL;
-
-// the SplitMix64 output function: a strong 64-bit mix.
-uint64_t Mix64(uint64_t z) {
-  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
-  return z ^ (z >> 31);
-}
-
-// SplitMix64 (Steele, Lea, Flood 2014): fast, 64 bits per call, statistically sound for noise.
-class SplitMix64 {
- public:
-  explicit SplitMix64(uint64_t seed) : state_(seed) {}
-  uint64_t Next() { return Mix64(state_ += 0x9e3779b97f4a7c15ULL); }
-
- private:
-  uint64_t state_;
-};
 
 // the standard normal quantile at p in (0, 1), Acklam's rational approximation (relative error
 // below 1.2e-9).

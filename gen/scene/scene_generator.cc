@@ -10,6 +10,7 @@
 #include <sstream>
 #include <vector>
 
+#include "bus/splitmix.h"
 #include "gen/annotate/labels.h"
 #include "gen/annotate/pose.h"
 #include "gen/mesh/mesh.h"
@@ -29,13 +30,6 @@ double MillisecondsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
-uint64_t SplitMix64(uint64_t x) {
-  x += 0x9e3779b97f4a7c15ULL;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
-  return x ^ (x >> 31);
-}
-
 // mixed into a pile's drop seed for the seeds of the states after picks
 constexpr uint64_t kPickSalt = 0x7069636b5069636bULL;
 
@@ -44,7 +38,7 @@ constexpr uint64_t kPickSalt = 0x7069636b5069636bULL;
 enum class Lever : uint64_t { kCamera = 1, kLighting, kAppearance, kBackground, kSensor };
 
 std::mt19937_64 LeverEngine(uint64_t scene_seed, Lever lever) {
-  return std::mt19937_64(SplitMix64(SplitMix64(scene_seed) ^ static_cast<uint64_t>(lever)));
+  return std::mt19937_64(SplitMixHash(SplitMixHash(scene_seed) ^ static_cast<uint64_t>(lever)));
 }
 
 // a number drawn uniformly from [lo, hi] (the same on every platform).
@@ -89,10 +83,10 @@ image EncodeImage(const cv::Mat& pixels, int8_t pixel_format,
 }  // namespace
 
 uint64_t SceneSeed(uint64_t base_seed, int32_t generator_id, int64_t seq, int redraw) {
-  uint64_t seed = SplitMix64(base_seed);
-  seed = SplitMix64(seed ^ static_cast<uint64_t>(static_cast<uint32_t>(generator_id)));
-  seed = SplitMix64(seed ^ static_cast<uint64_t>(seq));
-  return SplitMix64(seed ^ static_cast<uint64_t>(redraw));
+  uint64_t seed = SplitMixHash(base_seed);
+  seed = SplitMixHash(seed ^ static_cast<uint64_t>(static_cast<uint32_t>(generator_id)));
+  seed = SplitMixHash(seed ^ static_cast<uint64_t>(seq));
+  return SplitMixHash(seed ^ static_cast<uint64_t>(redraw));
 }
 
 // One part type of the config, as the scene uses it.
@@ -485,8 +479,8 @@ void SceneGenerator::Impl::Pick(SettledPile* state, int views) const {
     state->world_from_object = std::move(rest.world_from_object);
     ++state->level;
     state->first_seq += views;
-    state->seed =
-        SplitMix64(SplitMix64(state->drop_seed ^ kPickSalt) + static_cast<uint64_t>(state->level));
+    state->seed = SplitMixHash(SplitMixHash(state->drop_seed ^ kPickSalt) +
+                               static_cast<uint64_t>(state->level));
     local.physics_ms = MillisecondsSince(start);
     state->times = local;
     return;
@@ -525,7 +519,8 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   // a mix of it and the view's index for the others
   const int64_t view = seq - settled.first_seq;
   const uint64_t seed =
-      view == 0 ? settled.seed : SplitMix64(settled.seed ^ SplitMix64(static_cast<uint64_t>(view)));
+      view == 0 ? settled.seed
+                : SplitMixHash(settled.seed ^ SplitMixHash(static_cast<uint64_t>(view)));
   const std::vector<int>& object_types = settled.object_types;
   Clock::time_point start;
 

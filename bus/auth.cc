@@ -131,10 +131,16 @@ std::string ResolveBusKeyFile(const std::string& flag_value) {
   return "";
 }
 
-int64_t WallClockMicros() {
+int64_t UnixMicros() {
   return std::chrono::duration_cast<std::chrono::microseconds>(
              std::chrono::system_clock::now().time_since_epoch())
       .count();
+}
+
+std::string RefusedSummary(const AuthCounters& counters) {
+  return "refused " + std::to_string(counters.unsigned_messages) + " unsigned, " +
+         std::to_string(counters.forged) + " forged or altered, " +
+         std::to_string(counters.replayed) + " replayed";
 }
 
 struct MessageAuth::Impl {
@@ -229,7 +235,7 @@ void MessageAuth::Seal(const std::string& channel, const uint8_t* data, size_t s
   uint8_t* trailer = sealed->data() + size;
   PutU64(impl_->sender, trailer);
   PutU64(++impl_->counter, trailer + 8);
-  PutU64(static_cast<uint64_t>(WallClockMicros()), trailer + 16);
+  PutU64(static_cast<uint64_t>(UnixMicros()), trailer + 16);
   impl_->Compute(channel, data, size, trailer, trailer + 24);
   std::memcpy(trailer + 56, kMagic, 8);
 }

@@ -91,7 +91,10 @@ class MessageAuth {
   std::unique_ptr<Impl> impl_;
 };
 
-/// Microseconds since the Unix epoch, now.
-int64_t WallClockMicros();
+/// Microseconds since the Unix epoch, now (the clock of every header.utime and of the trailer).
+int64_t UnixMicros();
+
+/// "refused U unsigned, F forged or altered, R replayed": how the programs' summary lines say it.
+std::string RefusedSummary(const AuthCounters& counters);
 
 }  // namespace stackgen

@@ -94,8 +94,6 @@ struct Bus::Impl {
   // signs what is published, checks what is received (auth.h); a buffer for sealed bytes
   std::unique_ptr<MessageAuth> auth;
   std::vector<uint8_t> sealed;
-  // refusals already reported on stderr, by kind (one line each, then only counted)
-  int64_t reported_unsigned = 0, reported_forged = 0, reported_replayed = 0;
   // the fault-injection engine and what it dropped
   SplitMix64 fault_engine{0};
   int64_t fault_dropped = 0;
@@ -116,19 +114,14 @@ struct Bus::Impl {
     return drop;
   }
 
-  // says on stderr why the first message of each kind was refused
-  void ReportRefusal(const std::string& why) {
+  // says on stderr why a message was refused when it is the first of its kind
+  void ReportRefusal(const AuthCounters& before, const std::string& why) const {
     const AuthCounters now = auth->counters();
-    int64_t* reported = now.unsigned_messages > reported_unsigned ? &reported_unsigned
-                        : now.forged > reported_forged            ? &reported_forged
-                                                                  : &reported_replayed;
-    if (*reported == 0) {
+    if ((before.unsigned_messages == 0 && now.unsigned_messages > 0) ||
+        (before.forged == 0 && now.forged > 0) || (before.replayed == 0 && now.replayed > 0)) {
       std::fprintf(stderr, "%s: warning: %s; further ones are only counted (status: refused)\n",
                    program_invocation_short_name, why.c_str());
     }
-    reported_unsigned = now.unsigned_messages;
-    reported_forged = now.forged;
-    reported_replayed = now.replayed;
   }
 
   static void Dispatch(const lcm::ReceiveBuffer* buffer, const std::string& channel,
@@ -139,10 +132,11 @@ struct Bus::Impl {
     try {
       // the key check; refused messages go no further
       std::string why;
+      const AuthCounters before = impl->auth->counters();
       const int64_t size = impl->auth->Open(channel, static_cast<const uint8_t*>(buffer->data),
-                                            buffer->data_size, WallClockMicros(), &why);
+                                            buffer->data_size, UnixMicros(), &why);
       if (size < 0) {
-        impl->ReportRefusal(why);
+        impl->ReportRefusal(before, why);
         return;
       }
       for (const BytesHandler& handler : subscriber->handlers) {

@@ -155,12 +155,6 @@ std::string ConsumerName(const std::string& out) {
   return std::string(kProgram) + "@" + host + ":" + (error ? out : absolute.string());
 }
 
-int64_t UnixMicros() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -347,7 +341,7 @@ int main(int argc, char** argv) {
       stackgen::status message{};
       message.header.seq = writer->num_images();
       message.header.generator_id = -1;
-      message.header.utime = UnixMicros();
+      message.header.utime = stackgen::UnixMicros();
       message.process = kProgram;
       message.name = name;
       const stackgen::DeliveryCounters counters =
@@ -414,14 +408,11 @@ int main(int argc, char** argv) {
                    static_cast<long long>(invalid_scenes));
     }
     if (bus.keyed()) {
-      const stackgen::AuthCounters refused = bus.auth_counters();
       const int64_t stored = writer->num_images();
-      std::printf(
-          "%s: bus key: %.3f ms per scene stored signing and checking messages; refused %lld "
-          "unsigned, %lld forged or altered, %lld replayed\n",
-          kProgram, stored > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(stored) : 0.0,
-          static_cast<long long>(refused.unsigned_messages), static_cast<long long>(refused.forged),
-          static_cast<long long>(refused.replayed));
+      std::printf("%s: bus key: %.3f ms per scene stored signing and checking messages; %s\n",
+                  kProgram,
+                  stored > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(stored) : 0.0,
+                  stackgen::RefusedSummary(bus.auth_counters()).c_str());
     }
     if (client) {
       const stackgen::DeliveryCounters counters = client->counters();

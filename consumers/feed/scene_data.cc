@@ -1,10 +1,5 @@
 #include "consumers/feed/scene_data.h"
 
-#include <cmath>
-#include <cstring>
-#include <limits>
-#include <set>
-
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 

@@ -51,12 +51,6 @@ uint64_t ReadBigEndian(const uint8_t* bytes, int size) {
   return value;
 }
 
-int64_t UnixMicros() {
-  return std::chrono::duration_cast<std::chrono::microseconds>(
-             std::chrono::system_clock::now().time_since_epoch())
-      .count();
-}
-
 std::string DefaultName(const SceneStreamOptions& options) {
   char host[256] = "localhost";
   gethostname(host, sizeof(host) - 1);

@@ -1,7 +1,6 @@
 #include "gen/annotate/rle.h"
 
 #include <algorithm>
-#include <limits>
 #include <stdexcept>
 
 namespace stackgen {

@@ -97,15 +97,10 @@ std::string FormatMs(double total_ms, int64_t scenes) {
 // what the bus key cost, or that there was none: the end of the summary line
 std::string AuthSummary(const Bus& bus, int64_t scenes) {
   if (!bus.keyed()) return "bus open (no key)";
-  const AuthCounters refused = bus.auth_counters();
-  char text[200];
-  std::snprintf(text, sizeof(text),
-                "bus key: %.3f ms per scene signing and checking, refused %lld unsigned, %lld "
-                "forged or altered, %lld replayed",
-                scenes > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(scenes) : 0.0,
-                static_cast<long long>(refused.unsigned_messages),
-                static_cast<long long>(refused.forged), static_cast<long long>(refused.replayed));
-  return text;
+  char text[96];
+  std::snprintf(text, sizeof(text), "bus key: %.3f ms per scene signing and checking, ",
+                scenes > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(scenes) : 0.0);
+  return text + RefusedSummary(bus.auth_counters());
 }
 
 // One long-lived thread that runs the tasks given to it in order. The pipeline's stages run on
@@ -210,11 +205,6 @@ int Run(int argc, char** argv) {
   const bool progress = isatty(STDERR_FILENO) != 0;
 
   using Clock = std::chrono::steady_clock;
-  const auto now_us = [] {
-    return std::chrono::duration_cast<std::chrono::microseconds>(
-               std::chrono::system_clock::now().time_since_epoch())
-        .count();
-  };
 
   // delivery: credits and resends of reliable consumers; a scene asked for after it left the
   // ring is made again (determinism makes it the same scene)
@@ -230,7 +220,7 @@ int Run(int argc, char** argv) {
       &bus, server_options,
       [&](int64_t seq) {
         scene message = generator.Generate(seq, &regenerate_times);
-        message.header.utime = now_us();
+        message.header.utime = UnixMicros();
         return EncodeMessage(message);
       },
       [&](const std::string& line) {
@@ -274,7 +264,7 @@ int Run(int argc, char** argv) {
     status hello{};
     hello.header.generator_id = generator_id;
     hello.header.seed = static_cast<int64_t>(seed);
-    hello.header.utime = now_us();
+    hello.header.utime = UnixMicros();
     hello.process = "stackgen";
     hello.name = name;
     bus.Publish(kStatusChannel, hello);
@@ -330,13 +320,13 @@ int Run(int argc, char** argv) {
     const double since = std::chrono::duration<double>(now - last_status).count();
     if (!force && since < 1.0) return;
     config_message.header.seq = next_seq;
-    config_message.header.utime = now_us();
+    config_message.header.utime = UnixMicros();
     bus.Publish(kConfigChannel, config_message);
     status message{};
     message.header.seq = next_seq;
     message.header.generator_id = generator_id;
     message.header.seed = static_cast<int64_t>(seed);
-    message.header.utime = now_us();
+    message.header.utime = UnixMicros();
     message.process = "stackgen";
     message.name = name;
     message.scenes = published;
@@ -405,7 +395,7 @@ int Run(int argc, char** argv) {
 
     // publish the scene and its labels.
     const Clock::time_point publish_start = Clock::now();
-    message.header.utime = now_us();
+    message.header.utime = UnixMicros();
     server.Publish(seq, EncodeMessage(message));
     bus.Publish(kLabelsChannel, LabelsOf(message));
     publish_ms += std::chrono::duration<double, std::milli>(Clock::now() - publish_start).count();

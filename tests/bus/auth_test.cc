@@ -37,7 +37,7 @@ struct Opened {
   std::string why;
 };
 Opened Open(MessageAuth& auth, const std::string& channel, const std::vector<uint8_t>& sealed,
-            int64_t now_us = WallClockMicros()) {
+            int64_t now_us = UnixMicros()) {
   Opened opened{};
   opened.size = auth.Open(channel, sealed.data(), sealed.size(), now_us, &opened.why);
   return opened;
@@ -106,11 +106,11 @@ TEST(MessageAuthTest, ReplayWindowAndAge) {
 
   std::vector<uint8_t> fresh;
   sender.Seal("C", payload.data(), payload.size(), &fresh);
-  const Opened late = Open(live, "C", fresh, WallClockMicros() + 61'000'000);
+  const Opened late = Open(live, "C", fresh, UnixMicros() + 61'000'000);
   EXPECT_EQ(late.size, -1);
   EXPECT_NE(late.why.find("s ago"), std::string::npos) << late.why;
   MessageAuth log(key, false);
-  EXPECT_EQ(Open(log, "C", fresh, WallClockMicros() + 3'600'000'000).size, 1);
+  EXPECT_EQ(Open(log, "C", fresh, UnixMicros() + 3'600'000'000).size, 1);
 }
 
 // Without a key nothing is sealed or refused, and a trailer is cut off unchecked, so a process

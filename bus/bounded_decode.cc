@@ -15,6 +15,7 @@
 #include <stackgen/image.hpp>
 #include <stackgen/instance.hpp>
 #include <stackgen/labels.hpp>
+#include <stackgen/model.hpp>
 #include <stackgen/pose.hpp>
 #include <stackgen/resend_request.hpp>
 #include <stackgen/scene.hpp>
@@ -43,6 +44,7 @@ const char* KnownTypeOf(int64_t hash) {
       {image::getHash(), "image"},
       {instance::getHash(), "instance"},
       {labels::getHash(), "labels"},
+      {model::getHash(), "model"},
       {pose::getHash(), "pose"},
       {resend_request::getHash(), "resend_request"},
       {scene::getHash(), "scene"},
@@ -469,6 +471,50 @@ bool ReadResendRequest(Reader& reader, resend_request* m) {
   return reader.Primitives("seqs", __int64_t_decode_array, m->seqs.data(), m->num_seqs);
 }
 
+// `count` rows of `columns` values each (an lcm-gen `T field[count][columns]`), after the count
+// is checked against the bytes that remain and `max`.
+template <typename T>
+bool ReadRows(Reader& reader, const char* field, int32_t count, int columns, int64_t max,
+              const char* limit_name, int (*decode)(const void*, int, int, T*, int),
+              std::vector<std::vector<T>>* rows) {
+  const std::string count_name = std::string(field) + " rows";
+  if (!reader.Count(count_name.c_str(), count, static_cast<int64_t>(sizeof(T)) * columns, max,
+                    limit_name)) {
+    return false;
+  }
+  rows->assign(static_cast<size_t>(count), std::vector<T>(static_cast<size_t>(columns)));
+  for (std::vector<T>& row : *rows) {
+    if (!reader.Primitives(field, decode, row.data(), columns)) return false;
+  }
+  return true;
+}
+
+bool ReadModel(Reader& reader, model* m) {
+  const int64_t max_vertices = reader.limits().max_model_vertices;
+  return reader.Struct("header", &m->header) &&
+         reader.Primitives("class_id", __int32_t_decode_array, &m->class_id, 1) &&
+         reader.String("class_name", &m->class_name) && reader.String("mesh", &m->mesh) &&
+         reader.Primitives("num_vertices", __int32_t_decode_array, &m->num_vertices, 1) &&
+         ReadRows(reader, "vertices_mm", m->num_vertices, 3, max_vertices, "max_model_vertices",
+                  __float_decode_array, &m->vertices_mm) &&
+         ReadRows(reader, "normals", m->num_vertices, 3, max_vertices, "max_model_vertices",
+                  __float_decode_array, &m->normals) &&
+         reader.Primitives("num_triangles", __int32_t_decode_array, &m->num_triangles, 1) &&
+         ReadRows(reader, "triangles", m->num_triangles, 3, 2 * max_vertices,
+                  "2 * max_model_vertices", __int32_t_decode_array, &m->triangles) &&
+         reader.Primitives("diameter_mm", __double_decode_array, &m->diameter_mm, 1) &&
+         reader.Primitives("num_discrete_symmetries", __int32_t_decode_array,
+                           &m->num_discrete_symmetries, 1) &&
+         ReadRows(reader, "discrete_symmetries", m->num_discrete_symmetries, 16, 1000, "1000",
+                  __double_decode_array, &m->discrete_symmetries) &&
+         reader.Primitives("num_continuous_symmetries", __int32_t_decode_array,
+                           &m->num_continuous_symmetries, 1) &&
+         ReadRows(reader, "continuous_axes", m->num_continuous_symmetries, 3, 3, "3",
+                  __double_decode_array, &m->continuous_axes) &&
+         ReadRows(reader, "continuous_offsets_mm", m->num_continuous_symmetries, 3, 3, "3",
+                  __double_decode_array, &m->continuous_offsets_mm);
+}
+
 // the checked walk `read` of a whole message: envelope, fields, nothing left over.
 template <typename Message>
 bool DecodeWalked(const uint8_t* data, size_t size, const DecodeLimits& limits, Message* out,
@@ -607,6 +653,12 @@ template <>
 bool DecodeBounded<resend_request>(const uint8_t* data, size_t size, const DecodeLimits& limits,
                                    resend_request* out, std::string* why) {
   return DecodeWalked(data, size, limits, out, why, &ReadResendRequest);
+}
+
+template <>
+bool DecodeBounded<model>(const uint8_t* data, size_t size, const DecodeLimits& limits, model* out,
+                          std::string* why) {
+  return DecodeWalked(data, size, limits, out, why, &ReadModel);
 }
 
 bool CheckEncodedImageDims(const image& m, std::string* why) {

@@ -17,6 +17,7 @@ namespace stackgen {
 // the lcm-gen classes with variable-length arrays, which have their own bounded decoder
 class image;
 class labels;
+class model;
 class resend_request;
 class scene;
 
@@ -28,6 +29,9 @@ struct DecodeLimits {
   int64_t max_image_pixels = int64_t{64} << 20;
   /// Instances per scene/labels message above this are refused. Default 65535.
   int32_t max_instances = 65535;
+  /// Vertices per model message above this are refused (triangles: twice as many). Default
+  /// 4,000,000.
+  int32_t max_model_vertices = 4000000;
 };
 
 namespace internal {
@@ -102,7 +106,7 @@ bool Refuse(std::string reason, std::string* why);
 /// This generic version checks the size and the fingerprint, then every string length (see
 /// StringLayout), then runs the generated decoder. It is for types without variable-length
 /// arrays, whose generated decoders size the array from the count before checking the bytes
-/// remain; every stackgen type with one (scene, labels, image, resend_request) has a
+/// remain; every stackgen type with one (scene, labels, image, resend_request, model) has a
 /// specialisation below that checks each count against the bytes that remain and the limits
 /// before anything is allocated.
 template <typename Message>
@@ -144,6 +148,9 @@ bool DecodeBounded<image>(const uint8_t* data, size_t size, const DecodeLimits& 
 template <>
 bool DecodeBounded<resend_request>(const uint8_t* data, size_t size, const DecodeLimits& limits,
                                    resend_request* out, std::string* why);
+template <>
+bool DecodeBounded<model>(const uint8_t* data, size_t size, const DecodeLimits& limits, model* out,
+                          std::string* why);
 
 /// Checks, without decoding, that a PNG or JPEG image holds what its fields declare: the PNG
 /// IHDR or the first JPEG SOFn marker must give width x height, and the bit depth and channels

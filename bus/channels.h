@@ -10,6 +10,8 @@ inline constexpr const char* kLabelsChannel = "STACKGEN_LABELS";
 inline constexpr const char* kStatusChannel = "STACKGEN_STATUS";
 /// The generator config in force, latched, about 1 Hz (stackgen::config_text).
 inline constexpr const char* kConfigChannel = "STACKGEN_CONFIG";
+/// The 3D model of each labelled class, latched, about every 5 s (stackgen::model).
+inline constexpr const char* kModelChannel = "STACKGEN_MODEL";
 
 /// Flow control from reliable consumers to generators (stackgen::credit).
 inline constexpr const char* kCreditChannel = "STACKGEN_CREDIT";

@@ -24,6 +24,8 @@
 
 #include "bus/bounded_decode.h"
 #include "bus/scene_contract.h"
+#include "consumers/dataset/files.h"
+#include "consumers/dataset/images.h"
 
 namespace stackgen {
 namespace {
@@ -59,16 +61,6 @@ std::string SceneName(const stackgen::scene& scene) {
   throw InvalidSceneError(scene_name + ": " + text);
 }
 
-// whether `text` is valid UTF-8 (JSON text must be)
-bool IsUtf8(const std::string& text) {
-  try {
-    json(text).dump();
-    return true;
-  } catch (const json::type_error&) {
-    return false;
-  }
-}
-
 // images/<generator_id>_<seq:06>.png, .jpg for a JPEG scene
 std::string ImageFileName(const stackgen::scene& scene) {
   char seq[32];
@@ -77,168 +69,10 @@ std::string ImageFileName(const stackgen::scene& scene) {
   return std::to_string(scene.header.generator_id) + "_" + seq + (jpeg ? ".jpg" : ".png");
 }
 
-// the size of the file `path` in bytes, -1 if there is none
-int64_t FileSize(const std::string& path) {
-  struct stat status {};
-  if (stat(path.c_str(), &status) == 0) return static_cast<int64_t>(status.st_size);
-  if (errno == ENOENT) return -1;
-  throw std::runtime_error("cannot read " + path + ": " + std::strerror(errno));
-}
-
-// "<what> <path>: <the system's reason>"
-std::runtime_error SystemError(const std::string& what, const std::string& path, int error_number) {
-  return std::runtime_error(what + " " + path + ": " + std::strerror(error_number));
-}
-
-// closes a file descriptor at scope exit
-class ScopedFd {
- public:
-  explicit ScopedFd(int fd) : fd_(fd) {}
-  ~ScopedFd() {
-    if (fd_ >= 0) close(fd_);
-  }
-  ScopedFd(const ScopedFd&) = delete;
-  ScopedFd& operator=(const ScopedFd&) = delete;
-  int get() const { return fd_; }
-  // closes now; the errno of a failed close, else 0
-  int Close() {
-    const int result = close(fd_);
-    fd_ = -1;
-    return result == 0 ? 0 : errno;
-  }
-
- private:
-  int fd_;
-};
-
-// writes all `size` bytes at the file position (offset < 0) or at `offset`; the errno of the
-// first failure, else 0
-int WriteAll(int fd, const char* bytes, size_t size, int64_t offset = -1) {
-  while (size > 0) {
-    const ssize_t written = offset < 0 ? write(fd, bytes, size) : pwrite(fd, bytes, size, offset);
-    if (written < 0 && errno == EINTR) continue;
-    if (written < 0) return errno;
-    if (written == 0) return EIO;  // no progress: never loop forever
-    bytes += written;
-    size -= static_cast<size_t>(written);
-    if (offset >= 0) offset += written;
-  }
-  return 0;
-}
-
-// `length` bytes of `fd` (the file `path`) at `offset`
-std::string ReadAt(int fd, uint64_t offset, uint64_t length, const std::string& path) {
-  std::string bytes(length, '\0');
-  uint64_t done = 0;
-  while (done < length) {
-    const ssize_t got =
-        pread(fd, bytes.data() + done, length - done, static_cast<off_t>(offset + done));
-    if (got < 0 && errno == EINTR) continue;
-    if (got <= 0) {
-      throw std::runtime_error("cannot read " + path + " at byte " + std::to_string(offset + done) +
-                               ": " + (got < 0 ? std::strerror(errno) : "the file ends early"));
-    }
-    done += static_cast<uint64_t>(got);
-  }
-  return bytes;
-}
-
-// makes the entries of folder `path` (files created, renamed or removed in it) durable
-void SyncFolder(const fs::path& path) {
-  const std::string name = path.empty() ? "." : path.string();
-  ScopedFd folder(open(name.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));
-  if (folder.get() < 0) throw SystemError("cannot open", name, errno);
-  // a file system that cannot sync a folder says EINVAL; it has nothing more to do
-  if (fsync(folder.get()) != 0 && errno != EINVAL) throw SystemError("cannot sync", name, errno);
-}
-
-// writes `size` bytes to `path` through `path`.tmp, with `sync` synced to disk before the rename
-// and the folder synced after it; on failure removes what it wrote and throws naming the file and
-// reason
-void WriteFileAtomically(const fs::path& path, const char* bytes, size_t size, bool sync) {
-  const std::string temporary = path.string() + ".tmp";
-  // write and sync the temporary file, or remove it
-  {
-    ScopedFd file(open(temporary.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644));
-    if (file.get() < 0) throw SystemError("cannot create", temporary, errno);
-    int error = WriteAll(file.get(), bytes, size);
-    if (error == 0 && sync && fsync(file.get()) != 0) error = errno;
-    const int close_error = file.Close();
-    if (error == 0) error = close_error;
-    if (error != 0) {
-      unlink(temporary.c_str());
-      throw SystemError("cannot write", temporary, error);
-    }
-  }
-  // move it into place; the rename is durable once the folder is synced
-  if (rename(temporary.c_str(), path.c_str()) != 0) {
-    const int error = errno;
-    unlink(temporary.c_str());
-    throw std::runtime_error("cannot rename " + temporary + " to " + path.string() + ": " +
-                             std::strerror(error));
-  }
-  if (!sync) return;
-  try {
-    SyncFolder(path.parent_path());
-  } catch (const std::runtime_error&) {
-    unlink(path.c_str());
-    throw;
-  }
-}
-
-// a file written through a buffer; every failure throws naming the file and the reason
-class OutputFile {
- public:
-  explicit OutputFile(std::string path) : path_(std::move(path)) {
-    fd_ = open(path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-    if (fd_ < 0) throw SystemError("cannot create", path_, errno);
-  }
-  ~OutputFile() {
-    if (fd_ >= 0) close(fd_);
-  }
-  OutputFile(const OutputFile&) = delete;
-  OutputFile& operator=(const OutputFile&) = delete;
-
-  void Write(std::string_view text) {
-    buffer_.append(text);
-    if (buffer_.size() >= kFlushBytes) Flush();
-  }
-  // writes what is buffered, syncs the file to disk and closes it
-  void Close() {
-    Flush();
-    if (fsync(fd_) != 0) throw SystemError("cannot write", path_, errno);
-    const int result = close(fd_);
-    fd_ = -1;
-    if (result != 0) throw SystemError("cannot write", path_, errno);
-  }
-
- private:
-  static constexpr size_t kFlushBytes = 1 << 20;
-
-  void Flush() {
-    const int error = WriteAll(fd_, buffer_.data(), buffer_.size());
-    if (error != 0) throw SystemError("cannot write", path_, error);
-    buffer_.clear();
-  }
-
-  std::string path_;
-  int fd_ = -1;
-  std::string buffer_;
-};
-
 json PoseJson(const stackgen::pose& pose) {
   return {{"translation_mm", std::vector<double>(pose.translation_mm, pose.translation_mm + 3)},
           {"rotation", std::vector<double>(pose.rotation, pose.rotation + 9)},
           {"quaternion_wxyz", std::vector<double>(pose.quaternion_wxyz, pose.quaternion_wxyz + 4)}};
-}
-
-std::string UtcNow() {
-  const std::time_t now = std::time(nullptr);
-  std::tm utc{};
-  gmtime_r(&now, &utc);
-  char text[32];
-  std::strftime(text, sizeof(text), "%Y-%m-%dT%H:%M:%SZ", &utc);
-  return text;
 }
 
 // writes `records` (JSON values separated by ',' as in a journal line) to `out` separated by
@@ -321,10 +155,7 @@ CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
                                "folder or remove it)");
     }
     if (journal_size > 0) {
-      throw std::runtime_error(journal_path_ +
-                               " already exists (a dataset was started here); will not "
-                               "overwrite it (use --resume to continue it, or choose another "
-                               "output folder)");
+      throw DatasetStartedError(journal_path_);
     }
   } else if (annotations_size > 0 && journal_size < 0) {
     throw std::runtime_error("cannot resume " + annotations + " without its journal: " +
@@ -332,16 +163,7 @@ CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
   }
 
   // the folders, each new one made durable in its parent
-  const fs::path images = folder / kImagesFolder;
-  std::vector<fs::path> created;
-  std::error_code error;
-  for (fs::path path = images;
-       !path.empty() && path != path.parent_path() && !fs::exists(path, error);
-       path = path.parent_path()) {
-    created.push_back(path);
-  }
-  fs::create_directories(images, error);
-  if (error) throw std::runtime_error("cannot create " + images.string() + ": " + error.message());
+  const std::vector<fs::path> created = CreateFolders(folder / kImagesFolder);
   // a writer that cannot open leaves nothing it made behind: the journal it created, empty, and
   // the folders it created, empty
   const bool journal_existed = FileSize(journal_path_) >= 0;
@@ -351,36 +173,13 @@ CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
     for (const fs::path& path : created) fs::remove(path, ignored);  // only if empty
   };
   try {
-    for (const fs::path& path : created) SyncFolder(path.parent_path());
-  } catch (...) {
-    remove_created();
-    throw;
-  }
-
-  // the journal, locked against a second writer
-  journal_fd_ = open(journal_path_.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-  if (journal_fd_ < 0) {
-    const int open_error = errno;
-    remove_created();
-    throw SystemError("cannot open", journal_path_, open_error);
-  }
-  try {
-    if (flock(journal_fd_, LOCK_EX | LOCK_NB) != 0) {
-      if (errno == EWOULDBLOCK) {
-        throw std::runtime_error(journal_path_ +
-                                 " is in use by another writer (one writer per dataset folder)");
-      }
-      throw SystemError("cannot lock", journal_path_, errno);
-    }
-    // reload it, or make sure it is still empty now that it is ours
+    // the journal, locked against a second writer; reloaded, or still empty now that it is ours
+    journal_ = std::make_unique<Journal>(journal_path_);
     std::set<std::string> journaled_images;
     if (options_.resume) {
       journaled_images = LoadJournal();
-    } else if (FileSize(journal_path_) > 0) {
-      throw std::runtime_error(journal_path_ +
-                               " already exists (a dataset was started here); will not "
-                               "overwrite it (use --resume to continue it, or choose another "
-                               "output folder)");
+    } else if (journal_->size() > 0) {
+      throw DatasetStartedError(journal_path_);
     }
     // leftovers of an Add or a Finish that never completed
     CleanImagesFolder(journaled_images);
@@ -390,57 +189,21 @@ CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
     }
     SyncFolder(folder);
   } catch (...) {
-    close(journal_fd_);
-    journal_fd_ = -1;
+    journal_.reset();
     remove_created();
     throw;
   }
 }
 
-CocoWriter::~CocoWriter() {
-  // the journal stays: it is the dataset's durable record
-  if (journal_fd_ >= 0) close(journal_fd_);
-}
+// the journal stays: it is the dataset's durable record
+CocoWriter::~CocoWriter() = default;
 
 std::set<std::string> CocoWriter::LoadJournal() {
   std::set<std::string> journaled_images;
-  // line by line; a last line without its '\n' is a torn write
-  std::vector<char> buffer(1 << 20);
-  std::string line;
-  uint64_t read_offset = 0, line_offset = 0;
-  int64_t line_number = 0;
-  while (true) {
-    const ssize_t got =
-        pread(journal_fd_, buffer.data(), buffer.size(), static_cast<off_t>(read_offset));
-    if (got < 0 && errno == EINTR) continue;
-    if (got < 0) throw SystemError("cannot read", journal_path_, errno);
-    if (got == 0) break;
-    read_offset += static_cast<uint64_t>(got);
-    const char* begin = buffer.data();
-    const char* const end = begin + got;
-    while (begin < end) {
-      const char* const newline =
-          static_cast<const char*>(std::memchr(begin, '\n', static_cast<size_t>(end - begin)));
-      if (newline == nullptr) {
-        line.append(begin, end);
-        break;
-      }
-      line.append(begin, newline);
-      LoadJournalLine(line, line_offset, ++line_number, &journaled_images);
-      line_offset += line.size() + 1;
-      line.clear();
-      begin = newline + 1;
-    }
-  }
-
-  // cut the torn line off, durably, so the next line starts clean
-  if (!line.empty()) {
-    if (ftruncate(journal_fd_, static_cast<off_t>(line_offset)) != 0 || fsync(journal_fd_) != 0) {
-      throw SystemError("cannot cut the torn last line off", journal_path_, errno);
-    }
-    truncated_journal_bytes_ = static_cast<int64_t>(line.size());
-  }
-  journal_size_ = line_offset;
+  truncated_journal_bytes_ =
+      journal_->Load([&](const std::string& line, uint64_t offset, int64_t line_number) {
+        LoadJournalLine(line, offset, line_number, &journaled_images);
+      });
   resumed_scenes_ = static_cast<int64_t>(index_.size());
   return journaled_images;
 }
@@ -624,24 +387,10 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
   std::string why;
   if (!CheckScene(scene, &why)) Fail(name, why);
 
-  // a PNG or JPEG file is stored as it came: it must decode, whole (libpng checks every chunk's
-  // CRC and zlib the data's checksum, so a flipped bit or a cut shows; a JPEG must also end
-  // with its end-of-image marker, as libjpeg fills a cut one with grey)
-  const stackgen::image& color = scene.color;
-  const int channels = color.pixel_format == stackgen::image::PIXEL_RGB8 ? 3 : 1;
-  if (color.encoding != stackgen::image::ENCODING_RAW) {
-    const bool png = color.encoding == stackgen::image::ENCODING_PNG;
-    const bool jpeg_ends = color.data.size() >= 2 && color.data[color.data.size() - 2] == 0xff &&
-                           color.data.back() == 0xd9;
-    const cv::Mat decoded =
-        png || jpeg_ends ? cv::imdecode(color.data, cv::IMREAD_UNCHANGED) : cv::Mat();
-    if (decoded.empty() || decoded.cols != color.width || decoded.rows != color.height ||
-        decoded.depth() != CV_8U || decoded.channels() != channels) {
-      Fail(name, std::string("color.data does not decode as a whole ") + (png ? "PNG" : "JPEG") +
-                     " image of " + std::to_string(color.width) + " x " +
-                     std::to_string(color.height) + " x " + std::to_string(channels) +
-                     " bytes (damaged or cut short)");
-    }
+  // a PNG or JPEG file is stored as it came: it must decode, whole
+  if (scene.color.encoding != stackgen::image::ENCODING_RAW &&
+      DecodeImage(scene.color, &why).empty()) {
+    Fail(name, "color." + why);
   }
 
   // what COCO and this dataset need beyond it: annotation ids (image id * 1000 + instance_id),
@@ -681,35 +430,10 @@ void CocoWriter::WriteImageFile(const stackgen::scene& scene, const std::string&
                         sync);
     return;
   }
-  // RAW: encode to PNG (OpenCV wants BGR order)
-  const bool rgb = color.pixel_format == stackgen::image::PIXEL_RGB8;
-  const cv::Mat pixels(color.height, color.width, rgb ? CV_8UC3 : CV_8UC1,
-                       const_cast<uint8_t*>(color.data.data()));
-  cv::Mat to_encode = pixels;
-  if (rgb) cv::cvtColor(pixels, to_encode, cv::COLOR_RGB2BGR);
-  std::vector<uint8_t> png;
-  if (!cv::imencode(".png", to_encode, png)) {
-    throw std::runtime_error("cannot encode " + path + " as PNG");
-  }
+  // RAW: encode to PNG
+  std::string why;
+  const std::vector<uint8_t> png = EncodeImage(DecodeImage(color, &why), -1);
   WriteFileAtomically(path, reinterpret_cast<const char*>(png.data()), png.size(), sync);
-}
-
-void CocoWriter::AppendToJournal(const std::string& line) {
-  if (journal_broken_) {
-    throw std::runtime_error("cannot write " + journal_path_ +
-                             ": an earlier failed write could not be cut back (resume the "
-                             "dataset to repair it)");
-  }
-  // write and sync the line, or cut the journal back to its last complete line
-  int error = WriteAll(journal_fd_, line.data(), line.size(), static_cast<int64_t>(journal_size_));
-  if (error == 0 && fsync(journal_fd_) != 0) error = errno;
-  if (error != 0) {
-    if (ftruncate(journal_fd_, static_cast<off_t>(journal_size_)) != 0 || fsync(journal_fd_) != 0) {
-      journal_broken_ = true;
-    }
-    throw SystemError("cannot write", journal_path_, error);
-  }
-  journal_size_ += line.size();
 }
 
 bool CocoWriter::Add(const stackgen::scene& scene) {
@@ -878,7 +602,7 @@ std::vector<std::pair<int32_t, int64_t>> CocoWriter::Commit() {
   if (staged_.empty()) return committed;
   // drops what is staged: its image files go, nothing of it stays in the writer
   const auto drop_staged = [&] {
-    if (!journal_broken_) {
+    if (!journal_->broken()) {
       for (const StagedScene& staged : staged_) unlink(staged.image_path.c_str());
     }
     staged_.clear();
@@ -888,19 +612,19 @@ std::vector<std::pair<int32_t, int64_t>> CocoWriter::Commit() {
   try {
     // group commits: the image files and their names, in one sync of the file system (without,
     // each Add synced its image and the folder)
-    if (options_.group_commit && syncfs(journal_fd_) != 0) {
+    if (options_.group_commit && syncfs(journal_->fd()) != 0) {
       throw SystemError("cannot sync", (fs::path(dir_) / kImagesFolder).string(), errno);
     }
     // then the lines that record them, in one write and one sync
     std::string lines;
     for (const StagedScene& staged : staged_) lines += staged.line;
-    AppendToJournal(lines);
+    journal_->Append(lines);
   } catch (...) {
     drop_staged();
     throw;
   }
   // index them where their lines now lie
-  uint64_t line_offset = journal_size_;
+  uint64_t line_offset = journal_->size();
   for (const StagedScene& staged : staged_) line_offset -= staged.line.size();
   for (const StagedScene& staged : staged_) {
     JournalEntry entry = staged.entry;
@@ -939,7 +663,7 @@ void CocoWriter::Finish() {
     for (const auto& [image_id, entry] : index_) {
       if (!first) out.Write(",\n");
       first = false;
-      out.Write(ReadAt(journal_fd_, entry.image_offset, entry.image_length, journal_path_));
+      out.Write(journal_->Read(entry.image_offset, entry.image_length));
     }
 
     // categories, by id
@@ -959,9 +683,7 @@ void CocoWriter::Finish() {
       if (entry.annotations_length == 0) continue;
       if (!first) out.Write(",\n");
       first = false;
-      WriteOnePerLine(
-          ReadAt(journal_fd_, entry.annotations_offset, entry.annotations_length, journal_path_),
-          out);
+      WriteOnePerLine(journal_->Read(entry.annotations_offset, entry.annotations_length), out);
     }
     out.Write("\n]\n}\n");
     out.Close();
@@ -981,28 +703,7 @@ void CocoWriter::Finish() {
 }
 
 std::map<int32_t, int64_t> CocoWriter::LostPerGenerator() const {
-  // first seq, last seq and count per generator; the index is sorted by generator, then seq
-  struct Span {
-    int64_t first = 0, last = 0, count = 0;
-  };
-  std::map<int32_t, Span> spans;
-  for (const auto& [image_id, entry] : index_) {
-    Span& span = spans[entry.generator_id];
-    if (span.count == 0) span.first = entry.seq;
-    span.last = entry.seq;
-    ++span.count;
-  }
-  std::map<int32_t, int64_t> lost;
-  for (const auto& [generator_id, span] : spans) {
-    lost[generator_id] = span.last - span.first + 1 - span.count;
-  }
-  return lost;
-}
-
-int64_t CocoWriter::num_lost() const {
-  int64_t total = 0;
-  for (const auto& [generator_id, lost] : LostPerGenerator()) total += lost;
-  return total;
+  return LostBetween(StoredSeqs());
 }
 
 int64_t CocoWriter::StoredThrough(int32_t generator_id) const {

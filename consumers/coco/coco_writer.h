@@ -2,6 +2,7 @@
 
 #include <cstdint>
 #include <map>
+#include <memory>
 #include <optional>
 #include <set>
 #include <stdexcept>
@@ -11,14 +12,10 @@
 
 #include <stackgen/scene.hpp>
 
-namespace stackgen {
+#include "consumers/dataset/dataset_sink.h"
+#include "consumers/dataset/journal.h"
 
-/// Thrown by CocoWriter::Add for a scene whose contents disagree with each other; the text names
-/// the scene (generator_id/seq) and the field at fault. Nothing of such a scene is written.
-class InvalidSceneError : public std::runtime_error {
- public:
-  using std::runtime_error::runtime_error;
-};
+namespace stackgen {
 
 /// How a CocoWriter builds its dataset.
 struct CocoWriterOptions {
@@ -74,7 +71,7 @@ struct CocoWriterOptions {
 /// where image_length and annotations_length are the byte lengths of IMAGE and of the text
 /// between the brackets of "annotations". A line is complete once its '\n' is written; a last
 /// line without one is a torn write, cut off on resume.
-class CocoWriter {
+class CocoWriter : public DatasetSink {
  public:
   /// Opens a dataset in `dir`, creating it and `dir/images` if missing, and removes leftover
   /// temporary files (images/*.tmp, annotations.json.tmp). With options.resume, reloads the
@@ -89,7 +86,7 @@ class CocoWriter {
   /// read, written or synced.
   explicit CocoWriter(const std::string& dir, const CocoWriterOptions& options = {});
   /// Closes the journal; the journal stays (annotations.json is never written here).
-  ~CocoWriter();
+  ~CocoWriter() override;
   CocoWriter(const CocoWriter&) = delete;
   CocoWriter& operator=(const CocoWriter&) = delete;
 
@@ -120,16 +117,16 @@ class CocoWriter {
   /// throw until the dataset is resumed, which cuts a torn line off.)
   /// With options.group_commit, the scene is only staged when Add returns true (see
   /// CocoWriterOptions::group_commit) and a staged scene counts as seen for the same-id rules.
-  bool Add(const stackgen::scene& scene);
+  bool Add(const stackgen::scene& scene) override;
 
   /// Makes every staged scene durable (see CocoWriterOptions::group_commit) and returns their
   /// (generator_id, seq), in the order they were added; nothing when none is staged. Throws
   /// std::runtime_error naming the file and the system's reason if a sync or the journal write
   /// fails; then none of the staged scenes is kept (their image files are removed, the journal
   /// is cut back) and the writer can go on.
-  std::vector<std::pair<int32_t, int64_t>> Commit();
+  std::vector<std::pair<int32_t, int64_t>> Commit() override;
   /// Scenes added but not yet committed.
-  int64_t num_staged() const { return static_cast<int64_t>(staged_.size()); }
+  int64_t num_staged() const override { return static_cast<int64_t>(staged_.size()); }
 
   /// Commits what is staged, then writes `annotations.json` with every scene stored so far:
   /// streams the journal into
@@ -138,12 +135,13 @@ class CocoWriter {
   /// again after more Adds. Throws std::runtime_error naming the file and the system's reason
   /// if reading or writing fails; then any previous annotations.json is left as it was and the
   /// temporary file is removed.
-  void Finish();
+  void Finish() override;
+  std::string finished_files() const override { return "annotations.json"; }
 
   /// The dataset folder.
   const std::string& dir() const { return dir_; }
   /// Scenes (= images) stored, those reloaded from the journal included.
-  int64_t num_images() const { return static_cast<int64_t>(index_.size()); }
+  int64_t num_images() const override { return static_cast<int64_t>(index_.size()); }
   /// Annotations written with iscrowd 0 (annotated instances, less those below min_visib_fract
   /// when it is set).
   int64_t num_annotations() const { return num_annotations_; }
@@ -154,9 +152,7 @@ class CocoWriter {
   /// min_visib_fract when it is set.
   int64_t num_dropped() const { return num_dropped_; }
   /// Per generator_id, the seqs missing between the first and the last seq stored.
-  std::map<int32_t, int64_t> LostPerGenerator() const;
-  /// The sum of LostPerGenerator.
-  int64_t num_lost() const;
+  std::map<int32_t, int64_t> LostPerGenerator() const override;
 
   /// The highest seq s of generator `generator_id` such that every seq 0..s is stored; -1 if
   /// seq 0 is not (or the generator is unknown).
@@ -164,20 +160,20 @@ class CocoWriter {
   /// Whether the scene (generator_id, seq) is stored; false for ids outside the id layout.
   bool Has(int32_t generator_id, int64_t seq) const;
   /// Every stored seq, ascending, per generator_id.
-  std::map<int32_t, std::vector<int64_t>> StoredSeqs() const;
+  std::map<int32_t, std::vector<int64_t>> StoredSeqs() const override;
 
   /// The run (a RunName, bus/delivery.h) each generator's scenes come from: read from the
   /// journal on resume (its last scene that names one), or set by SetRun.
-  const std::map<int32_t, std::string>& Runs() const { return runs_; }
+  const std::map<int32_t, std::string>& Runs() const override { return runs_; }
   /// Scenes of `generator_id` added from now on are journalled as coming from `run` (the journal
   /// line's SCENE gets "run":run), so that a resumed dataset knows which run to continue.
-  void SetRun(int32_t generator_id, const std::string& run);
+  void SetRun(int32_t generator_id, const std::string& run) override;
 
   /// Scenes reloaded from the journal when the writer was opened with resume (0 without).
   int64_t resumed_scenes() const { return resumed_scenes_; }
   /// Bytes of a torn last journal line cut off when the writer was opened with resume (0 if the
   /// journal ended with a complete line).
-  int64_t truncated_journal_bytes() const { return truncated_journal_bytes_; }
+  int64_t truncated_journal_bytes() const override { return truncated_journal_bytes_; }
 
   /// The image id of a scene: generator_id * 1000000000 + seq + 1.
   static int64_t ImageId(int32_t generator_id, int64_t seq);
@@ -215,8 +211,6 @@ class CocoWriter {
   // writes the scene's colour image to `path` (see Add); `sync`: synced before it is renamed
   // into place, and the folder after
   void WriteImageFile(const stackgen::scene& scene, const std::string& path, bool sync) const;
-  // appends `line` to the journal and syncs it; on failure cuts the journal back and throws
-  void AppendToJournal(const std::string& line);
   // indexes every complete journal line and cuts a torn last one off; returns the image file
   // names the lines record
   std::set<std::string> LoadJournal();
@@ -231,9 +225,7 @@ class CocoWriter {
   std::string dir_;
   CocoWriterOptions options_;
   std::string journal_path_;
-  int journal_fd_ = -1;
-  uint64_t journal_size_ = 0;
-  bool journal_broken_ = false;                       // a failed append could not be cut back
+  std::unique_ptr<Journal> journal_;
   std::map<int64_t, JournalEntry> index_;             // by image id
   std::map<int32_t, std::string> categories_;         // class_id -> class_name
   std::map<int32_t, int64_t> stored_through_;         // generator_id -> StoredThrough

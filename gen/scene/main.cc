@@ -21,6 +21,7 @@
 #include <thread>
 
 #include <stackgen/config_text.hpp>
+#include <stackgen/model.hpp>
 #include <stackgen/status.hpp>
 
 #include "bus/bus.h"
@@ -70,8 +71,10 @@ flags:
   --help              this text
 
 channels published: STACKGEN_SCENE (labels + images), STACKGEN_LABELS (labels only),
-STACKGEN_STATUS (1 Hz), STACKGEN_CONFIG (the config in force, 1 Hz).
-channels read: STACKGEN_CREDIT and STACKGEN_RESEND. Reliable consumers (stackgen-coco) send
+STACKGEN_STATUS (1 Hz), STACKGEN_CONFIG (the config in force, 1 Hz), STACKGEN_MODEL (the
+mesh, diameter and symmetries of each labelled class, every 5 s).
+channels read: STACKGEN_CREDIT and STACKGEN_RESEND. Reliable consumers (stackgen-coco,
+stackgen-bop) send
 credits: the generator never runs more than a consumer's window ahead of what it has stored,
 resends scenes a consumer missed (from the ring, else regenerated: scene k is always the same),
 and after --count scenes waits until every reliable consumer has stored them all.
@@ -314,7 +317,9 @@ int Run(int argc, char** argv) {
   const Clock::time_point start = Clock::now();
   Clock::time_point last_status = start - std::chrono::seconds(1);
 
-  // publishes the config and the status, about once a second.
+  // publishes the config and the status, about once a second, and the models every 5 s
+  constexpr int64_t kModelPeriod = 5;
+  int64_t periods = 0;
   const auto publish_periodic = [&](bool force) {
     const Clock::time_point now = Clock::now();
     const double since = std::chrono::duration<double>(now - last_status).count();
@@ -322,6 +327,14 @@ int Run(int argc, char** argv) {
     config_message.header.seq = next_seq;
     config_message.header.utime = UnixMicros();
     bus.Publish(kConfigChannel, config_message);
+    // the models at the start and every kModelPeriod periods after: writers that start later
+    // hear them within seconds, and a large mesh does not load the bus every second
+    if (periods++ % kModelPeriod == 0) {
+      for (model message : generator.Models()) {
+        message.header = config_message.header;
+        bus.Publish(kModelChannel, message);
+      }
+    }
     status message{};
     message.header.seq = next_seq;
     message.header.generator_id = generator_id;

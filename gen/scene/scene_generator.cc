@@ -14,6 +14,7 @@
 #include "gen/annotate/labels.h"
 #include "gen/annotate/pose.h"
 #include "gen/mesh/mesh.h"
+#include "gen/mesh/symmetry.h"
 #include "gen/physics/pile.h"
 #include "gen/randomize/background.h"
 #include "gen/randomize/camera_pose.h"
@@ -89,6 +90,43 @@ uint64_t SceneSeed(uint64_t base_seed, int32_t generator_id, int64_t seq, int re
   return SplitMixHash(seed ^ static_cast<uint64_t>(redraw));
 }
 
+// The model message of class `class_id`, whose first part type is `part` with mesh `mesh` (mm).
+model ModelOf(const TriangleMesh& mesh, int class_id, const config::PartConfig& part) {
+  model out{};
+  out.class_id = class_id;
+  out.class_name = part.class_name();
+  out.mesh = part.mesh();
+  out.num_vertices = static_cast<int32_t>(mesh.positions_mm.size());
+  for (size_t v = 0; v < mesh.positions_mm.size(); ++v) {
+    const Eigen::Vector3f& p = mesh.positions_mm[v];
+    const Eigen::Vector3f& n = mesh.normals[v];
+    out.vertices_mm.push_back({p.x(), p.y(), p.z()});
+    out.normals.push_back({n.x(), n.y(), n.z()});
+  }
+  out.num_triangles = static_cast<int32_t>(mesh.triangles.size());
+  for (const std::array<uint32_t, 3>& triangle : mesh.triangles) {
+    out.triangles.push_back({static_cast<int32_t>(triangle[0]), static_cast<int32_t>(triangle[1]),
+                             static_cast<int32_t>(triangle[2])});
+  }
+  // symmetries within 1 % of the diameter: a machined part's chamfers and holes count, the
+  // tessellation of a round part does not
+  out.diameter_mm = MeshDiameter(mesh);
+  const MeshSymmetries symmetries = FindSymmetries(mesh, 0.01 * out.diameter_mm);
+  for (const Eigen::Matrix4d& transform : symmetries.discrete) {
+    std::vector<double> row_major(16);
+    for (int i = 0; i < 16; ++i) row_major[i] = transform(i / 4, i % 4);
+    out.discrete_symmetries.push_back(std::move(row_major));
+  }
+  out.num_discrete_symmetries = static_cast<int32_t>(out.discrete_symmetries.size());
+  for (const ContinuousSymmetry& symmetry : symmetries.continuous) {
+    out.continuous_axes.push_back({symmetry.axis.x(), symmetry.axis.y(), symmetry.axis.z()});
+    out.continuous_offsets_mm.push_back(
+        {symmetry.offset_mm.x(), symmetry.offset_mm.y(), symmetry.offset_mm.z()});
+  }
+  out.num_continuous_symmetries = static_cast<int32_t>(out.continuous_axes.size());
+  return out;
+}
+
 // One part type of the config, as the scene uses it.
 struct TypeInScene {
   int mesh_id = 0;
@@ -110,6 +148,8 @@ struct SceneGenerator::Impl {
   int bin_mesh_id = 0;
   Material bin_material;
   std::string description;
+  // the model of each labelled class, index class_id - 1
+  std::vector<model> models;
   // physics.pick_sequence: the first seq of piles 0, 1, ..., counted as far as asked
   std::mutex pile_starts_mutex;
   std::vector<int64_t> pile_starts = {0};
@@ -273,6 +313,9 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
       auto it = std::find(class_names.begin(), class_names.end(), part.class_name());
       if (it == class_names.end()) it = class_names.insert(it, part.class_name());
       type.class_id = static_cast<int>(it - class_names.begin()) + 1;
+      if (type.class_id > static_cast<int>(impl_->models.size())) {
+        impl_->models.push_back(ModelOf(types[t].mesh, type.class_id, part));
+      }
     }
     impl_->types.push_back(type);
     const TriangleMesh& mesh = types[t].mesh;
@@ -323,6 +366,8 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
 SceneGenerator::~SceneGenerator() = default;
 
 std::string SceneGenerator::Description() const { return impl_->description; }
+
+const std::vector<model>& SceneGenerator::Models() const { return impl_->models; }
 
 void StageTimes::Add(const StageTimes& other) {
   physics_ms += other.physics_ms;

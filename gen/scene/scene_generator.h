@@ -6,6 +6,7 @@
 #include <vector>
 
 #include <stackgen/labels.hpp>
+#include <stackgen/model.hpp>
 #include <stackgen/scene.hpp>
 
 #include <Eigen/Geometry>
@@ -130,6 +131,11 @@ class SceneGenerator {
 
   /// Lines describing the collision shape and the renderer in use.
   std::string Description() const;
+
+  /// The model of each labelled class, by class id (header left for the publisher to set): the
+  /// mesh of its first part type in millimetres, in the frame of the instances' poses, its
+  /// diameter and the symmetries found from it (see FindSymmetries, gen/mesh/symmetry.h).
+  const std::vector<model>& Models() const;
 
  private:
   struct Impl;

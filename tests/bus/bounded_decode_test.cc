@@ -32,6 +32,7 @@
 #include <stackgen/image.hpp>
 #include <stackgen/instance.hpp>
 #include <stackgen/labels.hpp>
+#include <stackgen/model.hpp>
 #include <stackgen/resend_request.hpp>
 #include <stackgen/scene.hpp>
 #include <stackgen/status.hpp>
@@ -40,7 +41,7 @@ namespace stackgen {
 namespace {
 
 // the types that have their own DecodeBounded specialisation (bus/bounded_decode.h)
-const std::set<std::string> kSpecialised = {"scene", "labels", "image", "resend_request"};
+const std::set<std::string> kSpecialised = {"scene", "labels", "image", "resend_request", "model"};
 
 constexpr int kWidth = 32;
 constexpr int kHeight = 24;
@@ -374,6 +375,21 @@ TEST(BoundedDecodeTest, OtherTypesRoundTripMatchLcm) {
   check(r);
   check(h);
   check(MakeInstance(4, "connector", "abc", "de"));
+  model m{};
+  m.class_id = 2;
+  m.class_name = "dowel_pin";
+  m.vertices_mm = {{0.f, 0.f, 0.f}, {1.f, 0.f, 0.f}, {0.f, 1.f, 0.f}};
+  m.normals = {{0.f, 0.f, 1.f}, {0.f, 0.f, 1.f}, {0.f, 0.f, 1.f}};
+  m.num_vertices = 3;
+  m.triangles = {{0, 1, 2}};
+  m.num_triangles = 1;
+  m.diameter_mm = 1.5;
+  m.discrete_symmetries = {std::vector<double>(16, 0.5)};
+  m.num_discrete_symmetries = 1;
+  m.continuous_axes = {{1.0, 0.0, 0.0}};
+  m.continuous_offsets_mm = {{0.0, 2.0, 0.0}};
+  m.num_continuous_symmetries = 1;
+  check(m);
 }
 
 // a status message on a scene channel is named as the wrong type, not a decode failure.
@@ -508,6 +524,18 @@ TEST(BoundedDecodeTest, CorruptCountsRefusedWithinAddressLimit) {
   PutInt32(&resend_bytes, resend_bytes.size() - 4, INT32_MAX);
   result = RunWithAddressLimit(BoundedBody<resend_request>(resend_bytes));
   EXPECT_NE(result.text.find("refused: num_seqs 2147483647 needs at least"), std::string::npos)
+      << result.Describe();
+  // a model whose vertex count claims 2^31 - 1 rows (num_vertices follows the header, class_id
+  // and two strings of one char)
+  model m{};
+  m.class_name = "c";
+  m.mesh = "m";
+  std::vector<uint8_t> model_bytes = Encode(m);
+  PutInt32(&model_bytes, 8 + static_cast<size_t>(m.header._getEncodedSizeNoHash()) + 4 + 6 + 6,
+           INT32_MAX);
+  result = RunWithAddressLimit(BoundedBody<model>(model_bytes));
+  EXPECT_NE(result.text.find("refused: vertices_mm rows 2147483647 needs at least"),
+            std::string::npos)
       << result.Describe();
 }
 

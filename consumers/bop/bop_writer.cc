@@ -1,0 +1,1024 @@
+#include "consumers/bop/bop_writer.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <limits>
+#include <string_view>
+
+#include <archive.h>
+#include <archive_entry.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "bus/rle.h"
+#include "bus/scene_contract.h"
+#include "consumers/dataset/files.h"
+#include "consumers/dataset/images.h"
+
+namespace stackgen {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+constexpr const char* kJournalFile = "bop.journal";
+constexpr const char* kCameraFile = "camera.json";
+constexpr const char* kModelsFolder = "models";
+constexpr const char* kModelsInfoFile = "models_info.json";
+constexpr const char* kShardsFolder = "shards";
+constexpr const char* kKeyToShardFile = "key_to_shard.json";
+constexpr std::string_view kTemporarySuffix = ".tmp";
+constexpr int kJournalVersion = 1;
+// images per chunk (BOP scene folder), and the ids that fit six digits
+constexpr int64_t kImagesPerChunk = 1000;
+constexpr int64_t kChunksPerGenerator = 1000000;
+constexpr int32_t kMaxObjId = 999999;
+// scene_gt_coco "ignore": as the toolkit's scripts/calc_gt_coco.py, below 10 % visible
+constexpr double kIgnoreBelowVisibFract = 0.1;
+// masks are simple: the fastest zlib level makes them about as small as the default
+constexpr int kMaskPngCompression = 1;
+
+// the folders of a chunk's images
+constexpr const char* kDepthFolder = "depth";
+constexpr const char* kMaskFolder = "mask";
+constexpr const char* kMaskVisibFolder = "mask_visib";
+const char* const kImageFolders[] = {"rgb", "gray", kDepthFolder, kMaskFolder, kMaskVisibFolder};
+
+std::string SceneName(const scene& scene) {
+  return "scene " + std::to_string(scene.header.generator_id) + "/" +
+         std::to_string(scene.header.seq);
+}
+
+[[noreturn]] void Fail(const std::string& scene_name, const std::string& text) {
+  throw InvalidSceneError(scene_name + ": " + text);
+}
+
+// six digits, as BOP names its files and folders
+std::string Six(int64_t value) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%06lld", static_cast<long long>(value));
+  return text;
+}
+
+bool EndsWith(const std::string& text, std::string_view suffix) {
+  return text.size() >= suffix.size() &&
+         text.compare(text.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+}  // namespace
+
+std::string PythonFloat(double value) {
+  char buffer[64];
+  const auto result =
+      std::to_chars(buffer, buffer + sizeof(buffer), value, std::chars_format::scientific);
+  const std::string text(buffer, result.ptr);
+  // "-d.ddde-XX": the sign, the digits and the exponent
+  const size_t e = text.find('e');
+  std::string mantissa = text.substr(0, e);
+  const int exponent = std::stoi(text.substr(e + 1));
+  const bool negative = mantissa[0] == '-';
+  if (negative) mantissa.erase(0, 1);
+  std::string digits = mantissa.substr(0, 1) + (mantissa.size() > 2 ? mantissa.substr(2) : "");
+  std::string out = negative ? "-" : "";
+  if (exponent < -4 || exponent >= 16) {
+    out += digits.substr(0, 1);
+    if (digits.size() > 1) out += "." + digits.substr(1);
+    char exponent_text[16];
+    std::snprintf(exponent_text, sizeof(exponent_text), "e%c%02d", exponent < 0 ? '-' : '+',
+                  std::abs(exponent));
+    return out + exponent_text;
+  }
+  if (exponent < 0)
+    return out + "0." + std::string(static_cast<size_t>(-exponent - 1), '0') + digits;
+  const size_t whole = static_cast<size_t>(exponent) + 1;
+  if (digits.size() <= whole) return out + digits + std::string(whole - digits.size(), '0') + ".0";
+  return out + digits.substr(0, whole) + "." + digits.substr(whole);
+}
+
+namespace {
+
+// `value` as Python's json.dumps(value, sort_keys=True) writes it, which is how the toolkit's
+// inout.save_json writes every entry: ", " and ": " between items, keys sorted, non-ASCII
+// escaped, doubles as repr writes them (nlohmann's objects are sorted by key already)
+void AppendToolkitJson(const json& value, std::string* out) {
+  if (value.is_object()) {
+    out->push_back('{');
+    bool first = true;
+    for (const auto& [key, item] : value.items()) {
+      if (!first) out->append(", ");
+      first = false;
+      out->append(json(key).dump(-1, ' ', true)).append(": ");
+      AppendToolkitJson(item, out);
+    }
+    out->push_back('}');
+  } else if (value.is_array()) {
+    out->push_back('[');
+    bool first = true;
+    for (const json& item : value) {
+      if (!first) out->append(", ");
+      first = false;
+      AppendToolkitJson(item, out);
+    }
+    out->push_back(']');
+  } else if (value.is_number_float()) {
+    out->append(PythonFloat(value.get<double>()));
+  } else {
+    out->append(value.dump(-1, ' ', true));
+  }
+}
+
+// a file as inout.save_json writes a dict: "{\n", then '  "KEY": VALUE' per entry in key order
+// (`entries` is in that order already), ",\n" between them, "\n}"
+void WriteToolkitFile(const fs::path& path,
+                      const std::vector<std::pair<std::string, const json*>>& entries) {
+  WriteFileWhole(path, [&](OutputFile& out) {
+    out.Write("{\n");
+    std::string line;
+    for (size_t i = 0; i < entries.size(); ++i) {
+      line = "  " + json(entries[i].first).dump(-1, ' ', true) + ": ";
+      AppendToolkitJson(*entries[i].second, &line);
+      line += i + 1 < entries.size() ? ",\n" : "\n";
+      out.Write(line);
+    }
+    out.Write("}");
+  });
+}
+
+// what inout.save_json writes for `value`: a dict (keys in the order nlohmann holds them, or
+// numeric for `numeric_keys`) or a list one entry per line, anything else on one line
+std::string ToolkitText(const json& value, bool numeric_keys = false) {
+  std::string text;
+  if (value.is_object()) {
+    std::vector<std::pair<std::string, const json*>> entries;
+    for (const auto& [key, item] : value.items()) entries.emplace_back(key, &item);
+    if (numeric_keys) {
+      std::stable_sort(entries.begin(), entries.end(), [](const auto& a, const auto& b) {
+        return std::stoll(a.first) < std::stoll(b.first);
+      });
+    }
+    text = "{\n";
+    for (size_t i = 0; i < entries.size(); ++i) {
+      text += "  " + json(entries[i].first).dump(-1, ' ', true) + ": ";
+      AppendToolkitJson(*entries[i].second, &text);
+      text += i + 1 < entries.size() ? ",\n" : "\n";
+    }
+    return text + "}";
+  }
+  if (value.is_array()) {
+    text = "[\n";
+    for (size_t i = 0; i < value.size(); ++i) {
+      text += "  ";
+      AppendToolkitJson(value[i], &text);
+      text += i + 1 < value.size() ? ",\n" : "\n";
+    }
+    return text + "]";
+  }
+  AppendToolkitJson(value, &text);
+  return text;
+}
+
+// a tar file of `members` (name, bytes) in that order, ustar, every member 0644, owned by 0:0
+// and dated 0, so the same members give the same bytes; written through a temporary file,
+// synced, renamed into place (libarchive writes the tar format)
+void WriteTar(const fs::path& path,
+              const std::vector<std::pair<std::string, std::string>>& members) {
+  const std::string temporary = path.string() + ".tmp";
+  struct archive* tar = archive_write_new();
+  const auto fail = [&](const std::string& what) {
+    const std::string reason = archive_error_string(tar) ? archive_error_string(tar) : "";
+    archive_write_free(tar);
+    unlink(temporary.c_str());
+    throw std::runtime_error("cannot write " + temporary + ": " + what +
+                             (reason.empty() ? "" : " (" + reason + ")"));
+  };
+  if (archive_write_set_format_ustar(tar) != ARCHIVE_OK ||
+      archive_write_open_filename(tar, temporary.c_str()) != ARCHIVE_OK) {
+    fail("cannot open");
+  }
+  for (const auto& [name, bytes] : members) {
+    struct archive_entry* entry = archive_entry_new();
+    archive_entry_set_pathname(entry, name.c_str());
+    archive_entry_set_size(entry, static_cast<la_int64_t>(bytes.size()));
+    archive_entry_set_filetype(entry, AE_IFREG);
+    archive_entry_set_perm(entry, 0644);
+    archive_entry_set_mtime(entry, 0, 0);
+    const bool written = archive_write_header(tar, entry) == ARCHIVE_OK &&
+                         archive_write_data(tar, bytes.data(), bytes.size()) ==
+                             static_cast<la_ssize_t>(bytes.size());
+    archive_entry_free(entry);
+    if (!written) fail(name);
+  }
+  if (archive_write_close(tar) != ARCHIVE_OK) fail("close");
+  archive_write_free(tar);
+  // durable before it takes the old shard's place
+  {
+    ScopedFd file(open(temporary.c_str(), O_RDONLY | O_CLOEXEC));
+    if (file.get() < 0 || fsync(file.get()) != 0) {
+      const int error = errno;
+      unlink(temporary.c_str());
+      throw SystemError("cannot sync", temporary, error);
+    }
+  }
+  if (rename(temporary.c_str(), path.c_str()) != 0) {
+    const int error = errno;
+    unlink(temporary.c_str());
+    throw SystemError("cannot rename " + temporary + " to", path.string(), error);
+  }
+  SyncFolder(path.parent_path());
+}
+
+// a mask in BOP-imagewise's mask.json form: uncompressed COCO RLE (pycoco_utils
+// binary_mask_to_rle)
+json UncompressedRle(const std::string& counts, int32_t height, int32_t width) {
+  return {{"counts", StringToRuns(counts)}, {"size", {height, width}}};
+}
+
+// a JSON object with string keys, as WriteToolkitFile takes it
+void WriteToolkitObject(const fs::path& path, const json& object) {
+  std::vector<std::pair<std::string, const json*>> entries;
+  for (const auto& [key, value] : object.items()) entries.emplace_back(key, &value);
+  WriteToolkitFile(path, entries);
+}
+
+bool AllFinite(const std::vector<std::vector<float>>& rows) {
+  for (const auto& row : rows) {
+    for (float value : row) {
+      if (!std::isfinite(value)) return false;
+    }
+  }
+  return true;
+}
+
+// the model as an ASCII PLY file in millimetres, with normals (BOP's models all have them)
+std::string PlyText(const model& m) {
+  std::string text = "ply\nformat ascii 1.0\ncomment stackgen model of class " +
+                     std::to_string(m.class_id) + " (" + m.class_name + "), millimetres\n";
+  text += "element vertex " + std::to_string(m.num_vertices) +
+          "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\n"
+          "property float ny\nproperty float nz\n";
+  text += "element face " + std::to_string(m.num_triangles) +
+          "\nproperty list uchar int vertex_indices\nend_header\n";
+  char line[256];
+  for (int32_t v = 0; v < m.num_vertices; ++v) {
+    const std::vector<float>& p = m.vertices_mm[static_cast<size_t>(v)];
+    const std::vector<float>& n = m.normals[static_cast<size_t>(v)];
+    // 9 significant digits give every float back exactly
+    std::snprintf(line, sizeof(line), "%.9g %.9g %.9g %.9g %.9g %.9g\n", p[0], p[1], p[2], n[0],
+                  n[1], n[2]);
+    text += line;
+  }
+  for (const std::vector<int32_t>& t : m.triangles) {
+    std::snprintf(line, sizeof(line), "3 %d %d %d\n", t[0], t[1], t[2]);
+    text += line;
+  }
+  return text;
+}
+
+// the model's entry of models_info.json
+json ModelInfo(const model& m) {
+  double low[3], high[3];
+  for (int a = 0; a < 3; ++a) {
+    low[a] = std::numeric_limits<double>::infinity();
+    high[a] = -low[a];
+  }
+  for (const std::vector<float>& p : m.vertices_mm) {
+    for (int a = 0; a < 3; ++a) {
+      low[a] = std::min(low[a], static_cast<double>(p[a]));
+      high[a] = std::max(high[a], static_cast<double>(p[a]));
+    }
+  }
+  json info = {{"diameter", m.diameter_mm},
+               {"min_x", low[0]},
+               {"min_y", low[1]},
+               {"min_z", low[2]},
+               {"size_x", high[0] - low[0]},
+               {"size_y", high[1] - low[1]},
+               {"size_z", high[2] - low[2]}};
+  if (!m.discrete_symmetries.empty()) info["symmetries_discrete"] = m.discrete_symmetries;
+  if (!m.continuous_axes.empty()) {
+    json continuous = json::array();
+    for (size_t i = 0; i < m.continuous_axes.size(); ++i) {
+      continuous.push_back(
+          {{"axis", m.continuous_axes[i]}, {"offset", m.continuous_offsets_mm[i]}});
+    }
+    info["symmetries_continuous"] = std::move(continuous);
+  }
+  return info;
+}
+
+// the rotation (row-major) and translation of target_from_source's inverse
+void Invert(const pose& target_from_source, std::vector<double>* rotation,
+            std::vector<double>* translation) {
+  const double* r = target_from_source.rotation;
+  const double* t = target_from_source.translation_mm;
+  rotation->assign(9, 0.0);
+  translation->assign(3, 0.0);
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) (*rotation)[i * 3 + j] = r[j * 3 + i];
+  }
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) (*translation)[i] -= r[j * 3 + i] * t[j];
+  }
+}
+
+// a box (x, y, width, height in pixels, as the messages hold it) as the toolkit's
+// misc.calc_2d_bbox gives it for the pixels of a mask: width and height one less (max - min),
+// and [-1, -1, -1, -1] for a mask of no pixels (calc_gt_info.py gives that for bbox_obj too when
+// nothing of the object is visible)
+std::vector<int32_t> ToolkitBox(const int32_t box[4], int32_t pixels) {
+  if (pixels <= 0) return {-1, -1, -1, -1};
+  return {box[0], box[1], box[2] - 1, box[3] - 1};
+}
+
+// whether `name` is a file this writer gives an image: IM_ID.png|.jpg or IM_ID_GT_ID.png
+bool IsImageFileName(const std::string& name) {
+  const size_t dot = name.rfind('.');
+  if (dot == std::string::npos) return false;
+  const std::string stem = name.substr(0, dot), extension = name.substr(dot);
+  if (extension != ".png" && extension != ".jpg") return false;
+  const auto digits = [](const std::string& text) {
+    return text.size() >= 6 &&
+           std::all_of(text.begin(), text.end(), [](char c) { return c >= '0' && c <= '9'; });
+  };
+  const size_t underscore = stem.find('_');
+  if (underscore == std::string::npos) return digits(stem);
+  return digits(stem.substr(0, underscore)) && digits(stem.substr(underscore + 1));
+}
+
+}  // namespace
+
+int64_t BopWriter::SceneId(int32_t generator_id, int64_t seq) {
+  return int64_t{generator_id} * kChunksPerGenerator + seq / kImagesPerChunk;
+}
+
+int64_t BopWriter::ImageId(int64_t seq) { return seq % kImagesPerChunk; }
+
+std::string BopWriter::ChunkFolder(int64_t scene_id) const {
+  return options_.split + "/" + Six(scene_id);
+}
+
+BopWriter::BopWriter(const std::string& dir, const BopWriterOptions& options)
+    : dir_(dir), options_(options) {
+  static_assert(kMaxSeq / kImagesPerChunk < kChunksPerGenerator, "chunks of two generators meet");
+  if (options_.jpeg_quality < 0 || options_.jpeg_quality > 100) {
+    throw std::runtime_error("jpeg_quality " + std::to_string(options_.jpeg_quality) +
+                             " outside 0..100");
+  }
+  if (options_.shard_images < 0 || options_.shard_images > kImagesPerChunk) {
+    throw std::runtime_error("shard_images " + std::to_string(options_.shard_images) +
+                             " outside 0..1000");
+  }
+  if (options_.split.empty() || options_.split.find('/') != std::string::npos ||
+      options_.split == "." || options_.split == ".." || options_.split == kModelsFolder) {
+    throw std::runtime_error("split \"" + options_.split +
+                             "\" is not a folder name (BOP: train_pbr, train, val, test)");
+  }
+  const fs::path folder(dir_);
+  const std::string journal_path = (folder / kJournalFile).string();
+  if (!options_.resume && FileSize(journal_path) > 0) {
+    throw DatasetStartedError(journal_path);
+  }
+
+  // the folders, and the journal, locked; a writer that cannot open leaves nothing it made
+  std::vector<fs::path> created = CreateFolders(folder / kModelsFolder);
+  if (options_.shard_images > 0) {
+    for (const fs::path& path : CreateFolders(folder / kShardsFolder)) created.push_back(path);
+  }
+  const bool journal_existed = FileSize(journal_path) >= 0;
+  try {
+    journal_ = std::make_unique<Journal>(journal_path);
+    std::set<std::string> journaled_files;
+    if (options_.resume) {
+      truncated_journal_bytes_ =
+          journal_->Load([&](const std::string& line, uint64_t offset, int64_t line_number) {
+            LoadJournalLine(line, offset, line_number, &journaled_files);
+          });
+      // every chunk's JSON files are made again by Finish: a crash may have come between a
+      // commit and the files
+      for (const auto& [key, entry] : index_) dirty_chunks_.insert(key.first);
+    } else if (journal_->size() > 0) {
+      throw DatasetStartedError(journal_path);
+    }
+    CleanFolders(journaled_files);
+
+    // what an earlier run stored of the models and the camera
+    const fs::path models_info = folder / kModelsFolder / kModelsInfoFile;
+    if (FileSize(models_info.string()) > 0) {
+      std::string text;
+      {
+        const int64_t size = FileSize(models_info.string());
+        ScopedFd file(open(models_info.c_str(), O_RDONLY | O_CLOEXEC));
+        if (file.get() < 0) throw SystemError("cannot read", models_info.string(), errno);
+        text = ReadAt(file.get(), 0, static_cast<uint64_t>(size), models_info.string());
+      }
+      const json info = json::parse(text, nullptr, false);
+      if (!info.is_object()) {
+        throw std::runtime_error(models_info.string() + " is not a JSON object (damaged?)");
+      }
+      for (const auto& [key, entry] : info.items()) {
+        models_info_[std::stoi(key)] = entry.dump();
+      }
+    }
+    camera_written_ = FileSize((folder / kCameraFile).string()) > 0;
+    SyncFolder(folder);
+  } catch (...) {
+    journal_.reset();
+    if (!journal_existed && FileSize(journal_path) == 0) unlink(journal_path.c_str());
+    std::error_code ignored;
+    for (const fs::path& path : created) fs::remove(path, ignored);  // only if empty
+    throw;
+  }
+}
+
+BopWriter::~BopWriter() = default;
+
+void BopWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64_t line_number,
+                                std::set<std::string>* files) {
+  const std::string where = journal_->path() + " line " + std::to_string(line_number) + " (byte " +
+                            std::to_string(offset) + ")";
+  try {
+    const json record = json::parse(line);
+    const json& scene = record.at("scene");
+    if (scene.at("journal_version") != kJournalVersion) {
+      throw std::runtime_error("journal_version " + scene["journal_version"].dump() + " is not " +
+                               std::to_string(kJournalVersion));
+    }
+    Entry entry;
+    const int64_t generator_id = scene.at("generator_id").get<int64_t>();
+    entry.seq = scene.at("seq").get<int64_t>();
+    entry.seed = scene.at("seed").get<int64_t>();
+    if (generator_id < 0 || generator_id > kMaxGeneratorId ||
+        !SceneIdsInRange(static_cast<int32_t>(generator_id), entry.seq)) {
+      throw std::runtime_error("scene " + std::to_string(generator_id) + "/" +
+                               std::to_string(entry.seq) + " is outside the id layout");
+    }
+    entry.generator_id = static_cast<int32_t>(generator_id);
+    if (scene.at("scene_id") != SceneId(entry.generator_id, entry.seq) ||
+        scene.at("im_id") != ImageId(entry.seq)) {
+      throw std::runtime_error("scene_id or im_id does not match generator_id and seq");
+    }
+    if (index_.count({SceneId(entry.generator_id, entry.seq), ImageId(entry.seq)}) != 0) {
+      throw std::runtime_error("scene " + std::to_string(generator_id) + "/" +
+                               std::to_string(entry.seq) + " is recorded twice");
+    }
+    if (scene.contains("run")) runs_[entry.generator_id] = scene["run"].get<std::string>();
+    for (const json& file : scene.at("files")) files->insert(file.get<std::string>());
+    for (const json& category : scene.at("classes")) {
+      const int32_t class_id = category.at(0).get<int32_t>();
+      const std::string name = category.at(1).get<std::string>();
+      const auto known = classes_.find(class_id);
+      if (known != classes_.end() && known->second != name) {
+        throw std::runtime_error("class " + std::to_string(class_id) + " \"" + name +
+                                 "\" differs from an earlier line's \"" + known->second + "\"");
+      }
+      classes_.emplace(class_id, name);
+    }
+    num_ground_truths_ += static_cast<int64_t>(record.at("gt").size());
+    entry.offset = offset;
+    entry.length = line.size();
+    Index(entry);
+  } catch (const json::exception& error) {
+    throw std::runtime_error(where + ": not a stackgen-bop journal record (" + error.what() + ")");
+  } catch (const std::runtime_error& error) {
+    throw std::runtime_error(where + ": " + error.what());
+  }
+}
+
+void BopWriter::CleanFolders(const std::set<std::string>& journaled_files) const {
+  const fs::path root(dir_);
+  size_t present = 0;
+  std::error_code error;
+  const auto clean = [&](const fs::path& folder, bool images) {
+    for (fs::directory_iterator it(folder, error), end; !error && it != end; it.increment(error)) {
+      std::error_code type_error;
+      if (!it->is_regular_file(type_error)) continue;
+      const std::string name = it->path().filename().string();
+      const std::string relative = fs::relative(it->path(), root).string();
+      if (journaled_files.count(relative) != 0) {
+        ++present;
+        continue;
+      }
+      // temporary files, and with resume image files no journal line names (an Add that never
+      // completed wrote them)
+      if ((EndsWith(name, kTemporarySuffix) || (images && IsImageFileName(name))) &&
+          unlink(it->path().c_str()) != 0) {
+        throw SystemError("cannot remove", it->path().string(), errno);
+      }
+    }
+    error.clear();
+  };
+  clean(root, false);
+  clean(root / kModelsFolder, false);
+  clean(root / kShardsFolder, false);
+  const fs::path split = root / options_.split;
+  for (fs::directory_iterator chunk(split, error), end; !error && chunk != end;
+       chunk.increment(error)) {
+    std::error_code type_error;
+    if (!chunk->is_directory(type_error)) continue;
+    std::error_code inner;
+    clean(chunk->path(), false);
+    for (const char* images : kImageFolders) clean(chunk->path() / images, options_.resume);
+  }
+  // every journaled file is there
+  if (present < journaled_files.size()) {
+    for (const std::string& name : journaled_files) {
+      if (!fs::exists(root / name, error)) {
+        throw std::runtime_error((root / name).string() + " is missing, though " +
+                                 journal_->path() + " records it (the dataset is damaged)");
+      }
+    }
+  }
+}
+
+void BopWriter::Index(const Entry& entry) {
+  index_.emplace(std::make_pair(SceneId(entry.generator_id, entry.seq), ImageId(entry.seq)), entry);
+}
+
+void BopWriter::Validate(const scene& scene) const {
+  const std::string name = SceneName(scene);
+  std::string why;
+  if (!CheckScene(scene, &why)) Fail(name, why);
+  if (scene.depth.size == 0) Fail(name, "depth is empty: a BOP dataset needs the depth image");
+  // what BOP needs beyond the contract: obj ids of six digits, JSON text, one name per class
+  std::map<int32_t, std::string> scene_classes;
+  for (size_t i = 0; i < scene.instances.size(); ++i) {
+    const instance& object = scene.instances[i];
+    const std::string field = "instances[" + std::to_string(i) + "]";
+    if (object.class_id > kMaxObjId) {
+      Fail(name, field + ".class_id " + std::to_string(object.class_id) + " outside 1.." +
+                     std::to_string(kMaxObjId) + " (BOP obj ids have six digits)");
+    }
+    if (!IsUtf8(object.class_name)) Fail(name, field + ".class_name is not valid UTF-8");
+    std::string known = scene_classes.emplace(object.class_id, object.class_name).first->second;
+    const auto stored = classes_.find(object.class_id);
+    if (stored != classes_.end()) known = stored->second;
+    for (const Staged& staged : staged_) {
+      const auto in_staged = staged.classes.find(object.class_id);
+      if (in_staged != staged.classes.end()) known = in_staged->second;
+    }
+    if (known != object.class_name) {
+      Fail(name, field + ".class_name \"" + object.class_name + "\" differs from \"" + known +
+                     "\" seen before for class_id " + std::to_string(object.class_id));
+    }
+  }
+}
+
+bool BopWriter::Add(const scene& scene) {
+  // store each (generator_id, seq) once; the same ids with another seed come from another run
+  const std::string scene_name = SceneName(scene);
+  const int32_t generator_id = scene.header.generator_id;
+  const int64_t seq = scene.header.seq;
+  if (!SceneIdsInRange(generator_id, seq)) {
+    Fail(scene_name, "generator_id or seq outside the id layout (generator_id 0.." +
+                         std::to_string(kMaxGeneratorId) + ", seq 0.." + std::to_string(kMaxSeq) +
+                         ")");
+  }
+  const int64_t scene_id = SceneId(generator_id, seq);
+  const int64_t im_id = ImageId(seq);
+  const auto key = std::make_pair(scene_id, im_id);
+  int64_t seen_seed = 0;
+  bool seen = false;
+  if (const auto stored = index_.find(key); stored != index_.end()) {
+    seen = true;
+    seen_seed = stored->second.seed;
+  } else if (const auto staged = staged_seeds_.find(key); staged != staged_seeds_.end()) {
+    seen = true;
+    seen_seed = staged->second;
+  }
+  if (seen) {
+    if (seen_seed != scene.header.seed) {
+      Fail(scene_name, "header.seed " + std::to_string(scene.header.seed) +
+                           " differs from the stored scene's " + std::to_string(seen_seed) +
+                           ": another run with the same --generator-id (give each run its own "
+                           "id, or write it to another --out)");
+    }
+    return false;
+  }
+  Validate(scene);
+
+  // the images, decoded whole: a PNG or JPEG is checked before it is stored
+  std::string why;
+  const cv::Mat color = DecodeImage(scene.color, &why);
+  if (color.empty()) Fail(scene_name, "color." + why);
+  const cv::Mat depth = DecodeImage(scene.depth, &why);
+  if (depth.empty()) Fail(scene_name, "depth." + why);
+
+  // where its files go
+  const camera_info& camera = scene.camera;
+  const std::string chunk = ChunkFolder(scene_id);
+  const fs::path chunk_path = fs::path(dir_) / chunk;
+  const bool gray = scene.color.pixel_format == image::PIXEL_GRAY8;
+  const bool jpeg = options_.jpeg_quality > 0 || scene.color.encoding == image::ENCODING_JPEG;
+  const std::string rgb_name =
+      std::string(gray ? "gray/" : "rgb/") + Six(im_id) + (jpeg ? ".jpg" : ".png");
+  Staged staged;
+  try {
+    for (const char* folder :
+         {gray ? "gray" : "rgb", kDepthFolder, kMaskFolder, kMaskVisibFolder}) {
+      CreateFolders(chunk_path / folder);
+    }
+    const auto write = [&](const std::string& relative, const std::vector<uint8_t>& bytes) {
+      const fs::path path = chunk_path / relative;
+      staged.files.push_back(path.string());
+      WriteFileAtomically(path, reinterpret_cast<const char*>(bytes.data()), bytes.size(), false);
+    };
+
+    // colour and depth: the bytes as they came where they are the file BOP wants
+    const bool keep_color = scene.color.encoding == image::ENCODING_JPEG ||
+                            (scene.color.encoding == image::ENCODING_PNG && !jpeg);
+    write(rgb_name, keep_color ? scene.color.data : EncodeImage(color, -1, options_.jpeg_quality));
+    write(std::string(kDepthFolder) + "/" + Six(im_id) + ".png",
+          scene.depth.encoding == image::ENCODING_PNG ? scene.depth.data : EncodeImage(depth, -1));
+
+    // the ground truths, by instance id
+    std::vector<const instance*> objects;
+    for (const instance& object : scene.instances) objects.push_back(&object);
+    std::sort(objects.begin(), objects.end(),
+              [](const instance* a, const instance* b) { return a->instance_id < b->instance_id; });
+    json gt = json::array(), gt_info = json::array(), coco = json::array(), masks = json::array();
+    cv::Mat mask(camera.height, camera.width, CV_8UC1);
+    for (size_t gt_id = 0; gt_id < objects.size(); ++gt_id) {
+      const instance& object = *objects[gt_id];
+      const std::string mask_name = Six(im_id) + "_" + Six(static_cast<int64_t>(gt_id)) + ".png";
+      // the full mask: its pixels with a depth are BOP's px_count_valid
+      mask.setTo(0);
+      DecodeRleInto(object.mask_obj_rle, camera.height, camera.width, mask.data);
+      const int64_t valid = cv::countNonZero(mask & (depth > 0));
+      write(std::string(kMaskFolder) + "/" + mask_name,
+            EncodeImage(mask * 255, kMaskPngCompression));
+      mask.setTo(0);
+      DecodeRleInto(object.mask_visib_rle, camera.height, camera.width, mask.data);
+      write(std::string(kMaskVisibFolder) + "/" + mask_name,
+            EncodeImage(mask * 255, kMaskPngCompression));
+
+      const pose& camera_from_object = object.camera_from_object;
+      gt.push_back({{"cam_R_m2c", std::vector<double>(camera_from_object.rotation,
+                                                      camera_from_object.rotation + 9)},
+                    {"cam_t_m2c", std::vector<double>(camera_from_object.translation_mm,
+                                                      camera_from_object.translation_mm + 3)},
+                    {"obj_id", object.class_id}});
+      gt_info.push_back(
+          {{"bbox_obj",
+            ToolkitBox(object.bbox_obj, object.px_count_visib > 0 ? object.px_count_all : 0)},
+           {"bbox_visib", ToolkitBox(object.bbox_visib, object.px_count_visib)},
+           {"px_count_all", object.px_count_all},
+           {"px_count_valid", valid},
+           {"px_count_visib", object.px_count_visib},
+           {"visib_fract", object.visib_fract}});
+      if (object.px_count_visib > 0) {
+        coco.push_back(
+            {{"area", object.px_count_visib},
+             {"bbox", std::vector<int32_t>(object.bbox_obj, object.bbox_obj + 4)},
+             {"category_id", object.class_id},
+             {"height", camera.height},
+             {"ignore", object.visib_fract < kIgnoreBelowVisibFract},
+             {"image_id", im_id},
+             {"iscrowd", 0},
+             {"segmentation",
+              {{"counts", object.mask_visib_rle}, {"size", {camera.height, camera.width}}}},
+             {"width", camera.width}});
+      }
+      masks.push_back({object.mask_obj_rle, object.mask_visib_rle});
+      staged.classes.emplace(object.class_id, object.class_name);
+    }
+    staged.ground_truths = static_cast<int64_t>(objects.size());
+
+    // the camera: K, world to camera, depth scale
+    std::vector<double> rotation, translation;
+    Invert(camera.world_from_camera, &rotation, &translation);
+    const json scene_camera = {
+        {"cam_K", {camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0}},
+        {"cam_R_w2c", rotation},
+        {"cam_t_w2c", translation},
+        {"depth_scale", camera.depth_scale_mm}};
+    if (!camera_written_) {
+      // the first scene's camera describes the dataset's sensor
+      WriteToolkitObject(fs::path(dir_) / kCameraFile, {{"cx", camera.cx},
+                                                        {"cy", camera.cy},
+                                                        {"depth_scale", camera.depth_scale_mm},
+                                                        {"fx", camera.fx},
+                                                        {"fy", camera.fy},
+                                                        {"height", camera.height},
+                                                        {"width", camera.width}});
+      camera_written_ = true;
+    }
+
+    // its journal line
+    json classes = json::array();
+    for (const auto& [class_id, class_name] : staged.classes)
+      classes.push_back({class_id, class_name});
+    json files = json::array();
+    for (const std::string& path : staged.files) {
+      files.push_back(fs::path(path).lexically_relative(dir_).string());
+    }
+    json record_scene = {{"classes", std::move(classes)},
+                         {"files", std::move(files)},
+                         {"generator_id", generator_id},
+                         {"height", camera.height},
+                         {"im_id", im_id},
+                         {"journal_version", kJournalVersion},
+                         {"rgb", rgb_name},
+                         {"scene_id", scene_id},
+                         {"seed", scene.header.seed},
+                         {"seq", seq},
+                         {"width", camera.width}};
+    const auto run = runs_.find(generator_id);
+    if (run != runs_.end()) record_scene["run"] = run->second;
+    const json record = {{"camera", scene_camera},    {"coco", std::move(coco)},
+                         {"gt", std::move(gt)},       {"gt_info", std::move(gt_info)},
+                         {"masks", std::move(masks)}, {"scene", std::move(record_scene)}};
+    staged.line = record.dump() + "\n";
+  } catch (...) {
+    for (const std::string& path : staged.files) unlink(path.c_str());
+    throw;
+  }
+  staged.entry.generator_id = generator_id;
+  staged.entry.seq = seq;
+  staged.entry.seed = scene.header.seed;
+  staged.entry.length = staged.line.size() - 1;
+  staged_seeds_.emplace(key, scene.header.seed);
+  staged_.push_back(std::move(staged));
+  if (!options_.group_commit) Commit();
+  return true;
+}
+
+std::vector<std::pair<int32_t, int64_t>> BopWriter::Commit() {
+  std::vector<std::pair<int32_t, int64_t>> committed;
+  if (staged_.empty()) return committed;
+  try {
+    // the files and their names, in one sync of the file system; then the lines that record
+    // them, in one write and one sync
+    if (syncfs(journal_->fd()) != 0) throw SystemError("cannot sync", dir_, errno);
+    std::string lines;
+    for (const Staged& staged : staged_) lines += staged.line;
+    journal_->Append(lines);
+  } catch (...) {
+    // nothing staged stays: its files go (unless the journal may record them)
+    if (!journal_->broken()) {
+      for (const Staged& staged : staged_) {
+        for (const std::string& path : staged.files) unlink(path.c_str());
+      }
+    }
+    staged_.clear();
+    staged_seeds_.clear();
+    throw;
+  }
+  // index them where their lines now lie
+  uint64_t offset = journal_->size();
+  for (const Staged& staged : staged_) offset -= staged.line.size();
+  std::set<int64_t> chunks;
+  for (const Staged& staged : staged_) {
+    Entry entry = staged.entry;
+    entry.offset = offset;
+    Index(entry);
+    classes_.insert(staged.classes.begin(), staged.classes.end());
+    num_ground_truths_ += staged.ground_truths;
+    committed.emplace_back(entry.generator_id, entry.seq);
+    chunks.insert(SceneId(entry.generator_id, entry.seq));
+    offset += staged.line.size();
+  }
+  staged_.clear();
+  staged_seeds_.clear();
+  // a chunk with all its images gets its JSON files now, the others at Finish
+  for (const int64_t scene_id : chunks) {
+    const auto first = index_.lower_bound({scene_id, 0});
+    const auto last = index_.lower_bound({scene_id + 1, 0});
+    if (std::distance(first, last) == kImagesPerChunk) {
+      WriteChunk(scene_id);
+      dirty_chunks_.erase(scene_id);
+    } else {
+      dirty_chunks_.insert(scene_id);
+    }
+  }
+  return committed;
+}
+
+void BopWriter::WriteChunk(int64_t scene_id) {
+  json scene_camera = json::object(), scene_gt = json::object(), scene_gt_info = json::object();
+  std::vector<std::pair<int64_t, json>> cameras, gts, infos;
+  json images = json::array(), annotations = json::array();
+  std::map<int32_t, std::string> chunk_classes;
+  std::vector<std::pair<int64_t, std::string>> lines;  // for the shards
+  int64_t annotation_id = 1;
+  for (auto it = index_.lower_bound({scene_id, 0});
+       it != index_.end() && it->first.first == scene_id; ++it) {
+    const int64_t im_id = it->first.second;
+    std::string line = journal_->Read(it->second.offset, it->second.length);
+    json record = json::parse(line);
+    if (options_.shard_images > 0) lines.emplace_back(im_id, std::move(line));
+    cameras.emplace_back(im_id, std::move(record["camera"]));
+    gts.emplace_back(im_id, std::move(record["gt"]));
+    infos.emplace_back(im_id, std::move(record["gt_info"]));
+    for (json& annotation : record["coco"]) {
+      annotation["id"] = annotation_id++;
+      annotations.push_back(std::move(annotation));
+    }
+    for (const json& category : record["scene"]["classes"]) {
+      chunk_classes.emplace(category[0].get<int32_t>(), category[1].get<std::string>());
+    }
+    const json& scene = record["scene"];
+    images.push_back({{"file_name", scene["rgb"]},
+                      {"height", scene["height"]},
+                      {"id", im_id},
+                      {"width", scene["width"]}});
+  }
+
+  // the per-image files, keyed by image id in numeric order, as save_json sorts int keys
+  const fs::path folder = fs::path(dir_) / ChunkFolder(scene_id);
+  const auto write = [&](const char* name, const std::vector<std::pair<int64_t, json>>& items) {
+    std::vector<std::pair<std::string, const json*>> entries;
+    for (const auto& [im_id, value] : items) entries.emplace_back(std::to_string(im_id), &value);
+    WriteToolkitFile(folder / name, entries);
+  };
+  write("scene_camera.json", cameras);
+  write("scene_gt.json", gts);
+  write("scene_gt_info.json", infos);
+
+  // scene_gt_coco.json: annotations numbered in image order; categories of this chunk
+  json categories = json::array();
+  for (const auto& [class_id, class_name] : chunk_classes) {
+    categories.push_back({{"id", class_id}, {"name", class_name}, {"supercategory", "stackgen"}});
+  }
+  const json coco = {{"annotations", std::move(annotations)},
+                     {"categories", std::move(categories)},
+                     {"images", std::move(images)},
+                     {"info",
+                      {{"contributor", "stackgen-bop"},
+                       {"description", "stackgen " + options_.split + " " + Six(scene_id)},
+                       {"url", ""},
+                       {"version", "1.0"}}},
+                     {"licenses", json::array()}};
+  WriteToolkitObject(folder / "scene_gt_coco.json", coco);
+  if (options_.shard_images > 0) WriteShards(scene_id, lines);
+}
+
+int64_t BopWriter::ShardId(int64_t scene_id, int64_t im_id) const {
+  const int64_t per_chunk = (kImagesPerChunk + options_.shard_images - 1) / options_.shard_images;
+  return scene_id * per_chunk + im_id / options_.shard_images;
+}
+
+void BopWriter::WriteShards(int64_t scene_id,
+                            const std::vector<std::pair<int64_t, std::string>>& lines) {
+  const fs::path chunk = fs::path(dir_) / ChunkFolder(scene_id);
+  // the members of each shard, image by image in key order
+  std::map<int64_t, std::vector<std::pair<std::string, std::string>>> shards;
+  for (const auto& [im_id, line] : lines) {
+    const json record = json::parse(line);
+    const json& scene = record.at("scene");
+    const std::string key = Six(scene_id) + "_" + Six(im_id);
+    const std::string rgb = scene.at("rgb").get<std::string>();  // "rgb/000000.png"
+    const size_t slash = rgb.find('/'), dot = rgb.rfind('.');
+    const int32_t height = scene.at("height").get<int32_t>();
+    const int32_t width = scene.at("width").get<int32_t>();
+    json mask = json::object(), mask_visib = json::object();
+    for (size_t g = 0; g < record.at("masks").size(); ++g) {
+      mask[std::to_string(g)] = UncompressedRle(record["masks"][g][0], height, width);
+      mask_visib[std::to_string(g)] = UncompressedRle(record["masks"][g][1], height, width);
+    }
+    const auto read = [&](const std::string& relative) {
+      const std::string path = (chunk / relative).string();
+      ScopedFd file(open(path.c_str(), O_RDONLY | O_CLOEXEC));
+      if (file.get() < 0) throw SystemError("cannot read", path, errno);
+      return ReadAt(file.get(), 0, static_cast<uint64_t>(FileSize(path)), path);
+    };
+    auto& members = shards[ShardId(scene_id, im_id)];
+    members.emplace_back(key + "." + rgb.substr(0, slash) + rgb.substr(dot), read(rgb));
+    members.emplace_back(key + ".depth.png",
+                         read(std::string(kDepthFolder) + "/" + Six(im_id) + ".png"));
+    members.emplace_back(key + ".camera.json", ToolkitText(record.at("camera")));
+    members.emplace_back(key + ".gt.json", ToolkitText(record.at("gt")));
+    members.emplace_back(key + ".gt_info.json", ToolkitText(record.at("gt_info")));
+    members.emplace_back(key + ".mask.json", ToolkitText(mask, true));
+    members.emplace_back(key + ".mask_visib.json", ToolkitText(mask_visib, true));
+  }
+  for (const auto& [shard_id, members] : shards) {
+    char name[64];
+    std::snprintf(name, sizeof(name), "shard-%06lld.tar", static_cast<long long>(shard_id));
+    WriteTar(fs::path(dir_) / kShardsFolder / name, members);
+  }
+}
+
+void BopWriter::WriteKeyToShard() const {
+  // every key, in key order (the toolkit's save_json sorts string keys)
+  json index = json::object();
+  for (const auto& [key, entry] : index_) {
+    index[Six(key.first) + "_" + Six(key.second)] = ShardId(key.first, key.second);
+  }
+  WriteToolkitObject(fs::path(dir_) / kShardsFolder / kKeyToShardFile, index);
+}
+
+void BopWriter::Finish() {
+  Commit();
+  for (const int64_t scene_id : dirty_chunks_) WriteChunk(scene_id);
+  dirty_chunks_.clear();
+  if (options_.shard_images > 0) WriteKeyToShard();
+}
+
+bool BopWriter::AddModel(const model& m) {
+  // a model that agrees with itself
+  const std::string name = "model of class " + std::to_string(m.class_id);
+  const auto fail = [&](const std::string& text) { throw InvalidSceneError(name + ": " + text); };
+  if (m.class_id < 1 || m.class_id > kMaxObjId) {
+    fail("class_id outside 1.." + std::to_string(kMaxObjId));
+  }
+  if (m.class_name.empty() || !IsUtf8(m.class_name)) fail("class_name is empty or not UTF-8");
+  if (m.num_vertices < 3 || m.num_vertices != static_cast<int32_t>(m.vertices_mm.size()) ||
+      m.num_vertices != static_cast<int32_t>(m.normals.size()) || m.num_triangles < 1 ||
+      m.num_triangles != static_cast<int32_t>(m.triangles.size())) {
+    fail("num_vertices " + std::to_string(m.num_vertices) + " or num_triangles " +
+         std::to_string(m.num_triangles) + " does not match the arrays or is too small");
+  }
+  if (!AllFinite(m.vertices_mm) || !AllFinite(m.normals)) fail("a vertex or normal is not finite");
+  for (const std::vector<int32_t>& t : m.triangles) {
+    for (int32_t index : t) {
+      if (index < 0 || index >= m.num_vertices) fail("a triangle index is outside the vertices");
+    }
+  }
+  if (!std::isfinite(m.diameter_mm) || m.diameter_mm <= 0) fail("diameter_mm is not positive");
+  if (m.num_discrete_symmetries != static_cast<int32_t>(m.discrete_symmetries.size()) ||
+      m.num_continuous_symmetries != static_cast<int32_t>(m.continuous_axes.size()) ||
+      m.num_continuous_symmetries != static_cast<int32_t>(m.continuous_offsets_mm.size())) {
+    fail("a symmetry count does not match its array");
+  }
+  for (const auto* rows : {&m.discrete_symmetries, &m.continuous_axes, &m.continuous_offsets_mm}) {
+    for (const std::vector<double>& row : *rows) {
+      for (double value : row) {
+        if (!std::isfinite(value)) fail("a symmetry is not finite");
+      }
+    }
+  }
+  // the class in the data must be the model's
+  const auto known = classes_.find(m.class_id);
+  if (known != classes_.end() && known->second != m.class_name) {
+    fail("class_name \"" + m.class_name + "\" differs from the scenes' \"" + known->second + "\"");
+  }
+
+  // the first model heard of a class is kept; another mesh for it is reported, not stored
+  const std::string ply = PlyText(m);
+  const fs::path ply_path = fs::path(dir_) / kModelsFolder / ("obj_" + Six(m.class_id) + ".ply");
+  if (models_info_.count(m.class_id) != 0) {
+    auto heard = model_files_.find(m.class_id);
+    if (heard == model_files_.end()) {
+      // stored by an earlier run: compare with its file once
+      std::string stored;
+      const int64_t size = FileSize(ply_path.string());
+      if (size >= 0) {
+        ScopedFd file(open(ply_path.c_str(), O_RDONLY | O_CLOEXEC));
+        if (file.get() >= 0) stored = ReadAt(file.get(), 0, static_cast<uint64_t>(size), ply_path);
+      }
+      heard = model_files_.emplace(m.class_id, std::move(stored)).first;
+    }
+    if (heard->second != ply) conflicting_models_.insert(m.class_id);
+    return false;
+  }
+  WriteFileAtomically(ply_path, ply.data(), ply.size(), true);
+  models_info_[m.class_id] = ModelInfo(m).dump();
+  model_files_[m.class_id] = ply;
+  WriteModelsInfo();
+  return true;
+}
+
+void BopWriter::WriteModelsInfo() const {
+  // keyed by obj id in numeric order, as save_json sorts int keys
+  std::vector<json> values;
+  values.reserve(models_info_.size());
+  for (const auto& [obj_id, text] : models_info_) values.push_back(json::parse(text));
+  std::vector<std::pair<std::string, const json*>> entries;
+  size_t i = 0;
+  for (const auto& [obj_id, text] : models_info_) {
+    entries.emplace_back(std::to_string(obj_id), &values[i++]);
+  }
+  WriteToolkitFile(fs::path(dir_) / kModelsFolder / kModelsInfoFile, entries);
+}
+
+std::set<int32_t> BopWriter::ModelClasses() const {
+  std::set<int32_t> classes;
+  for (const auto& [obj_id, text] : models_info_) classes.insert(obj_id);
+  return classes;
+}
+
+int64_t BopWriter::num_chunks() const {
+  std::set<int64_t> chunks;
+  for (const auto& [key, entry] : index_) chunks.insert(key.first);
+  return static_cast<int64_t>(chunks.size());
+}
+
+std::map<int32_t, std::vector<int64_t>> BopWriter::StoredSeqs() const {
+  // the index is sorted by scene id (generator, then seq / 1000), then image id (seq % 1000)
+  std::map<int32_t, std::vector<int64_t>> seqs;
+  for (const auto& [key, entry] : index_) seqs[entry.generator_id].push_back(entry.seq);
+  return seqs;
+}
+
+std::map<int32_t, int64_t> BopWriter::LostPerGenerator() const { return LostBetween(StoredSeqs()); }
+
+void BopWriter::SetRun(int32_t generator_id, const std::string& run) { runs_[generator_id] = run; }
+
+}  // namespace stackgen

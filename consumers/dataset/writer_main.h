@@ -1,0 +1,58 @@
+#pragma once
+// The program around a dataset writer (stackgen-coco, stackgen-bop): the flags they share, the
+// bus, credits and resends as a reliable consumer, each generator's run, group commits, status,
+// progress and the summary. A writer supplies only its dataset (a DatasetSink).
+
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "bus/bus.h"
+#include "bus/flags.h"
+#include "consumers/dataset/dataset_sink.h"
+
+namespace stackgen {
+
+/// The flags every dataset writer has.
+struct WriterFlags {
+  std::string out;
+  int64_t count = 0;
+  std::string lcm_url;
+  std::string bus_key_file;  // "": $STACKGEN_BUS_KEY_FILE
+  bool resume = false;
+  int64_t window = 8;
+  int64_t group_commit = 16;
+  double fault_drop = 0;
+};
+
+/// Registers the WriterFlags on `parser`: --out (required), --count, --resume, --lcm-url,
+/// --bus-key-file, --window, --group-commit, --fault-drop.
+void AddWriterFlags(FlagParser* parser, WriterFlags* flags);
+
+/// The help text of those flags, for a program's --help (`program` names its journal).
+std::string WriterFlagsHelp(const std::string& journal);
+
+/// What a writer program is.
+struct WriterProgram {
+  /// Its name in messages and credits: "stackgen-coco".
+  std::string name;
+  /// Opens the dataset in flags.out (resumed with flags.resume). Called after the bus is open, so
+  /// a bad URL or key leaves nothing on disk.
+  std::function<std::unique_ptr<DatasetSink>(const WriterFlags&)> open;
+  /// Optional: subscribes what else the writer needs from the bus (stackgen-bop: the models).
+  std::function<void(Bus&, DatasetSink&)> subscribe;
+  /// The last line printed on success, after Finish: what the dataset holds.
+  std::function<std::string(const DatasetSink&)> summary;
+};
+
+/// Runs a writer program to its end: stores the scenes on STACKGEN_SCENE until flags.count are
+/// stored, SIGINT or SIGTERM, or the end of a file:// log; returns the exit status (0, or 1
+/// after printing one error line; what is stored stays valid).
+int RunWriter(const WriterProgram& program, const WriterFlags& flags);
+
+}  // namespace stackgen

@@ -12,8 +12,6 @@
 #include <limits>
 #include <string_view>
 
-#include <archive.h>
-#include <archive_entry.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
@@ -21,6 +19,7 @@
 #include "bus/scene_contract.h"
 #include "consumers/dataset/files.h"
 #include "consumers/dataset/images.h"
+#include "consumers/dataset/shards.h"
 
 namespace stackgen {
 namespace {
@@ -36,8 +35,8 @@ constexpr const char* kShardsFolder = "shards";
 constexpr const char* kKeyToShardFile = "key_to_shard.json";
 constexpr std::string_view kTemporarySuffix = ".tmp";
 constexpr int kJournalVersion = 1;
-// images per chunk (BOP scene folder), and the ids that fit six digits
-constexpr int64_t kImagesPerChunk = 1000;
+// chunks (BOP scene folders) of kImagesPerChunk images (consumers/dataset/shards.h), and the
+// ids that fit six digits
 constexpr int64_t kChunksPerGenerator = 1000000;
 constexpr int32_t kMaxObjId = 999999;
 // scene_gt_coco "ignore": as the toolkit's scripts/calc_gt_coco.py, below 10 % visible
@@ -182,56 +181,6 @@ std::string ToolkitText(const json& value, bool numeric_keys = false) {
   }
   AppendToolkitJson(value, &text);
   return text;
-}
-
-// a tar file of `members` (name, bytes) in that order, ustar, every member 0644, owned by 0:0
-// and dated 0, so the same members give the same bytes; written through a temporary file,
-// synced, renamed into place (libarchive writes the tar format)
-void WriteTar(const fs::path& path,
-              const std::vector<std::pair<std::string, std::string>>& members) {
-  const std::string temporary = path.string() + ".tmp";
-  struct archive* tar = archive_write_new();
-  const auto fail = [&](const std::string& what) {
-    const std::string reason = archive_error_string(tar) ? archive_error_string(tar) : "";
-    archive_write_free(tar);
-    unlink(temporary.c_str());
-    throw std::runtime_error("cannot write " + temporary + ": " + what +
-                             (reason.empty() ? "" : " (" + reason + ")"));
-  };
-  if (archive_write_set_format_ustar(tar) != ARCHIVE_OK ||
-      archive_write_open_filename(tar, temporary.c_str()) != ARCHIVE_OK) {
-    fail("cannot open");
-  }
-  for (const auto& [name, bytes] : members) {
-    struct archive_entry* entry = archive_entry_new();
-    archive_entry_set_pathname(entry, name.c_str());
-    archive_entry_set_size(entry, static_cast<la_int64_t>(bytes.size()));
-    archive_entry_set_filetype(entry, AE_IFREG);
-    archive_entry_set_perm(entry, 0644);
-    archive_entry_set_mtime(entry, 0, 0);
-    const bool written = archive_write_header(tar, entry) == ARCHIVE_OK &&
-                         archive_write_data(tar, bytes.data(), bytes.size()) ==
-                             static_cast<la_ssize_t>(bytes.size());
-    archive_entry_free(entry);
-    if (!written) fail(name);
-  }
-  if (archive_write_close(tar) != ARCHIVE_OK) fail("close");
-  archive_write_free(tar);
-  // durable before it takes the old shard's place
-  {
-    ScopedFd file(open(temporary.c_str(), O_RDONLY | O_CLOEXEC));
-    if (file.get() < 0 || fsync(file.get()) != 0) {
-      const int error = errno;
-      unlink(temporary.c_str());
-      throw SystemError("cannot sync", temporary, error);
-    }
-  }
-  if (rename(temporary.c_str(), path.c_str()) != 0) {
-    const int error = errno;
-    unlink(temporary.c_str());
-    throw SystemError("cannot rename " + temporary + " to", path.string(), error);
-  }
-  SyncFolder(path.parent_path());
 }
 
 // a mask in BOP-imagewise's mask.json form: uncompressed COCO RLE (pycoco_utils
@@ -860,8 +809,7 @@ void BopWriter::WriteChunk(int64_t scene_id) {
 }
 
 int64_t BopWriter::ShardId(int64_t scene_id, int64_t im_id) const {
-  const int64_t per_chunk = (kImagesPerChunk + options_.shard_images - 1) / options_.shard_images;
-  return scene_id * per_chunk + im_id / options_.shard_images;
+  return ShardOf(scene_id, im_id, options_.shard_images);
 }
 
 void BopWriter::WriteShards(int64_t scene_id,
@@ -899,19 +847,16 @@ void BopWriter::WriteShards(int64_t scene_id,
     members.emplace_back(key + ".mask_visib.json", ToolkitText(mask_visib, true));
   }
   for (const auto& [shard_id, members] : shards) {
-    char name[64];
-    std::snprintf(name, sizeof(name), "shard-%06lld.tar", static_cast<long long>(shard_id));
-    WriteTar(fs::path(dir_) / kShardsFolder / name, members);
+    WriteTar(fs::path(dir_) / kShardsFolder / ShardFileName(shard_id), members);
   }
 }
 
 void BopWriter::WriteKeyToShard() const {
-  // every key, in key order (the toolkit's save_json sorts string keys)
-  json index = json::object();
+  std::map<std::string, int64_t> keys;
   for (const auto& [key, entry] : index_) {
-    index[Six(key.first) + "_" + Six(key.second)] = ShardId(key.first, key.second);
+    keys.emplace(Six(key.first) + "_" + Six(key.second), ShardId(key.first, key.second));
   }
-  WriteToolkitObject(fs::path(dir_) / kShardsFolder / kKeyToShardFile, index);
+  stackgen::WriteKeyToShard(fs::path(dir_) / kShardsFolder / kKeyToShardFile, keys);
 }
 
 void BopWriter::Finish() {

@@ -26,6 +26,7 @@
 #include "bus/scene_contract.h"
 #include "consumers/dataset/files.h"
 #include "consumers/dataset/images.h"
+#include "consumers/dataset/shards.h"
 
 namespace stackgen {
 namespace {
@@ -43,6 +44,7 @@ constexpr int32_t kMaxCocoInstanceId = 999;
 constexpr const char* kAnnotationsFile = "annotations.json";
 constexpr const char* kJournalFile = "annotations.journal";
 constexpr const char* kImagesFolder = "images";
+constexpr const char* kShardsFolder = "shards";
 constexpr std::string_view kTemporarySuffix = ".tmp";
 
 // a journal line: {"image":IMAGE,"annotations":[ANNOTATIONS],"scene":SCENE}\n (see the header)
@@ -162,8 +164,15 @@ CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
                              journal_path_ + " is missing (choose another output folder)");
   }
 
+  if (options_.shard_images < 0 || options_.shard_images > kImagesPerChunk) {
+    throw std::runtime_error("shard_images " + std::to_string(options_.shard_images) +
+                             " outside 0..1000");
+  }
   // the folders, each new one made durable in its parent
-  const std::vector<fs::path> created = CreateFolders(folder / kImagesFolder);
+  std::vector<fs::path> created = CreateFolders(folder / kImagesFolder);
+  if (options_.shard_images > 0) {
+    for (const fs::path& path : CreateFolders(folder / kShardsFolder)) created.push_back(path);
+  }
   // a writer that cannot open leaves nothing it made behind: the journal it created, empty, and
   // the folders it created, empty
   const bool journal_existed = FileSize(journal_path_) >= 0;
@@ -183,6 +192,23 @@ CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
     }
     // leftovers of an Add or a Finish that never completed
     CleanImagesFolder(journaled_images);
+    if (options_.shard_images > 0) {
+      // a shard or the index cut short by a crash; every shard is written again by Finish
+      std::error_code error;
+      for (fs::directory_iterator it(folder / kShardsFolder, error), end; !error && it != end;
+           it.increment(error)) {
+        const std::string name = it->path().filename().string();
+        if (name.size() > kTemporarySuffix.size() &&
+            name.compare(name.size() - kTemporarySuffix.size(), kTemporarySuffix.size(),
+                         kTemporarySuffix) == 0 &&
+            unlink(it->path().c_str()) != 0) {
+          throw SystemError("cannot remove", it->path().string(), errno);
+        }
+      }
+      for (const auto& [image_id, entry] : index_) {
+        dirty_shards_.insert(ShardId(entry.generator_id, entry.seq));
+      }
+    }
     const std::string annotations_temporary = annotations + std::string(kTemporarySuffix);
     if (unlink(annotations_temporary.c_str()) != 0 && errno != ENOENT) {
       throw SystemError("cannot remove", annotations_temporary, errno);
@@ -638,11 +664,81 @@ std::vector<std::pair<int32_t, int64_t>> CocoWriter::Commit() {
   staged_.clear();
   staged_seeds_.clear();
   staged_categories_.clear();
+  // a full shard is written now, the others by Finish
+  if (options_.shard_images > 0) {
+    for (const auto& [generator_id, seq] : committed)
+      dirty_shards_.insert(ShardId(generator_id, seq));
+    for (const auto& [generator_id, seq] : committed) {
+      const int64_t shard = ShardId(generator_id, seq);
+      if (dirty_shards_.count(shard) == 0) continue;
+      // its seqs: [first, last) within the chunk of seq
+      const int64_t chunk_first = seq / kImagesPerChunk * kImagesPerChunk;
+      const int64_t first =
+          chunk_first + (seq - chunk_first) / options_.shard_images * options_.shard_images;
+      const int64_t last = std::min(first + options_.shard_images, chunk_first + kImagesPerChunk);
+      const auto begin = index_.lower_bound(ImageId(generator_id, first));
+      const auto end = index_.lower_bound(ImageId(generator_id, last));
+      if (std::distance(begin, end) == last - first) {
+        WriteShard(shard);
+        dirty_shards_.erase(shard);
+      }
+    }
+  }
   return committed;
+}
+
+int64_t CocoWriter::ShardId(int32_t generator_id, int64_t seq) const {
+  const int64_t chunk = int64_t{generator_id} * 1000000 + seq / kImagesPerChunk;
+  return ShardOf(chunk, seq % kImagesPerChunk, options_.shard_images);
+}
+
+void CocoWriter::WriteShard(int64_t shard_id) {
+  // the generator and seqs it holds (see ShardId)
+  const int64_t per_chunk = (kImagesPerChunk + options_.shard_images - 1) / options_.shard_images;
+  const int64_t chunk = shard_id / per_chunk;
+  const int32_t generator_id = static_cast<int32_t>(chunk / 1000000);
+  const int64_t first =
+      chunk % 1000000 * kImagesPerChunk + shard_id % per_chunk * options_.shard_images;
+  const int64_t last =
+      std::min(first + options_.shard_images, chunk % 1000000 * kImagesPerChunk + kImagesPerChunk);
+  // each image and its records under one key, in seq order
+  std::vector<std::pair<std::string, std::string>> members;
+  for (auto it = index_.lower_bound(ImageId(generator_id, first));
+       it != index_.end() && it->first < ImageId(generator_id, last); ++it) {
+    const JournalEntry& entry = it->second;
+    const std::string image = journal_->Read(entry.image_offset, entry.image_length);
+    const std::string file_name = json::parse(image).at("file_name").get<std::string>();
+    const std::string key = file_name.substr(0, file_name.rfind('.'));
+    const std::string path = (fs::path(dir_) / kImagesFolder / file_name).string();
+    ScopedFd file(open(path.c_str(), O_RDONLY | O_CLOEXEC));
+    if (file.get() < 0) throw SystemError("cannot read", path, errno);
+    members.emplace_back(file_name,
+                         ReadAt(file.get(), 0, static_cast<uint64_t>(FileSize(path)), path));
+    members.emplace_back(
+        key + ".json", "{\"annotations\":[" +
+                           (entry.annotations_length > 0
+                                ? journal_->Read(entry.annotations_offset, entry.annotations_length)
+                                : std::string()) +
+                           "],\"image\":" + image + "}");
+  }
+  WriteTar(fs::path(dir_) / kShardsFolder / ShardFileName(shard_id), members);
 }
 
 void CocoWriter::Finish() {
   Commit();
+  // the shards behind the journal, and the index of every key
+  if (options_.shard_images > 0) {
+    for (const int64_t shard : dirty_shards_) WriteShard(shard);
+    dirty_shards_.clear();
+    std::map<std::string, int64_t> keys;
+    char key[64];
+    for (const auto& [image_id, entry] : index_) {
+      std::snprintf(key, sizeof(key), "%d_%06lld", entry.generator_id,
+                    static_cast<long long>(entry.seq));
+      keys.emplace(key, ShardId(entry.generator_id, entry.seq));
+    }
+    WriteKeyToShard(fs::path(dir_) / kShardsFolder / "key_to_shard.json", keys);
+  }
   const fs::path final_path = fs::path(dir_) / kAnnotationsFile;
   const std::string temporary = final_path.string() + std::string(kTemporarySuffix);
   try {

@@ -43,6 +43,14 @@ struct CocoWriterOptions {
   /// Has, StoredThrough); a crash loses the staged ones, and a resumed writer removes their
   /// image files.
   bool group_commit = false;
+  /// 0 (the default): no shards. 1..1000: also webdataset tar shards of at most this many images
+  /// in DIR/shards/ (consumers/dataset/shards.h): each image's KEY = <generator_id>_<seq:06>
+  /// holds KEY.png (or .jpg) and KEY.json, {"annotations":[...],"image":{...}} with the records
+  /// annotations.json has for it; key_to_shard.json maps every key to its shard. Shard =
+  /// (generator_id * 1000000 + seq / 1000) * ceil(1000 / N) + seq % 1000 / N, whatever order
+  /// scenes arrive in. A shard is written whole once it is full, the others and the index by
+  /// Finish (after a resume: all of them). The images/ folder and annotations.json stay.
+  int shard_images = 0;
 };
 
 /// Streams stackgen::scene messages into a COCO instances dataset in a folder:
@@ -221,6 +229,9 @@ class CocoWriter : public DatasetSink {
   void CleanImagesFolder(const std::set<std::string>& journaled_images) const;
   // adds a stored scene to the index, the counts and StoredThrough
   void Index(const JournalEntry& entry, const SceneCounts& counts);
+  // the shard of a scene, and the writing of one (shard_images)
+  int64_t ShardId(int32_t generator_id, int64_t seq) const;
+  void WriteShard(int64_t shard_id);
 
   std::string dir_;
   CocoWriterOptions options_;
@@ -233,6 +244,7 @@ class CocoWriter : public DatasetSink {
   std::map<int64_t, int64_t> staged_seeds_;           // their image ids -> header.seed
   std::map<int32_t, std::string> staged_categories_;  // classes first seen in staged scenes
   std::map<int32_t, std::string> runs_;               // generator_id -> RunName of its scenes
+  std::set<int64_t> dirty_shards_;                    // shards whose file is behind the journal
   int64_t num_annotations_ = 0;
   int64_t num_crowd_ = 0;
   int64_t num_dropped_ = 0;

@@ -17,12 +17,14 @@ constexpr const char* kProgram = "stackgen-coco";
 struct Flags {
   stackgen::WriterFlags writer;
   std::optional<double> min_visib_fract;  // unset: follow the generator's labels
+  int64_t shards = 0;
 };
 
 void PrintHelp() {
   std::printf(
       "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL] [--bus-key-file FILE]\n"
-      "       [--min-visib-fract F] [--window N] [--group-commit N] [--fault-drop F]\n"
+      "       [--min-visib-fract F] [--shards N] [--window N] [--group-commit N]\n"
+      "       [--fault-drop F]\n"
       "\n"
       "Writes every scene published on %s into a COCO instances dataset:\n"
       "DIR/annotations.json and DIR/images/<generator_id>_<seq:06>.png (.jpg for JPEG scenes).\n"
@@ -53,6 +55,12 @@ void PrintHelp() {
       "                        annotation.min_visib_fract; it never adds objects the generator\n"
       "                        did not annotate and leaves ignore regions alone (default: none,\n"
       "                        follow the generator).\n"
+      "  --shards N            also write webdataset tar shards of at most N images, 1..1000:\n"
+      "                        DIR/shards/shard-ID.tar, each image's KEY.png and KEY.json\n"
+      "                        ({\"annotations\": [...], \"image\": {...}}, the records of\n"
+      "                        annotations.json) under KEY = <generator_id>_<seq:06>, and\n"
+      "                        key_to_shard.json, to stream a large set into a DataLoader\n"
+      "                        (default 0: none).\n"
       "  --help                print this help and exit.\n"
       "\n"
       "Exit status: 0 done, 1 error, 2 bad command line.\n",
@@ -73,6 +81,7 @@ int main(int argc, char** argv) {
   stackgen::FlagParser parser(kProgram);
   stackgen::AddWriterFlags(&parser, &flags.writer);
   parser.Double("--min-visib-fract", &flags.min_visib_fract, stackgen::Interval::Closed(0, 1));
+  parser.Int("--shards", &flags.shards, 0, 1000);
   parser.ParseOrExit(argc, argv, PrintHelp);
 
   stackgen::WriterProgram program;
@@ -82,6 +91,7 @@ int main(int argc, char** argv) {
     options.min_visib_fract = flags.min_visib_fract;
     options.resume = writer_flags.resume;
     options.group_commit = writer_flags.group_commit > 1;
+    options.shard_images = static_cast<int>(flags.shards);
     return std::make_unique<stackgen::CocoWriter>(writer_flags.out, options);
   };
   program.summary = [&](const stackgen::DatasetSink& sink) {

@@ -264,6 +264,77 @@ TEST(CocoWriterTest, RepeatWithAnotherSeedIsRefused) {
   EXPECT_THROW(writer.Add(scene), InvalidSceneError);
 }
 
+// what `tar` says of a shard: its member names (-t), or one member's bytes (-xO)
+std::string Tar(const std::vector<std::string>& args) {
+  std::string out, err;
+  EXPECT_EQ(testing::RunToEnd(testing::FindOnPath("tar"), args,
+                              testing::MakeTempDir("coco-tar") + "/tar", &out, &err, 60),
+            0)
+      << err;
+  return out;
+}
+
+// With shards of 2 images, five scenes of generator 0 (added out of order) and one of
+// generator 1 go to shards by seq, each once, under its key with its image and records; the
+// index names every key's shard; a full shard is written at its commit, the rest by Finish.
+TEST(CocoWriterTest, ShardsHoldEverySceneOnce) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string dir = scratch.path() + "/d";
+  CocoWriterOptions options;
+  options.shard_images = 2;
+  CocoWriter writer(dir, options);
+  const auto connector = [](int id) {
+    return testing::MakeInstance(id, 1, "connector", cv::Rect(0, 0, 2 + id, 2), 1.0);
+  };
+  for (const int64_t seq : {1, 0, 4, 3})
+    ASSERT_TRUE(writer.Add(testing::MakeScene(0, seq, {connector(1)})));
+  // shard 0 (seqs 0 and 1) is full; shard 1 waits for seq 2
+  EXPECT_TRUE(std::filesystem::exists(dir + "/shards/shard-000000.tar"));
+  EXPECT_FALSE(std::filesystem::exists(dir + "/shards/shard-000001.tar"));
+  ASSERT_TRUE(writer.Add(testing::MakeScene(0, 2, {connector(2)})));
+  ASSERT_TRUE(writer.Add(testing::MakeScene(1, 0, {connector(1)})));
+  writer.Finish();
+
+  // shards: generator 0 chunk 0 has 500 per chunk: 0 {0,1}, 1 {2,3}, 2 {4}; generator 1 chunk
+  // 1000000: shard 500000000
+  const json index = json::parse(testing::ReadFile(dir + "/shards/key_to_shard.json"));
+  EXPECT_EQ(index, json({{"0_000000", 0},
+                         {"0_000001", 0},
+                         {"0_000002", 1},
+                         {"0_000003", 1},
+                         {"0_000004", 2},
+                         {"1_000000", 500000000}}));
+  const json annotations = json::parse(testing::ReadFile(dir + "/annotations.json"));
+  std::map<std::string, int> keys;
+  for (const auto& [key, shard] : index.items()) {
+    char name[64];
+    std::snprintf(name, sizeof(name), "%s/shards/shard-%06lld.tar", dir.c_str(),
+                  static_cast<long long>(shard.get<int64_t>()));
+    std::istringstream members(Tar({"-tf", name}));
+    for (std::string member; std::getline(members, member);) {
+      if (member.rfind(key + ".", 0) == 0) ++keys[key];
+    }
+    // the image as images/ holds it, the records as annotations.json has them
+    EXPECT_EQ(Tar({"-xOf", name, key + ".png"}),
+              testing::ReadFile(dir + "/images/" + key + ".png"));
+    const json records = json::parse(Tar({"-xOf", name, key + ".json"}));
+    bool found = false;
+    for (const json& image : annotations["images"]) {
+      if (image["file_name"] != key + ".png") continue;
+      found = true;
+      EXPECT_EQ(records["image"], image);
+      json expected = json::array();
+      for (const json& annotation : annotations["annotations"]) {
+        if (annotation["image_id"] == image["id"]) expected.push_back(annotation);
+      }
+      EXPECT_EQ(records["annotations"], expected) << key;
+    }
+    EXPECT_TRUE(found) << key;
+  }
+  EXPECT_EQ(keys.size(), 6u);
+  for (const auto& [key, count] : keys) EXPECT_EQ(count, 2) << key << ": an image and its JSON";
+}
+
 // A JPEG scene is written as .jpg, its bytes as they came.
 TEST(CocoWriterTest, JpegWrittenAsIs) {
   const testing::ScopedTempDir scratch("coco-writer");

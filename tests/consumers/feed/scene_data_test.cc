@@ -28,41 +28,6 @@ std::vector<scene> FixtureScenes() {
   return scenes;
 }
 
-// the feed's decoder gives back, pixel for pixel, any mask the generator's encoder wrote
-// (random blobs, empty, full, one pixel, masks whose runs wrap from column to column)
-TEST(SceneDataTest, RleDecodesWhatTheGeneratorEncodes) {
-  std::mt19937 engine(7);
-  for (int trial = 0; trial < 60; ++trial) {
-    const int height = 1 + static_cast<int>(engine() % 90);
-    const int width = 1 + static_cast<int>(engine() % 120);
-    cv::Mat mask = cv::Mat::zeros(height, width, CV_8UC1);
-    const int kind = trial % 4;
-    if (kind == 1) mask.setTo(1);
-    if (kind == 2) mask.at<uint8_t>(static_cast<int>(engine() % height), 0) = 1;
-    if (kind == 3) {
-      for (int blob = 0; blob < 4; ++blob) {
-        cv::circle(mask, {static_cast<int>(engine() % width), static_cast<int>(engine() % height)},
-                   static_cast<int>(engine() % 20), 1, cv::FILLED);
-      }
-    }
-    const std::string counts = EncodeRle(mask);
-    std::vector<uint8_t> decoded(static_cast<size_t>(height) * width, 0);
-    const int64_t set = DecodeRleInto(counts, height, width, decoded.data());
-    EXPECT_EQ(set, cv::countNonZero(mask));
-    EXPECT_EQ(cv::countNonZero(cv::Mat(height, width, CV_8UC1, decoded.data()) != mask), 0)
-        << "trial " << trial << " " << height << "x" << width;
-  }
-}
-
-// strings that are no COCO RLE of the image are refused, never decoded past the buffer
-TEST(SceneDataTest, RleRefusesMalformedStrings) {
-  std::vector<uint8_t> out(12, 0);
-  for (const std::string& bad : {std::string("0~"), std::string("0"), std::string("="),
-                                 EncodeRle(cv::Mat::ones(4, 4, CV_8UC1))}) {
-    EXPECT_THROW(DecodeRleInto(bad, 3, 4, out.data()), std::runtime_error) << bad;
-  }
-}
-
 // the images decode to what OpenCV reads from the PNG bytes, colour in R, G, B order; a RAW image
 // is used where it lies, without a copy
 TEST(SceneDataTest, ImagesDecode) {

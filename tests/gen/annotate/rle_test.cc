@@ -73,17 +73,6 @@ TEST(RleTest, FullMask) {
   EXPECT_EQ(RleBbox("0d0", 4, 5), (Box{0, 0, 5, 4}));
 }
 
-// Multi-char numbers and negative differences: runs 10 50 5 3 are ':' (10), 'b1' (50 = 18 + 1*32,
-// chunk 18 has bit 0x10 so continues), '5', then 3-50 = -47 = 'aN' (chunks 17|0x20 and 30).
-TEST(RleTest, MultiCharAndNegativeDifference) {
-  const Runs runs = {10, 50, 5, 3};
-  EXPECT_EQ(RunsToString(runs), ":b15aN");
-  EXPECT_EQ(StringToRuns(":b15aN"), runs);
-  EXPECT_EQ(RunsToString({100}), "T3");  // 100 = 4 + 3*32: 'T' = 48 + (4|0x20), '3'
-  EXPECT_EQ(StringToRuns("T3"), (Runs{100}));
-  EXPECT_EQ(RleArea(":b15aN"), 53u);
-}
-
 // A box spans the full height when a ones run wraps from one column into the next (rleToBbox).
 TEST(RleTest, BboxOfRunWrappingColumns) {
   // 4 rows x 3 cols, column-major pixels: 0 0 0 1 | 1 0 0 0 | 0 0 0 0
@@ -129,17 +118,6 @@ TEST(RleTest, RandomRoundTrips) {
       EXPECT_GE(box[1] + box[3], tight[1] + tight[3]);
     }
   }
-}
-
-// Malformed strings throw: bad chars, a number cut short, too long, or a negative count.
-TEST(RleTest, MalformedStringsThrow) {
-  EXPECT_THROW(StringToRuns("1 2"), std::runtime_error);       // ' ' below '0'
-  EXPECT_THROW(StringToRuns("1p"), std::runtime_error);        // 'p' above 'o'
-  EXPECT_THROW(StringToRuns("1b"), std::runtime_error);        // 'b' says another char follows
-  EXPECT_THROW(StringToRuns("ooooooo0"), std::runtime_error);  // 8 chars for one number
-  EXPECT_THROW(StringToRuns("O"), std::runtime_error);         // -1 as the first count
-  EXPECT_THROW(StringToRuns("11O"), std::runtime_error);       // third count -1 (no difference)
-  EXPECT_EQ(StringToRuns("111O"), (Runs{1, 1, 1, 0}));         // fourth: 1 + (-1) = 0 is fine
 }
 
 // Runs that do not cover height * width are refused when decoding.

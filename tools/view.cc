@@ -1,6 +1,7 @@
-// stackgen-view: a contact sheet (one PNG) of scenes from a COCO dataset written by stackgen-coco
-// or from STACKGEN_SCENE on the bus, each image with its instances' visible masks outlined in the
-// colour of their label, for a quick look at what a dataset teaches.
+// stackgen-view: a contact sheet (one PNG) of scenes from a COCO dataset written by stackgen-coco,
+// a BOP dataset written by stackgen-bop or from STACKGEN_SCENE on the bus, each image with its
+// instances' visible masks outlined in the colour of their label, for a quick look at what a
+// dataset teaches.
 
 #include <unistd.h>
 
@@ -35,6 +36,7 @@
 #include "bus/flags.h"
 #include "bus/scene_contract.h"
 #include "gen/annotate/rle.h"
+#include "tools/bop_dataset.h"
 
 namespace {
 
@@ -75,6 +77,8 @@ void RequestStop(int) { stop_requested = true; }
 
 struct Flags {
   std::string coco_dir;  // COCO mode when not empty
+  std::string bop_dir;   // BOP mode when not empty
+  std::string split;     // BOP only ("": train_pbr, else the only split)
   bool bus = false;      // bus mode: --lcm-url given
   std::string lcm_url;   // the bus ("": ResolveLcmUrl's choice)
   std::string out;
@@ -89,6 +93,8 @@ struct Flags {
 void PrintHelp() {
   std::printf(
       "Usage: %s --coco DIR --out SHEET.png [--count N] [--columns C] [--tile-width W]\n"
+      "       %s --bop DIR [--split NAME] --out SHEET.png [--count N] [--columns C]\n"
+      "                    [--tile-width W]\n"
       "       %s --lcm-url URL --out SHEET.png [--count N] [--columns C] [--tile-width W]\n"
       "                    [--timeout S] [--bus-key-file FILE] [--fault-drop F]\n"
       "\n"
@@ -99,18 +105,28 @@ void PrintHelp() {
       "                          occlusion rule IGNORE)\n"
       "  gray   (#A0A0A0, 1 px)  dropped: visible but neither annotated nor ignored (bus only;\n"
       "                          a COCO file holds no such instances)\n"
+      "A BOP dataset has no labels: each ground truth's visible mask (mask_visib/IM_GT.png) is\n"
+      "outlined green when its visib_fract (scene_gt_info.json) is at least 0.3 (the generator's\n"
+      "default annotation.min_visib_fract), else orange, with its gt id; ground truths with no\n"
+      "visible pixel are only counted (hidden).\n"
       "Objects with less than 1.5%% of the image's pixels visible get their visible fraction\n"
       "beside the id: \"7 .24\" is instance 7, 24%% visible. Gray images are shown gray.\n"
       "\n"
       "Layout: a %d px legend on top, then rows of C cells (fewer when there are fewer scenes);\n"
       "a cell is the tile, the image scaled to W px wide keeping its aspect (all tiles as tall as\n"
-      "the tallest), over a %d px caption line (image id or generator_id/seq, then the counts:\n"
-      "ann annotated, ign ignored, drop dropped); %d px gaps between and around cells. The sheet\n"
-      "is %d + C * (W + %d) px wide and %d + %d + rows * (tile height + %d + %d) px tall.\n"
+      "the tallest), over a %d px caption line (image id, SCENE_ID/IM_ID (BOP) or\n"
+      "generator_id/seq, then the counts: ann annotated, ign ignored, drop dropped, hidden\n"
+      "(BOP)); %d px gaps between and around cells. The sheet is %d + C * (W + %d) px wide and\n"
+      "%d + %d + rows * (tile height + %d + %d) px tall.\n"
       "\n"
       "Options:\n"
       "  --coco DIR       a COCO dataset folder (DIR/annotations.json, images in DIR/images/):\n"
       "                   its first N images by id.\n"
+      "  --bop DIR        a BOP dataset folder (as stackgen-bop writes it): the first N images\n"
+      "                   of its split, in scene id, image id order (SPLIT/SCENE_ID/rgb/IM_ID.png\n"
+      "                   or .jpg, or gray/; scene_gt.json, scene_gt_info.json, mask_visib/).\n"
+      "  --split NAME     --bop only: the split folder (default: train_pbr, else the only split\n"
+      "                   folder there).\n"
       "  --lcm-url URL    listen on this LCM URL instead, as a best-effort consumer of %s:\n"
       "                   the first N distinct scenes received (repeats skipped; a scene that\n"
       "                   does not decode or disagrees with itself is skipped with a warning).\n"
@@ -134,14 +150,16 @@ void PrintHelp() {
       "\n"
       "Exit status: 0 sheet written, 1 error (the line names the file, flag or URL), 2 bad\n"
       "command line.\n",
-      kProgram, kProgram, kLegendHeight, kCaptionHeight, kGap, kGap, kGap, kLegendHeight, kGap,
-      kCaptionHeight, kGap, stackgen::kSceneChannel, stackgen::kDefaultLcmUrl);
+      kProgram, kProgram, kProgram, kLegendHeight, kCaptionHeight, kGap, kGap, kGap, kLegendHeight,
+      kGap, kCaptionHeight, kGap, stackgen::kSceneChannel, stackgen::kDefaultLcmUrl);
 }
 
 Flags ParseFlags(int argc, char** argv) {
   Flags flags;
   stackgen::FlagParser parser(kProgram);
   parser.String("--coco", &flags.coco_dir, "a folder");
+  parser.String("--bop", &flags.bop_dir, "a folder");
+  parser.String("--split", &flags.split, "a folder name");
   parser.LcmUrl(&flags.lcm_url);
   parser.Custom("--out", [&flags](const std::string& value) {
     if (value.size() < 5 || value.substr(value.size() - 4) != ".png") {
@@ -159,13 +177,19 @@ Flags ParseFlags(int argc, char** argv) {
   // the rules between flags
   const auto check = [&flags, &parser] {
     flags.bus = parser.Given("--lcm-url");
-    if (flags.coco_dir.empty() == !flags.bus) {
-      throw stackgen::UsageError("give either --coco DIR or --lcm-url URL");
+    const int modes =
+        (parser.Given("--coco") ? 1 : 0) + (parser.Given("--bop") ? 1 : 0) + (flags.bus ? 1 : 0);
+    if (modes != 1 || (parser.Given("--coco") && flags.coco_dir.empty()) ||
+        (parser.Given("--bop") && flags.bop_dir.empty())) {
+      throw stackgen::UsageError("give one of --coco DIR, --bop DIR or --lcm-url URL");
     }
     for (const char* bus_only : {"--timeout", "--fault-drop", "--bus-key-file"}) {
-      if (parser.Given(bus_only) && !flags.coco_dir.empty()) {
+      if (parser.Given(bus_only) && !flags.bus) {
         throw stackgen::UsageError(std::string(bus_only) + " applies to --lcm-url only");
       }
+    }
+    if (parser.Given("--split") && flags.bop_dir.empty()) {
+      throw stackgen::UsageError("--split applies to --bop only");
     }
     const int64_t sheet_width =
         kGap + int64_t{std::min(flags.columns, flags.count)} * (flags.tile_width + kGap);
@@ -310,16 +334,19 @@ cv::Mat RenderTile(const SceneView& scene, int tile_width) {
   return tile;
 }
 
-// the legend: the three colours and what a label means
-void DrawLegend(cv::Mat& sheet) {
+// the legend: the colours and what a label means (BOP: by visib_fract, a gt id)
+void DrawLegend(cv::Mat& sheet, bool bop) {
   struct Item {
     const char* text;
     cv::Scalar colour;
     int thickness;
   };
-  const Item items[] = {{"ann: annotated (iscrowd 0)", kAnnotatedColour, 2},
-                        {"ign: ignored (iscrowd 1)", kIgnoredColour, 2},
-                        {"drop: dropped (bus only)", kDroppedColour, 1}};
+  const std::vector<Item> items =
+      bop ? std::vector<Item>{{"ann: visib_fract >= 0.3", kAnnotatedColour, 2},
+                              {"ign: visib_fract < 0.3", kIgnoredColour, 2}}
+          : std::vector<Item>{{"ann: annotated (iscrowd 0)", kAnnotatedColour, 2},
+                              {"ign: ignored (iscrowd 1)", kIgnoredColour, 2},
+                              {"drop: dropped (bus only)", kDroppedColour, 1}};
   int x = kGap + 2;
   const int y = 16;
   for (const Item& item : items) {
@@ -332,12 +359,13 @@ void DrawLegend(cv::Mat& sheet) {
     x += cv::getTextSize(item.text, cv::FONT_HERSHEY_SIMPLEX, 0.4, 1, &baseline).width + 14;
   }
   cv::putText(sheet,
-              "label: instance id; \"7 .24\": visib_fract, shown under 1.5% of image visible",
+              std::string("label: ") + (bop ? "gt id" : "instance id") +
+                  "; \"7 .24\": visib_fract, shown under 1.5% of image visible",
               cv::Point(kGap + 2, 36), cv::FONT_HERSHEY_SIMPLEX, 0.4, kTextColour, 1, cv::LINE_AA);
 }
 
 // the tiles in a grid under the legend (see PrintHelp for the layout)
-cv::Mat ComposeSheet(const std::vector<Tile>& tiles, int max_columns, int tile_width) {
+cv::Mat ComposeSheet(const std::vector<Tile>& tiles, int max_columns, int tile_width, bool bop) {
   const int columns = std::min<int>(max_columns, static_cast<int>(tiles.size()));
   const int rows = (static_cast<int>(tiles.size()) + columns - 1) / columns;
   int tile_height = 1;
@@ -351,7 +379,7 @@ cv::Mat ComposeSheet(const std::vector<Tile>& tiles, int max_columns, int tile_w
                              " px, more than " + std::to_string(kMaxSheetPixels) + " pixels");
   }
   cv::Mat sheet(static_cast<int>(height), static_cast<int>(width), CV_8UC3, kBackground);
-  DrawLegend(sheet);
+  DrawLegend(sheet, bop);
   for (size_t k = 0; k < tiles.size(); ++k) {
     const int column = static_cast<int>(k) % columns;
     const int row = static_cast<int>(k) / columns;
@@ -533,6 +561,100 @@ std::vector<Tile> ReadCocoTiles(const Flags& flags) {
   return tiles;
 }
 
+// --- BOP mode ---
+
+// the colour image of image `im_id` in scene folder `folder`: rgb/ or gray/, PNG or JPEG (BOP's
+// own sets also have .tif)
+fs::path BopImagePath(const std::string& folder, int64_t im_id) {
+  char name[32];
+  std::snprintf(name, sizeof(name), "%06lld", static_cast<long long>(im_id));
+  std::error_code error;
+  for (const char* kind : {"rgb", "gray"}) {
+    for (const char* extension : {".png", ".jpg", ".jpeg", ".tif"}) {
+      const fs::path path = fs::path(folder) / kind / (std::string(name) + extension);
+      if (fs::exists(path, error)) return path;
+    }
+  }
+  throw std::runtime_error(folder + ": image " + std::to_string(im_id) + " has no rgb/" + name +
+                           ".png, .jpg (nor gray/)");
+}
+
+std::vector<Tile> ReadBopTiles(const Flags& flags) {
+  // the split
+  std::error_code error;
+  if (!fs::is_directory(flags.bop_dir, error)) {
+    throw std::runtime_error("--bop " + flags.bop_dir + ": no such folder");
+  }
+  const std::string split = stackgen::FindBopSplit(flags.bop_dir, flags.split);
+  if (split.empty()) {
+    throw std::runtime_error("--bop " + flags.bop_dir +
+                             ": no BOP split folder in it (SPLIT/SCENE_ID/scene_gt.json)");
+  }
+
+  // the first N images, scene by scene
+  stackgen::BopSceneFiles files;
+  files.info = true;
+  std::vector<Tile> tiles;
+  int64_t scene_folders = 0;
+  for (const auto& [scene_id, folder] : stackgen::ListBopScenes(split)) {
+    if (static_cast<int>(tiles.size()) >= flags.count) break;
+    ++scene_folders;
+    const stackgen::BopScene bop_scene = stackgen::ReadBopScene(scene_id, folder, files);
+    for (const stackgen::BopImage& image : bop_scene.images) {
+      if (static_cast<int>(tiles.size()) >= flags.count) break;
+      const fs::path image_path = BopImagePath(folder, image.im_id);
+      SceneView scene;
+      scene.image = cv::imread(image_path.string(), cv::IMREAD_COLOR);
+      if (scene.image.empty()) {
+        throw std::runtime_error("cannot read " + image_path.string() +
+                                 " (not an image OpenCV can decode, or damaged)");
+      }
+      // each ground truth's visible mask, its colour from visib_fract
+      int hidden = 0;
+      for (size_t gt_id = 0; gt_id < image.ground_truths.size(); ++gt_id) {
+        const stackgen::BopGroundTruth& truth = image.ground_truths[gt_id];
+        char name[32];
+        std::snprintf(name, sizeof(name), "%06lld_%06zu.png", static_cast<long long>(image.im_id),
+                      gt_id);
+        const fs::path mask_path = fs::path(folder) / "mask_visib" / name;
+        InstanceView instance;
+        if (!fs::exists(mask_path, error)) {
+          throw std::runtime_error(
+              mask_path.string() + " is missing (" + (fs::path(folder) / "scene_gt.json").string() +
+              " has image " + std::to_string(image.im_id) + ", gt " + std::to_string(gt_id) + ")");
+        }
+        instance.mask = cv::imread(mask_path.string(), cv::IMREAD_GRAYSCALE);
+        if (instance.mask.empty()) {
+          throw std::runtime_error("cannot read " + mask_path.string() +
+                                   " (not an image OpenCV can decode, or damaged)");
+        }
+        if (instance.mask.size() != scene.image.size()) {
+          throw std::runtime_error(
+              mask_path.string() + " is " + std::to_string(instance.mask.cols) + " x " +
+              std::to_string(instance.mask.rows) + ", its image " + image_path.string() + " " +
+              std::to_string(scene.image.cols) + " x " + std::to_string(scene.image.rows));
+        }
+        if (cv::countNonZero(instance.mask) == 0) {
+          ++hidden;
+          continue;
+        }
+        instance.label =
+            truth.visib_fract >= stackgen::kBopMinVisibFract ? Label::kAnnotated : Label::kIgnored;
+        instance.instance_id = static_cast<int64_t>(gt_id);
+        instance.visib_fract = truth.visib_fract;
+        scene.instances.push_back(std::move(instance));
+      }
+      scene.caption = std::to_string(scene_id) + "/" + std::to_string(image.im_id) + ": " +
+                      CountsText(scene.instances, false) + ", " + std::to_string(hidden) +
+                      " hidden";
+      tiles.push_back({RenderTile(scene, flags.tile_width), scene.caption});
+    }
+  }
+  std::printf("%s: %s: %zu images of %lld scene folders\n", kProgram, split.c_str(), tiles.size(),
+              static_cast<long long>(scene_folders));
+  return tiles;
+}
+
 // --- bus mode ---
 
 // the scene as a SceneView; throws std::runtime_error naming the field if it disagrees with
@@ -707,10 +829,15 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
 int main(int argc, char** argv) {
   const Flags flags = ParseFlags(argc, argv);
   try {
-    const std::vector<Tile> tiles =
-        flags.coco_dir.empty() ? ReceiveBusTiles(flags) : ReadCocoTiles(flags);
-    if (tiles.empty()) throw std::runtime_error("--coco " + flags.coco_dir + ": no images");
-    const cv::Mat sheet = ComposeSheet(tiles, flags.columns, flags.tile_width);
+    const bool bop = !flags.bop_dir.empty();
+    const std::vector<Tile> tiles = flags.bus ? ReceiveBusTiles(flags)
+                                    : bop     ? ReadBopTiles(flags)
+                                              : ReadCocoTiles(flags);
+    if (tiles.empty()) {
+      throw std::runtime_error((bop ? "--bop " + flags.bop_dir : "--coco " + flags.coco_dir) +
+                               ": no images");
+    }
+    const cv::Mat sheet = ComposeSheet(tiles, flags.columns, flags.tile_width, bop);
     WritePng(sheet, flags.out);
     const int columns = std::min<int>(flags.columns, static_cast<int>(tiles.size()));
     const int rows = (static_cast<int>(tiles.size()) + columns - 1) / columns;

@@ -62,8 +62,8 @@ struct BopWriterOptions {
 /// the ground truths with visible pixels, "ignore" when visib_fract < 0.1 (calc_gt_coco.py),
 /// bbox the amodal box (its default), the segmentation the visible mask as COCO compressed RLE
 /// (the toolkit writes uncompressed runs; pycocotools reads both). Where our labels differ:
-/// px_count_all counts the pixels inside the image (the toolkit's also counts the part of a
-/// truncated object outside it), and visibility is exact from the instance map (the toolkit's
+/// px_count_all and bbox_obj cover the silhouette inside the image (the toolkit's also count the
+/// part of a truncated object outside it), and visibility is exact from the instance map (the toolkit's
 /// depth test with delta 5 mm also counts as visible what lies less than 5 mm behind another
 /// surface). Poses and models stay in the frame of the part's mesh file (BOP's datasets put the
 /// origin at the centre of the model's box; ours is the CAD file's).

@@ -1,5 +1,6 @@
 // Reading datasets for stackgen-stats (tools/stats/dataset.h): postures in a reference frame,
-// the angle about the vertical, a real COCO file, and LCM logs through bus/log.
+// the angle about the vertical, a real COCO file, LCM logs through bus/log, and BOP datasets
+// (one written by stackgen-bop from the fixture log, hand-made ones).
 
 #include <gtest/gtest.h>
 
@@ -18,6 +19,7 @@
 #include "bus/log.h"
 #include "gen/annotate/pose.h"
 #include "tests/support/process.h"
+#include "tests/tools/bop_fixture.h"
 #include "tools/stats/dataset.h"
 
 namespace stackgen::stats {
@@ -202,6 +204,159 @@ TEST(StatsDatasetTest, ReadsLcmLog) {
               path + ": corrupt LCM log at byte " + std::to_string(second) +
                   " (event 1): channel length " + std::to_string(int32_t(0xFF000000u | 15)));
   }
+}
+
+// The BOP dataset stackgen-bop writes from the fixture log gives what the log itself gives: the
+// same instances in the same order with the same class names, scenes and piles, alpha, beta,
+// gamma, heading and position within 1e-9; annotated ones (visib_fract >= 0.3, the log's rule)
+// by default and every instance with all_instances. BOP has no resting faces.
+TEST(StatsDatasetTest, BopReadsLikeTheLog) {
+  const ScratchDir scratch;
+  const std::string bop = scratch.path() + "/bop";
+  std::string output;
+  ASSERT_EQ(testing::MakeFixtureBop(bop, scratch.path() + "/bop", &output), 0) << output;
+  // the log was recorded without a bus key
+  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
+  for (const bool all_instances : {false, true}) {
+    SCOPED_TRACE(all_instances ? "all instances" : "annotated");
+    ReadOptions options;
+    options.all_instances = all_instances;
+    const Dataset log = ReadDataset(testing::kFixtureLog, options);
+    const Dataset read = ReadDataset(bop, options);
+    EXPECT_EQ(read.kind, "BOP");
+    EXPECT_EQ(read.split, "train_pbr");
+    EXPECT_EQ(read.scenes, log.scenes);
+    EXPECT_EQ(read.piles, log.piles);
+    EXPECT_EQ(read.not_annotated, log.not_annotated);
+    EXPECT_EQ(read.class_counts, log.class_counts);
+    if (!all_instances) {
+      EXPECT_GT(log.not_annotated, 0) << "the fixture has hidden instances";
+    }
+    ASSERT_EQ(read.samples.size(), log.samples.size());
+    for (size_t k = 0; k < read.samples.size(); ++k) {
+      const PostureSample& a = read.samples[k];
+      const PostureSample& b = log.samples[k];
+      EXPECT_EQ(a.class_name, b.class_name) << k;
+      EXPECT_EQ(a.scene, b.scene) << k;
+      EXPECT_NEAR(a.alpha_deg, b.alpha_deg, 1e-9) << k;
+      EXPECT_NEAR(a.beta_deg, b.beta_deg, 1e-9) << k;
+      EXPECT_NEAR(a.gamma_deg, b.gamma_deg, 1e-9) << k;
+      EXPECT_NEAR(a.heading_deg, b.heading_deg, 1e-9) << k;
+      EXPECT_LT((a.world_position_mm - b.world_position_mm).cwiseAbs().maxCoeff(), 1e-9) << k;
+      EXPECT_EQ(a.resting_face, -1) << k;
+    }
+  }
+}
+
+// a hand-made BOP dataset in `dir`/train_pbr/000000: image k shows the parts at `world_poses[k]`
+// from camera `cameras[k]` (world_from_camera), every part visib_fract 0.9 but the first of each
+// image 0.1; no scene_gt_coco.json
+void WriteBop(const std::string& dir,
+              const std::vector<std::vector<Eigen::Isometry3d>>& world_poses,
+              const std::vector<Eigen::Isometry3d>& cameras) {
+  const fs::path folder = fs::path(dir) / "train_pbr" / "000000";
+  fs::create_directories(folder);
+  nlohmann::json gt, camera, info;
+  const auto row_major = [](const Eigen::Matrix3d& rotation) {
+    std::vector<double> values;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) values.push_back(rotation(r, c));
+    }
+    return values;
+  };
+  for (size_t k = 0; k < world_poses.size(); ++k) {
+    const std::string key = std::to_string(k);
+    const Eigen::Isometry3d camera_from_world = cameras[k].inverse();
+    const Eigen::Vector3d t_w2c = camera_from_world.translation();
+    camera[key] = {{"cam_R_w2c", row_major(camera_from_world.linear())},
+                   {"cam_t_w2c", {t_w2c.x(), t_w2c.y(), t_w2c.z()}}};
+    gt[key] = nlohmann::json::array();
+    info[key] = nlohmann::json::array();
+    for (size_t p = 0; p < world_poses[k].size(); ++p) {
+      const Eigen::Isometry3d camera_from_object = camera_from_world * world_poses[k][p];
+      const Eigen::Vector3d t = camera_from_object.translation();
+      gt[key].push_back({{"cam_R_m2c", row_major(camera_from_object.linear())},
+                         {"cam_t_m2c", {t.x(), t.y(), t.z()}},
+                         {"obj_id", 1}});
+      info[key].push_back({{"px_count_visib", 100}, {"visib_fract", p == 0 ? 0.1 : 0.9}});
+    }
+  }
+  std::ofstream(folder / "scene_gt.json") << gt.dump();
+  std::ofstream(folder / "scene_camera.json") << camera.dump();
+  std::ofstream(folder / "scene_gt_info.json") << info.dump();
+}
+
+// Two views of one pile in a BOP dataset, seen from two cameras, are one pile although the
+// positions computed back through each camera differ in their last bits; a third image of other
+// poses is a pile of its own. A ground truth less than 30 % visible counts as not annotated, and
+// without scene_gt_coco.json the class is named after its model file.
+TEST(StatsDatasetTest, BopViewsOfOnePileAreOnePile) {
+  const ScratchDir scratch;
+  std::vector<Eigen::Isometry3d> pile, other;
+  for (int p = 0; p < 4; ++p) {
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    pose.linear() = RotationFromPostureDeg(Eigen::Vector3d(17.3 * p - 40.1, 8.9 * p, 33.3 - p));
+    pose.translation() = Eigen::Vector3d(-41.37 + 27.1 * p, 12.913 - 9.7 * p, 20.17 + 3.3 * p);
+    pile.push_back(pose);
+    pose.translation().z() += 5.0;
+    other.push_back(pose);
+  }
+  std::vector<Eigen::Isometry3d> cameras;
+  for (const double tilt : {0.0, 7.31, -11.9}) {
+    Eigen::Isometry3d camera = Eigen::Isometry3d::Identity();
+    camera.linear() = RotationFromPostureDeg(Eigen::Vector3d(3.7 * tilt, 180.0 - tilt, 1.3));
+    camera.translation() = Eigen::Vector3d(1.1 * tilt, -0.7 * tilt, 452.123);
+    cameras.push_back(camera);
+  }
+  WriteBop(scratch.path(), {pile, pile, other}, cameras);
+  const Dataset dataset = ReadDataset(scratch.path(), {});
+  EXPECT_EQ(dataset.kind, "BOP");
+  EXPECT_EQ(dataset.scenes, 3);
+  EXPECT_EQ(dataset.piles, 2);
+  EXPECT_EQ(dataset.not_annotated, 3);
+  ASSERT_EQ(dataset.samples.size(), 9u);
+  EXPECT_EQ(dataset.class_counts.at("obj_000001"), 9);
+  for (const PostureSample& sample : dataset.samples) {
+    EXPECT_EQ(sample.pile, sample.scene == 2 ? 1 : 0);
+  }
+  // the postures of the world poses, whichever camera saw them
+  const Eigen::Vector3d expected = PostureAnglesDeg(pile[1].linear());
+  EXPECT_NEAR(dataset.samples[3].alpha_deg, expected[0], 1e-9);
+  EXPECT_NEAR(dataset.samples[3].beta_deg, expected[1], 1e-9);
+  EXPECT_NEAR(dataset.samples[3].gamma_deg, expected[2], 1e-9);
+  EXPECT_LT((dataset.samples[3].world_position_mm - pile[1].translation()).norm(), 1e-9);
+}
+
+// A BOP record whose matrix is not a rotation, or an image without its camera, is an error
+// naming the file, the image, the ground truth and the field.
+TEST(StatsDatasetTest, BadBopRecordsNameFileAndField) {
+  const ScratchDir scratch;
+  WriteBop(scratch.path(), {{Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity()}},
+           {Eigen::Isometry3d::Identity()});
+  const fs::path folder = fs::path(scratch.path()) / "train_pbr" / "000000";
+  const std::string gt_text = testing::ReadFile((folder / "scene_gt.json").string());
+  nlohmann::json gt = nlohmann::json::parse(gt_text);
+  gt["0"][1]["cam_R_m2c"] = {1, 0, 0, 0, 2, 0, 0, 0, 1};
+  std::ofstream(folder / "scene_gt.json") << gt.dump();
+  const auto error_of = [&](const ReadOptions& options) -> std::string {
+    try {
+      ReadDataset(scratch.path(), options);
+    } catch (const std::runtime_error& error) {
+      return error.what();
+    }
+    return "";
+  };
+  EXPECT_EQ(error_of({}), (folder / "scene_gt.json").string() +
+                              ": image 0, gt 1: cam_R_m2c is not a rotation (|R^T R - I| = 3, "
+                              "det = 2)");
+  std::ofstream(folder / "scene_gt.json") << gt_text;
+  std::ofstream(folder / "scene_camera.json") << "{}";
+  EXPECT_EQ(error_of({}), (folder / "scene_camera.json").string() +
+                              ": image 0 is missing (scene_gt.json has it)");
+  // --split names a folder that is not there
+  ReadOptions test_split;
+  test_split.bop_split = "test";
+  EXPECT_EQ(error_of(test_split), scratch.path() + " has no split folder test");
 }
 
 }  // namespace

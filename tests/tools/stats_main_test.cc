@@ -1,6 +1,7 @@
 // Runs the stackgen-stats program as a process on small COCO files and LCM logs made here: its
 // command line, the four test lines, the plots, and a log read the same as the COCO file of the
-// same scenes.
+// same scenes; and on the BOP dataset stackgen-bop writes from the fixture log, read the same as
+// the log.
 
 #include <gtest/gtest.h>
 
@@ -20,6 +21,7 @@
 #include "bus/log.h"
 #include "gen/annotate/pose.h"
 #include "tests/support/process.h"
+#include "tests/tools/bop_fixture.h"
 
 namespace stackgen {
 namespace {
@@ -206,9 +208,28 @@ TEST(StatsMainTest, HelpListsEveryFlag) {
   const ScratchDir scratch;
   const Result result = RunStats({"--help"}, scratch.path() + "/help");
   EXPECT_EQ(result.code, 0);
-  for (const char* text : {"--out", "--alpha", "default 0.05", "--frame CLASS=RZ,RY,RX", "--class",
-                           "--all-instances", "--help", "origin", "--permutations", "default 999",
-                           "--seed", "--calibrate", "Holm", "permutation", "Exit status"}) {
+  for (const char* text : {"--out",
+                           "--alpha",
+                           "default 0.05",
+                           "--frame CLASS=RZ,RY,RX",
+                           "--class",
+                           "--all-instances",
+                           "--help",
+                           "origin",
+                           "--permutations",
+                           "default 999",
+                           "--seed",
+                           "--calibrate",
+                           "Holm",
+                           "permutation",
+                           "Exit status",
+                           "--split NAME",
+                           "train_pbr",
+                           "BOP",
+                           "scene_gt.json",
+                           "visib_fract >= 0.3",
+                           "cam_R_w2c^T cam_R_m2c",
+                           "obj_OBJ_ID"}) {
     EXPECT_NE(result.out.find(text), std::string::npos) << text << " missing from\n" << result.out;
   }
 }
@@ -482,6 +503,100 @@ TEST(StatsMainTest, FrameAndClass) {
       RunStats({dir + "/flat.json", "--out", dir + "/plots", "--class", "gear"}, dir + "/r");
   EXPECT_EQ(absent.code, 2);
   EXPECT_NE(absent.err.find("holds no instances of class gear"), std::string::npos) << absent.err;
+}
+
+// The BOP dataset stackgen-bop writes from the fixture log summarises like the log itself, to the
+// last digit printed: the annotated ground truths (visib_fract >= 0.3) by default, all of them
+// with --all-instances; the dataset line names the kind, and a note says what counts as annotated.
+TEST(StatsMainTest, BopDatasetReadsLikeTheLog) {
+  const ScratchDir scratch;
+  const std::string dir = scratch.path();
+  const std::string bop = dir + "/bop";
+  std::string output;
+  ASSERT_EQ(testing::MakeFixtureBop(bop, dir + "/bop", &output), 0) << output;
+  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
+  for (const bool all_instances : {false, true}) {
+    SCOPED_TRACE(all_instances ? "--all-instances" : "annotated");
+    std::vector<std::string> bop_args = {bop, "--out", dir + "/plots"};
+    std::vector<std::string> log_args = {testing::kFixtureLog, "--out", dir + "/plots"};
+    if (all_instances) {
+      bop_args.push_back("--all-instances");
+      log_args.push_back("--all-instances");
+    }
+    const Result from_bop = RunStats(bop_args, dir + "/bop-run");
+    const Result from_log = RunStats(log_args, dir + "/log-run");
+    ASSERT_EQ(from_bop.code, 0) << from_bop.err;
+    ASSERT_EQ(from_log.code, 0) << from_log.err;
+    // alpha, beta, gamma, heading
+    const std::vector<std::string> bop_lines = Lines(from_bop.out), log_lines = Lines(from_log.out);
+    ASSERT_GE(bop_lines.size(), 4u) << from_bop.out;
+    ASSERT_GE(log_lines.size(), 4u) << from_log.out;
+    for (size_t k = 0; k < 4; ++k) EXPECT_EQ(bop_lines[k], log_lines[k]);
+    EXPECT_EQ(bop_lines[0].rfind(all_instances ? "alpha: n=24 " : "alpha: n=21 ", 0), 0u)
+        << from_bop.out;
+    EXPECT_NE(from_bop.out.find(all_instances ? "A: " + bop + " (BOP): 24 instances of 4 images\n"
+                                              : "A: " + bop +
+                                                    " (BOP): 21 instances of 4 images, 3 not "
+                                                    "annotated left out\n"),
+              std::string::npos)
+        << from_bop.out;
+    EXPECT_NE(from_bop.out.find(all_instances
+                                    ? "note: A is a BOP dataset (split train_pbr): every ground "
+                                      "truth is used"
+                                    : "note: A is a BOP dataset (split train_pbr): a ground truth "
+                                      "counts as annotated when its visib_fract >= 0.3"),
+              std::string::npos)
+        << from_bop.out;
+  }
+}
+
+// A folder that is neither dataset, a split that is not there and bad BOP records give one line
+// naming the file (and the image, ground truth and field) and exit 2.
+TEST(StatsMainTest, BadBopInputExits2) {
+  const ScratchDir scratch;
+  const std::string dir = scratch.path();
+  const auto write = [](const fs::path& path, const std::string& text) {
+    fs::create_directories(path.parent_path());
+    std::ofstream(path) << text;
+  };
+  const std::string gt =
+      R"({"0": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 400], "obj_id": 1}],
+          "1": [{"cam_R_m2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_m2c": [0, 0, 400], "obj_id": 1}]})";
+  const std::string info = R"({"0": [{"px_count_visib": 50, "visib_fract": 0.5}],
+                               "1": [{"px_count_visib": 50, "visib_fract": 0.5}]})";
+  // image 1 has no camera
+  const std::string no_camera = dir + "/no_camera/train_pbr/000000";
+  write(no_camera + "/scene_gt.json", gt);
+  write(no_camera + "/scene_gt_info.json", info);
+  write(no_camera + "/scene_camera.json",
+        R"({"0": {"cam_R_w2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_w2c": [0, 0, 0]}})");
+  // the camera of image 1 is turned and stretched
+  const std::string stretched = dir + "/stretched/train_pbr/000000";
+  write(stretched + "/scene_gt.json", gt);
+  write(stretched + "/scene_gt_info.json", info);
+  write(stretched + "/scene_camera.json",
+        R"({"0": {"cam_R_w2c": [1, 0, 0, 0, 1, 0, 0, 0, 1], "cam_t_w2c": [0, 0, 0]},
+            "1": {"cam_R_w2c": [0, 2, 0, 1, 0, 0, 0, 0, 1], "cam_t_w2c": [0, 0, 0]}})");
+  fs::create_directories(dir + "/empty");
+  const std::vector<std::pair<std::vector<std::string>, std::string>> cases = {
+      {{dir + "/no_camera"},
+       no_camera + "/scene_camera.json: image 1 is missing (scene_gt.json has it)"},
+      {{dir + "/stretched"},
+       stretched + "/scene_camera.json: image 1: cam_R_w2c is not a rotation (|R^T R - I| = 3, "
+                   "det = -2)"},
+      {{dir + "/empty"},
+       dir + "/empty is a folder without annotations.json (COCO) or a BOP split folder "
+             "(SPLIT/SCENE_ID/scene_gt.json)"},
+      {{dir + "/stretched", "--split", "test"}, dir + "/stretched has no split folder test"},
+  };
+  for (const auto& [dataset, message] : cases) {
+    std::vector<std::string> args = dataset;
+    args.insert(args.end(), {"--out", dir + "/plots"});
+    const Result result = RunStats(args, dir + "/bad");
+    EXPECT_EQ(result.code, 2) << dataset[0];
+    EXPECT_EQ(result.err, "stackgen-stats: error: " + message + "\n");
+  }
+  EXPECT_FALSE(fs::exists(dir + "/plots"));
 }
 
 }  // namespace

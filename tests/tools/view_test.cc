@@ -1,6 +1,6 @@
 // Runs the stackgen-view program as a process: contact sheets of a COCO dataset written by
-// CocoWriter and of scenes sent over real UDP multicast on this host, its errors, and scenes
-// it must skip.
+// CocoWriter, of the BOP dataset stackgen-bop writes from the fixture log, and of scenes sent over
+// real UDP multicast on this host, its errors, and scenes it must skip.
 
 #include <algorithm>
 #include <chrono>
@@ -10,6 +10,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <stackgen/header.hpp>
@@ -20,6 +21,7 @@
 #include "consumers/coco/coco_writer.h"
 #include "tests/consumers/coco/coco_test_scenes.h"
 #include "tests/support/process.h"
+#include "tests/tools/bop_fixture.h"
 
 namespace stackgen {
 namespace {
@@ -79,10 +81,31 @@ TEST(ViewTest, HelpListsEveryFlag) {
   const ScratchDir scratch("view");
   std::string out, err;
   EXPECT_EQ(RunToEnd({"--help"}, scratch.path() + "/help", &out, &err), 0);
-  for (const char* text :
-       {"--coco", "--lcm-url", "--out", "--count", "--columns", "--tile-width", "--timeout",
-        "--help", "default 12", "default 4", "default 400", "default 60", "#00E600", "#FF9600",
-        "#A0A0A0", "1.5%", "iscrowd 1", "STACKGEN_LCM_URL"}) {
+  for (const char* text : {"--coco",
+                           "--lcm-url",
+                           "--out",
+                           "--count",
+                           "--columns",
+                           "--tile-width",
+                           "--timeout",
+                           "--help",
+                           "default 12",
+                           "default 4",
+                           "default 400",
+                           "default 60",
+                           "#00E600",
+                           "#FF9600",
+                           "#A0A0A0",
+                           "1.5%",
+                           "iscrowd 1",
+                           "STACKGEN_LCM_URL",
+                           "--bop DIR",
+                           "--split NAME",
+                           "default: train_pbr",
+                           "mask_visib/IM_GT.png",
+                           "visib_fract",
+                           "at least 0.3",
+                           "SCENE_ID/IM_ID"}) {
     EXPECT_NE(out.find(text), std::string::npos) << text << " missing from\n" << out;
   }
 }
@@ -137,6 +160,82 @@ TEST(ViewTest, DrawsCocoDataset) {
             0)
       << err;
   EXPECT_EQ(cv::imread(scratch.path() + "/two.png").size(), SheetSize(2, 1, 400, 300));
+}
+
+// The BOP dataset of the fixture log (4 images of chunk 2000000): --count images in image id
+// order, each ground truth outlined green when at least 30 % visible and orange when less, so a
+// tile has orange exactly when its image has such a ground truth; the split is found (train_pbr,
+// else the only one) or named with --split.
+TEST(ViewTest, DrawsBopDataset) {
+  const ScratchDir scratch("view");
+  const std::string dataset = scratch.path() + "/bop";
+  std::string output;
+  ASSERT_EQ(testing::MakeFixtureBop(dataset, scratch.path() + "/bop", &output), 0) << output;
+  // per image id, whether it has a ground truth with visible pixels less than 30 % visible
+  std::vector<bool> has_orange;
+  const nlohmann::json info = nlohmann::json::parse(
+      testing::ReadFile(testing::FixtureChunk(dataset) + "/scene_gt_info.json"));
+  for (int im_id = 0; im_id < 4; ++im_id) {
+    bool orange = false;
+    for (const nlohmann::json& truth : info.at(std::to_string(im_id))) {
+      orange |= truth["px_count_visib"] > 0 && truth["visib_fract"] < 0.3;
+    }
+    has_orange.push_back(orange);
+  }
+  ASSERT_NE(std::count(has_orange.begin(), has_orange.end(), true), 0);
+  ASSERT_NE(std::count(has_orange.begin(), has_orange.end(), false), 0);
+
+  const std::string sheet_path = scratch.path() + "/sheet.png";
+  std::string out, err;
+  ASSERT_EQ(RunToEnd({"--bop", dataset, "--out", sheet_path, "--count", "4", "--columns", "3",
+                      "--tile-width", "160"},
+                     scratch.path() + "/run", &out, &err),
+            0)
+      << err;
+  EXPECT_NE(out.find(dataset + "/train_pbr: 4 images of 1 scene folders"), std::string::npos)
+      << out;
+  EXPECT_NE(out.find("4 scenes in 3 columns x 2 rows"), std::string::npos) << out;
+  // 160 x 120 images at 160 px wide: tiles of 160 x 120
+  const cv::Mat sheet = cv::imread(sheet_path, cv::IMREAD_COLOR);
+  ASSERT_FALSE(sheet.empty());
+  EXPECT_EQ(sheet.size(), SheetSize(3, 2, 160, 120));
+  for (int im_id = 0; im_id < 4; ++im_id) {
+    const cv::Rect tile = TileRect(im_id % 3, im_id / 3, 160, 120);
+    EXPECT_GT(CountColour(sheet, tile, kAnnotated), 100) << im_id;
+    EXPECT_EQ(CountColour(sheet, tile, kIgnored) > 0, has_orange[im_id]) << im_id;
+    EXPECT_EQ(CountColour(sheet, tile, kDropped), 0) << im_id;
+  }
+
+  // another split name: found when it is the only one, else named with --split
+  fs::rename(dataset + "/train_pbr", dataset + "/val");
+  ASSERT_EQ(RunToEnd({"--bop", dataset, "--out", scratch.path() + "/val.png", "--count", "2"},
+                     scratch.path() + "/val", &out, &err),
+            0)
+      << err;
+  EXPECT_EQ(cv::imread(scratch.path() + "/val.png").size(), SheetSize(2, 1, 400, 300));
+  fs::copy(dataset + "/val", dataset + "/test", fs::copy_options::recursive);
+  EXPECT_EQ(RunToEnd({"--bop", dataset, "--out", scratch.path() + "/two.png"},
+                     scratch.path() + "/two", &out, &err),
+            1);
+  EXPECT_EQ(err, "stackgen-view: error: " + dataset +
+                     " holds several BOP splits (test, val) and no train_pbr: name one with "
+                     "--split\n");
+  ASSERT_EQ(RunToEnd({"--bop", dataset, "--split", "test", "--out", scratch.path() + "/test.png",
+                      "--count", "1"},
+                     scratch.path() + "/test", &out, &err),
+            0)
+      << err;
+  EXPECT_NE(out.find(dataset + "/test: 1 images of 1 scene folders"), std::string::npos) << out;
+
+  // a mask file that is gone is named
+  const std::string mask = dataset + "/test/2000000/mask_visib/000000_000002.png";
+  fs::remove(mask);
+  EXPECT_EQ(RunToEnd({"--bop", dataset, "--split", "test", "--out", scratch.path() + "/m.png"},
+                     scratch.path() + "/mask", &out, &err),
+            1);
+  EXPECT_EQ(err, "stackgen-view: error: " + mask + " is missing (" + dataset +
+                     "/test/2000000/scene_gt.json has image 0, gt 2)\n");
+  EXPECT_FALSE(fs::exists(scratch.path() + "/m.png"));
 }
 
 // On the bus: --count distinct scenes are drawn (a repeat is skipped), a dropped instance is
@@ -272,8 +371,24 @@ TEST(ViewTest, BadInputIsOneLine) {
   EXPECT_NE(err.find(scratch.path() + "/empty/annotations.json"), std::string::npos) << err;
   EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
 
+  // --bop: a missing folder, a folder without a split
+  EXPECT_EQ(RunToEnd({"--bop", missing, "--out", scratch.path() + "/s.png"},
+                     scratch.path() + "/bop-missing", &out, &err),
+            1);
+  EXPECT_EQ(err, "stackgen-view: error: --bop " + missing + ": no such folder\n");
+  EXPECT_EQ(RunToEnd({"--bop", scratch.path() + "/empty", "--out", scratch.path() + "/s.png"},
+                     scratch.path() + "/bop-empty", &out, &err),
+            1);
+  EXPECT_EQ(err, "stackgen-view: error: --bop " + scratch.path() +
+                     "/empty: no BOP split folder in it (SPLIT/SCENE_ID/scene_gt.json)\n");
+
   for (const std::vector<std::string>& args :
        {std::vector<std::string>{"--coco", scratch.path(), "--out", "s.png", "--count", "0"},
+        {"--bop", scratch.path(), "--coco", scratch.path(), "--out", "s.png"},
+        {"--bop", scratch.path(), "--lcm-url", "default", "--out", "s.png"},
+        {"--bop", scratch.path(), "--out", "s.png", "--timeout", "5"},
+        {"--coco", scratch.path(), "--out", "s.png", "--split", "train_pbr"},
+        {"--bop", "", "--out", "s.png"},
         {"--coco", scratch.path(), "--out", "s.png", "--columns", "x"},
         {"--coco", scratch.path(), "--out", "s.png", "--tile-width", "8"},
         {"--coco", scratch.path(), "--out", "s.png", "--columns", "100", "--tile-width", "4096"},

@@ -21,6 +21,7 @@
 #include "bus/channels.h"
 #include "bus/log.h"
 #include "gen/annotate/pose.h"
+#include "tools/bop_dataset.h"
 
 namespace stackgen::stats {
 namespace {
@@ -32,6 +33,10 @@ using nlohmann::json;
 constexpr double kRotationTolerance = 1e-6;
 // below this |(w, z)| of the unit quaternion the heading is undefined
 constexpr double kHeadingUndefined = 1e-9;
+// parts of two scenes closer than this in every coordinate, mm, lie in one place: one pile. Logs
+// and COCO files repeat a pile's poses exactly; a BOP dataset gives each view's through its own
+// camera, and the positions computed back from them differ by about 1e-12 mm
+constexpr double kSamePositionMm = 1e-6;
 
 // the reference frame of `class_name`, identity when none is set
 Eigen::Matrix3d ReferenceOf(const ReadOptions& options, const std::string& class_name) {
@@ -203,6 +208,74 @@ void ReadCoco(const std::string& path, const ReadOptions& options, Dataset* data
   }
 }
 
+// the ground truths of a BOP split folder, image by image in scene id, image id order; without
+// all_instances only those at least kBopMinVisibFract visible (BOP has no annotated flag)
+void ReadBop(const std::string& split_folder, const ReadOptions& options, Dataset* dataset) {
+  dataset->kind = "BOP";
+  dataset->split = fs::path(split_folder).filename().string();
+  // the ground truths used, named once every scene's class names are known
+  struct Truth {
+    int64_t obj_id;
+    Eigen::Matrix3d world_R_object;
+    Eigen::Vector3d world_position_mm;
+    int64_t scene;
+  };
+  std::vector<Truth> truths;
+  std::map<int64_t, std::pair<std::string, std::string>> names;  // obj_id -> name, its file
+  BopSceneFiles files;
+  files.camera = true;
+  files.info = !options.all_instances;
+  files.class_names = true;
+  for (const auto& [scene_id, folder] : ListBopScenes(split_folder)) {
+    const BopScene scene = ReadBopScene(scene_id, folder, files);
+    const std::string coco_path = (fs::path(folder) / "scene_gt_coco.json").string();
+    for (const auto& [obj_id, name] : scene.class_names) {
+      const auto [known, fresh] = names.try_emplace(obj_id, name, coco_path);
+      if (!fresh && known->second.first != name) {
+        throw std::runtime_error(coco_path + ": category " + std::to_string(obj_id) + " is \"" +
+                                 name + "\", in " + known->second.second + " \"" +
+                                 known->second.first + "\"");
+      }
+    }
+    // each image is a scene; world_from_object = inverse(camera_from_world) camera_from_object
+    for (const BopImage& image : scene.images) {
+      const int64_t scene_number = dataset->scenes++;
+      const std::string camera_where = BopRecordName(folder, "scene_camera.json", image.im_id);
+      const Eigen::Matrix3d camera_R_world =
+          RotationFromRowMajor(image.camera_R_world.data(), camera_where + ": cam_R_w2c");
+      const Eigen::Vector3d camera_t_world(image.camera_t_world_mm.data());
+      if (!camera_t_world.allFinite()) {
+        throw std::runtime_error(camera_where + ": cam_t_w2c is not finite");
+      }
+      for (size_t k = 0; k < image.ground_truths.size(); ++k) {
+        const BopGroundTruth& truth = image.ground_truths[k];
+        if (!options.all_instances && !(truth.visib_fract >= kBopMinVisibFract)) {
+          ++dataset->not_annotated;
+          continue;
+        }
+        const std::string where =
+            BopRecordName(folder, "scene_gt.json", image.im_id, static_cast<int64_t>(k));
+        const Eigen::Matrix3d camera_R_object =
+            RotationFromRowMajor(truth.camera_R_object.data(), where + ": cam_R_m2c");
+        const Eigen::Vector3d camera_t_object(truth.camera_t_object_mm.data());
+        if (!camera_t_object.allFinite()) {
+          throw std::runtime_error(where + ": cam_t_m2c is not finite");
+        }
+        truths.push_back({truth.obj_id, camera_R_world.transpose() * camera_R_object,
+                          camera_R_world.transpose() * (camera_t_object - camera_t_world),
+                          scene_number});
+      }
+    }
+  }
+  for (const Truth& truth : truths) {
+    const auto name = names.find(truth.obj_id);
+    char fallback[32];
+    std::snprintf(fallback, sizeof(fallback), "obj_%06lld", static_cast<long long>(truth.obj_id));
+    AddInstance(name != names.end() ? name->second.first : std::string(fallback),
+                truth.world_R_object, truth.world_position_mm, -1, truth.scene, options, dataset);
+  }
+}
+
 // the instances of one labels or scene message
 void AddMessageInstances(const std::vector<stackgen::instance>& instances, int64_t scene,
                          const std::string& where, const ReadOptions& options, Dataset* dataset) {
@@ -285,8 +358,9 @@ void ReadLcmLog(const std::string& path, const ReadOptions& options, Dataset* da
   dataset->scenes = static_cast<int64_t>(seen.size());
 }
 
-// scenes that share a part's position exactly show one pile (physics.views_per_pile: the same
-// settled poses under other cameras; two piles of their own never share a float triple)
+// scenes that share a part's position (within kSamePositionMm) show one pile
+// (physics.views_per_pile: the same settled poses under other cameras; two piles of their own
+// never share a position to a nanometre)
 void AssignPiles(Dataset* dataset) {
   std::map<int64_t, int64_t> parent;  // union-find over scenes
   const std::function<int64_t(int64_t)> root = [&](int64_t scene) {
@@ -294,15 +368,31 @@ void AssignPiles(Dataset* dataset) {
     if (up != scene) up = root(up);
     return up;
   };
-  std::map<std::tuple<double, double, double>, int64_t> scene_at;
+  // positions in cells of kSamePositionMm: a match lies in the cell or a neighbour
+  using Cell = std::tuple<int64_t, int64_t, int64_t>;
+  std::map<Cell, std::vector<std::pair<Eigen::Vector3d, int64_t>>> scenes_at;
   for (const PostureSample& sample : dataset->samples) {
     root(sample.scene);
     const Eigen::Vector3d& p = sample.world_position_mm;
     if (!p.allFinite()) continue;
-    const auto [at, fresh] = scene_at.emplace(std::make_tuple(p.x(), p.y(), p.z()), sample.scene);
-    if (fresh) continue;
-    const int64_t a = root(at->second), b = root(sample.scene);
-    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+    const Eigen::Vector3d index = (p / kSamePositionMm).array().floor();
+    const Cell cell(static_cast<int64_t>(index.x()), static_cast<int64_t>(index.y()),
+                    static_cast<int64_t>(index.z()));
+    for (int64_t dx = -1; dx <= 1; ++dx) {
+      for (int64_t dy = -1; dy <= 1; ++dy) {
+        for (int64_t dz = -1; dz <= 1; ++dz) {
+          const auto near = scenes_at.find(
+              Cell(std::get<0>(cell) + dx, std::get<1>(cell) + dy, std::get<2>(cell) + dz));
+          if (near == scenes_at.end()) continue;
+          for (const auto& [position, scene] : near->second) {
+            if ((position - p).cwiseAbs().maxCoeff() > kSamePositionMm) continue;
+            const int64_t a = root(scene), b = root(sample.scene);
+            if (a != b) parent[std::max(a, b)] = std::min(a, b);
+          }
+        }
+      }
+    }
+    scenes_at[cell].emplace_back(p, sample.scene);
   }
   // piles numbered in the order of their first scene
   std::map<int64_t, int64_t> number;
@@ -342,13 +432,21 @@ PostureSample PostureOf(const Eigen::Matrix3d& world_R_object,
 Dataset ReadDataset(const std::string& path, const ReadOptions& options) {
   Dataset dataset;
   dataset.path = path;
-  // a COCO dataset folder stands for its annotations.json
+  // a COCO dataset folder stands for its annotations.json; a folder without is a BOP dataset
   std::error_code error;
   std::string file = path;
   if (fs::is_directory(path, error)) {
     file = (fs::path(path) / "annotations.json").string();
     if (!fs::exists(file, error)) {
-      throw std::runtime_error(path + " is a folder without annotations.json");
+      const std::string split = FindBopSplit(path, options.bop_split);
+      if (split.empty()) {
+        throw std::runtime_error(path +
+                                 " is a folder without annotations.json (COCO) or a BOP split "
+                                 "folder (SPLIT/SCENE_ID/scene_gt.json)");
+      }
+      ReadBop(split, options, &dataset);
+      AssignPiles(&dataset);
+      return dataset;
     }
   }
   if (!fs::exists(file, error)) throw std::runtime_error(file + " does not exist");

@@ -15,6 +15,7 @@
 
 #include "bus/flags.h"
 #include "gen/annotate/pose.h"
+#include "tools/bop_dataset.h"
 #include "tools/stats/dataset.h"
 #include "tools/stats/piles.h"
 #include "tools/stats/plots.h"
@@ -45,15 +46,25 @@ struct Flags {
 void PrintHelp() {
   std::printf(
       "Usage: %s DATASET_A [DATASET_B] --out DIR [--alpha A] [--frame CLASS=RZ,RY,RX]...\n"
-      "                      [--class NAME] [--all-instances] [--permutations N] [--seed S]\n"
-      "                      [--calibrate N]\n"
+      "                      [--class NAME] [--all-instances] [--split NAME] [--permutations N]\n"
+      "                      [--seed S] [--calibrate N]\n"
       "\n"
       "The pile and posture statistics of the instances of one dataset, or the comparison of two\n"
       "(the paper's Figure 3 and section 4, done so that it can tell piles apart). A dataset is a "
       "COCO file written by stackgen-coco (or its\n"
-      "folder, holding annotations.json), or an LCM log recorded with lcm-logger holding\n"
-      "STACKGEN_LABELS or STACKGEN_SCENE messages (a scene on both channels counts once); the\n"
-      "kind is told by content.\n"
+      "folder, holding annotations.json), a BOP dataset folder written by stackgen-bop (a folder\n"
+      "without annotations.json that holds a split folder SPLIT/SCENE_ID/scene_gt.json), or an\n"
+      "LCM log recorded with lcm-logger holding STACKGEN_LABELS or STACKGEN_SCENE messages (a\n"
+      "scene on both channels counts once); the kind is told by content.\n"
+      "\n"
+      "From a BOP dataset it reads scene_gt.json (cam_R_m2c, cam_t_m2c, obj_id),\n"
+      "scene_camera.json (cam_R_w2c, cam_t_w2c) and scene_gt_info.json (visib_fract) of every\n"
+      "scene folder; each image is a scene. An instance's rotation in the bin frame is\n"
+      "cam_R_w2c^T cam_R_m2c, its position cam_R_w2c^T (cam_t_m2c - cam_t_w2c). BOP has no\n"
+      "annotated flag: a ground truth counts as annotated when visib_fract >= 0.3 (the\n"
+      "generator's default annotation.min_visib_fract). Class names come from the categories\n"
+      "of scene_gt_coco.json, else are obj_OBJ_ID (six digits, as models/obj_000001.ply). BOP\n"
+      "has no resting faces.\n"
       "\n"
       "Each instance's posture is (alpha, beta, gamma), degrees, about the Z, Y, X axes of the\n"
       "bin frame: world_R_reference = Rz(alpha) Ry(beta) Rx(gamma). Its resting face is the\n"
@@ -99,10 +110,13 @@ void PrintHelp() {
       "                          angle.\n"
       "  --class NAME            only instances of class NAME (default: all classes, pooled).\n"
       "  --all-instances         also instances that are not annotated (too hidden): from a log\n"
-      "                          every instance, from a COCO file its ignore regions (iscrowd\n"
-      "                          1); a COCO file holds no dropped instances (default: annotated\n"
-      "                          only, so a log and the COCO file of one run agree). Use it on\n"
-      "                          logs to compare whole piles, the bottom parts too.\n"
+      "                          every instance, from a BOP dataset every ground truth, from a\n"
+      "                          COCO file its ignore regions (iscrowd 1); a COCO file holds no\n"
+      "                          dropped instances (default: annotated only, so a log and the\n"
+      "                          COCO file of one run agree). Use it on logs and BOP datasets to\n"
+      "                          compare whole piles, the bottom parts too.\n"
+      "  --split NAME            the split folder of BOP datasets (default: train_pbr, else the\n"
+      "                          only split folder there); other kinds ignore it.\n"
       "  --permutations N        random reassignments of whole piles per comparison, 19..1e6\n"
       "                          (default 999: p-values down to 0.001).\n"
       "  --seed S                seed of the permutations, >= 0 (default 1): the same seed, the\n"
@@ -154,6 +168,7 @@ Flags ParseFlags(int argc, char** argv) {
   parser.Custom("--frame", [&flags](const std::string& value) { ParseFrame(value, &flags.read); });
   parser.String("--class", &flags.read.class_name, "a class name");
   parser.Switch("--all-instances", &flags.read.all_instances);
+  parser.String("--split", &flags.read.bop_split, "a folder name");
   parser.Int("--permutations", &flags.permutations, 19, 1000000);
   parser.Int("--seed", &flags.seed, 0, INT64_MAX);
   parser.Int("--calibrate", &flags.calibrate, 1, 100000);
@@ -212,7 +227,7 @@ void PrintDatasetLine(const char* letter, const Dataset& dataset, const Flags& f
   std::string line = std::string(letter) + ": " + dataset.path + " (" + dataset.kind +
                      "): " + std::to_string(dataset.samples.size()) + " instances of " +
                      std::to_string(dataset.scenes) +
-                     (dataset.kind == "COCO" ? " images" : " scenes");
+                     (dataset.kind == "LCM log" ? " scenes" : " images");
   // views of one pile (scenes sharing part poses) count as one pile in the tests
   int64_t scenes_used = 0;
   {
@@ -245,6 +260,15 @@ void PrintDatasetLine(const char* letter, const Dataset& dataset, const Flags& f
     }
     std::printf("note: %s pools %zu classes (%s); --class NAME compares one\n", letter,
                 dataset.class_counts.size(), classes.c_str());
+  }
+  if (dataset.kind == "BOP") {
+    const std::string used = flags.read.all_instances
+                                 ? "every ground truth is used"
+                                 : "a ground truth counts as annotated when its visib_fract >= " +
+                                       Number(stackgen::kBopMinVisibFract) +
+                                       " (the generator's default annotation.min_visib_fract)";
+    std::printf("note: %s is a BOP dataset (split %s): %s; its images are the scenes\n", letter,
+                dataset.split.c_str(), used.c_str());
   }
   if (flags.read.all_instances && dataset.kind == "COCO") {
     std::printf(

@@ -132,10 +132,10 @@ struct SceneServer::Impl {
              " bytes");
       return;
     }
-    if (message.header.seq < -1 || message.header.seq > kMaxSeq || message.last_received_seq < -1 ||
-        message.last_received_seq > kMaxSeq) {
+    if (message.stored_through_seq < -1 || message.stored_through_seq > kMaxSeq ||
+        message.last_received_seq < -1 || message.last_received_seq > kMaxSeq) {
       Refuse("a credit with seqs out of range: " + message.consumer + " stored through " +
-             std::to_string(message.header.seq) + ", received " +
+             std::to_string(message.stored_through_seq) + ", received " +
              std::to_string(message.last_received_seq));
       return;
     }
@@ -178,8 +178,8 @@ struct SceneServer::Impl {
     // a credit addressed to this generator wins over the wildcard's "nothing stored yet"
     if (target == -1 && consumer.addressed) return;
     consumer.addressed = consumer.addressed || target != -1;
-    consumer.stored_through = message.header.seq;
-    const int64_t received = std::max(message.last_received_seq, message.header.seq);
+    consumer.stored_through = message.stored_through_seq;
+    const int64_t received = std::max(message.last_received_seq, message.stored_through_seq);
     if (received > consumer.last_received) {
       consumer.last_progress = now;
       consumer.tail_resends = 0;
@@ -464,7 +464,8 @@ struct SceneClient::Impl {
   void SendCredit(int32_t generator_id, int64_t stored_through, int64_t last_received,
                   bool leaving) {
     credit message{};
-    message.header.seq = stored_through;
+    message.header.seq = -1;
+    message.stored_through_seq = stored_through;
     message.header.generator_id = generator_id;
     message.header.utime = UnixMicros();
     message.consumer = options.name;
@@ -601,7 +602,7 @@ void SceneClient::Service() {
     }
     if (!ask.empty()) {
       resend_request request{};
-      request.header.seq = ask.front();
+      request.header.seq = -1;
       request.header.generator_id = generator_id;
       request.header.utime = UnixMicros();
       request.consumer = impl.options.name;

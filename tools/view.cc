@@ -772,7 +772,9 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
   const bool live = bus.url().rfind("file://", 0) != 0;
   const auto publish_status = [&] {
     stackgen::status message{};
-    message.header.seq = static_cast<int64_t>(tiles.size());
+    message.header.seq = -1;
+    message.next_seq = -1;
+    message.scenes_held = static_cast<int64_t>(tiles.size());
     message.header.generator_id = -1;
     message.header.utime = std::chrono::duration_cast<std::chrono::microseconds>(
                                std::chrono::system_clock::now().time_since_epoch())

@@ -293,7 +293,9 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
     const auto publish_status = [&](std::chrono::steady_clock::time_point now) {
       const double seconds = std::chrono::duration<double>(now - last_status).count();
       status message{};
-      message.header.seq = writer->num_images();
+      message.header.seq = -1;
+      message.next_seq = -1;
+      message.scenes_held = writer->num_images();
       message.header.generator_id = -1;
       message.header.utime = UnixMicros();
       message.process = program.name;

@@ -177,7 +177,8 @@ py::dict StatusDict(const status& s) {
   d["process"] = s.process;
   d["name"] = s.name;
   d["generator_id"] = s.header.generator_id;
-  d["seq"] = s.header.seq;
+  d["next_seq"] = s.next_seq;
+  d["scenes_held"] = s.scenes_held;
   d["utime"] = s.header.utime;
   d["scenes"] = s.scenes;
   d["rate_hz"] = s.rate_hz;

@@ -253,7 +253,9 @@ struct SceneStream::Impl {
 
   void PublishStatus(int64_t handed, double rate_hz) {
     status message{};
-    message.header.seq = handed;
+    message.header.seq = -1;
+    message.next_seq = -1;
+    message.scenes_held = handed;
     message.header.generator_id = -1;
     message.header.utime = UnixMicros();
     message.process = "stackgen-feed";

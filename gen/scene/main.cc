@@ -265,6 +265,9 @@ int Run(int argc, char** argv) {
   // warns) also when this one gives way before its first periodic status
   {
     status hello{};
+    hello.header.seq = -1;
+    hello.next_seq = -1;  // not known before a resume is settled
+    hello.scenes_held = -1;
     hello.header.generator_id = generator_id;
     hello.header.seed = static_cast<int64_t>(seed);
     hello.header.utime = UnixMicros();
@@ -306,6 +309,7 @@ int Run(int argc, char** argv) {
   config_text config_message;
   config_message.path = config.path;
   config_message.pbtxt = EffectiveConfigText(config.config);
+  config_message.header.seq = -1;
   config_message.header.generator_id = generator_id;
   config_message.header.seed = static_cast<int64_t>(seed);
 
@@ -324,7 +328,6 @@ int Run(int argc, char** argv) {
     const Clock::time_point now = Clock::now();
     const double since = std::chrono::duration<double>(now - last_status).count();
     if (!force && since < 1.0) return;
-    config_message.header.seq = next_seq;
     config_message.header.utime = UnixMicros();
     bus.Publish(kConfigChannel, config_message);
     // the models at the start and every kModelPeriod periods after: writers that start later
@@ -336,7 +339,9 @@ int Run(int argc, char** argv) {
       }
     }
     status message{};
-    message.header.seq = next_seq;
+    message.header.seq = -1;
+    message.next_seq = next_seq;
+    message.scenes_held = -1;
     message.header.generator_id = generator_id;
     message.header.seed = static_cast<int64_t>(seed);
     message.header.utime = UnixMicros();

@@ -514,7 +514,9 @@ TEST(BoundedDecodeTest, CorruptCountsRefusedWithinAddressLimit) {
   status st{};
   st.process = "stackgen";
   std::vector<uint8_t> status_bytes = Encode(st);
-  PutInt32(&status_bytes, 8 + static_cast<size_t>(st.header._getEncodedSizeNoHash()), INT32_MIN);
+  // the length of status.process: after the header, next_seq and scenes_held
+  PutInt32(&status_bytes, 8 + static_cast<size_t>(st.header._getEncodedSizeNoHash()) + 16,
+           INT32_MIN);
   result = RunWithAddressLimit(BoundedBody<status>(status_bytes));
   EXPECT_NE(result.text.find("refused: stackgen.status string 1"), std::string::npos)
       << result.Describe();
@@ -560,7 +562,9 @@ TEST(BoundedDecodeTest, LcmDecoderAllocatesForCorruptCounts) {
   status st{};
   st.process = "stackgen";
   std::vector<uint8_t> status_bytes = Encode(st);
-  PutInt32(&status_bytes, 8 + static_cast<size_t>(st.header._getEncodedSizeNoHash()), INT32_MIN);
+  // the length of status.process: after the header, next_seq and scenes_held
+  PutInt32(&status_bytes, 8 + static_cast<size_t>(st.header._getEncodedSizeNoHash()) + 16,
+           INT32_MIN);
   const ChildResult lcm = RunWithAddressLimit(LcmBody<status>(status_bytes));
   EXPECT_FALSE(lcm.ExitedZero() && lcm.text.rfind("returned ", 0) == 0) << lcm.Describe();
 }

@@ -101,6 +101,37 @@ TEST_F(DeliveryFixture, WindowHoldsTheGenerator) {
   EXPECT_FALSE(server_->MayPublish(4));
 }
 
+// each header field means one thing: credits and resend requests say their seqs in fields of
+// their own (stored_through_seq, seqs) and leave header.seq at -1.
+TEST_F(DeliveryFixture, SeqsHaveFieldsOfTheirOwn) {
+  SetUpLink(SceneServerOptions{}, Client(8));
+  std::vector<credit> credits;
+  std::vector<resend_request> requests;
+  bus_->Subscribe<credit>(kCreditChannel, [&](const credit& m) { credits.push_back(m); });
+  bus_->Subscribe<resend_request>(kResendChannel,
+                                  [&](const resend_request& m) { requests.push_back(m); });
+  Exchange();
+  drop_ = {{0, 1}};
+  for (int64_t seq = 0; seq < 3; ++seq) server_->Publish(seq, EncodedScene(0, seq));
+  bus_->HandleFor(0);
+  Exchange();
+  bus_->HandleFor(0);
+  Exchange();
+  ASSERT_FALSE(credits.empty());
+  ASSERT_FALSE(requests.empty());
+  for (const credit& m : credits) EXPECT_EQ(m.header.seq, -1);
+  for (const resend_request& m : requests) EXPECT_EQ(m.header.seq, -1);
+  EXPECT_EQ(requests.front().seqs, std::vector<int64_t>({1}));
+  // the last credit to generator 0 (a wildcard one, generator_id -1, says -1)
+  int64_t stored_through = -2;
+  for (const credit& m : credits) {
+    if (m.header.generator_id == 0) stored_through = m.stored_through_seq;
+    if (m.header.generator_id == -1) EXPECT_EQ(m.stored_through_seq, -1);
+  }
+  EXPECT_EQ(stored_through, 2);
+  EXPECT_EQ(client_->StoredThrough(0), 2);
+}
+
 // a scene lost in the middle is asked for and served from the ring; it is stored once.
 TEST_F(DeliveryFixture, GapIsResentFromTheRing) {
   SetUpLink(SceneServerOptions{}, Client(8));
@@ -273,7 +304,7 @@ TEST_F(DeliveryFixture, AbsurdCreditsAndRequestsAreRefused) {
   const auto send_credit = [this](const std::string& name, int64_t stored, int32_t window) {
     credit message{};
     message.header.generator_id = 0;
-    message.header.seq = stored;
+    message.stored_through_seq = stored;
     message.consumer = name;
     message.window = window;
     message.last_received_seq = -1;
@@ -315,7 +346,7 @@ TEST_F(DeliveryFixture, NoWindowHoldsOnlyForTheTimeout) {
   const auto send_credit = [this](int32_t window) {
     credit message{};
     message.header.generator_id = 0;
-    message.header.seq = -1;
+    message.stored_through_seq = -1;
     message.consumer = "closed";
     message.window = window;
     message.last_received_seq = -1;
@@ -641,10 +672,11 @@ TEST(FaultDropTest, FractionAndSeed) {
     options.fault_seed = seed;
     Bus bus("memq://", options);
     std::vector<int64_t> kept;
-    bus.Subscribe<credit>(kCreditChannel, [&](const credit& m) { kept.push_back(m.header.seq); });
+    bus.Subscribe<credit>(kCreditChannel,
+                          [&](const credit& m) { kept.push_back(m.stored_through_seq); });
     for (int64_t i = 0; i < 2000; ++i) {
       credit message{};
-      message.header.seq = i;
+      message.stored_through_seq = i;
       bus.Publish(kCreditChannel, message);
       bus.HandleFor(0);
     }

@@ -28,8 +28,8 @@ json GenerateDataset(const std::string& dir, uint64_t seed) {
   const std::string url = testing::FreeMulticastUrl();
   const std::string bin = STACKGEN_BIN_DIR;
   mkdir(dir.c_str(), 0755);
-  Process coco({bin + "/stackgen-coco", "--out", dir + "/coco", "--count",
-                std::to_string(kScenes), "--lcm-url", url},
+  Process coco({bin + "/stackgen-coco", "--out", dir + "/coco", "--count", std::to_string(kScenes),
+                "--lcm-url", url},
                dir + "/coco");
   EXPECT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
   Process generator({bin + "/stackgen", "--count", std::to_string(kScenes), "--seed",
@@ -52,9 +52,8 @@ TEST(CocoPipelineTest, DatasetIsConsistentAndDeterministic) {
   ASSERT_EQ(dataset["images"].size(), static_cast<size_t>(kScenes));
   std::map<int64_t, std::pair<int, int>> sizes;
   for (const json& image : dataset["images"]) {
-    const cv::Mat pixels =
-        cv::imread(dir + "/a/coco/images/" + image["file_name"].get<std::string>(),
-                   cv::IMREAD_UNCHANGED);
+    const cv::Mat pixels = cv::imread(
+        dir + "/a/coco/images/" + image["file_name"].get<std::string>(), cv::IMREAD_UNCHANGED);
     ASSERT_FALSE(pixels.empty()) << image["file_name"];
     EXPECT_EQ(pixels.cols, image["width"].get<int>());
     EXPECT_EQ(pixels.rows, image["height"].get<int>());
@@ -78,8 +77,7 @@ TEST(CocoPipelineTest, DatasetIsConsistentAndDeterministic) {
     EXPECT_EQ(area, annotation["area"].get<int>());
     EXPECT_GT(area, 0);
     const json& box = annotation["bbox"];
-    const cv::Rect rect(box[0].get<int>(), box[1].get<int>(), box[2].get<int>(),
-                        box[3].get<int>());
+    const cv::Rect rect(box[0].get<int>(), box[1].get<int>(), box[2].get<int>(), box[3].get<int>());
     EXPECT_EQ(cv::countNonZero(mask(rect)), area) << "mask outside its bbox";
     // the default occlusion rule is DROP: no ignore regions (iscrowd 1)
     EXPECT_EQ(annotation["iscrowd"].get<int>(), 0);

@@ -153,7 +153,7 @@ int Run(int argc, char** argv) {
       // the writer impersonated: all stored, the largest window; then leaving
       stackgen::credit credit{};
       credit.header.generator_id = 0;
-      credit.header.seq = highest_seq + 100;
+      credit.stored_through_seq = highest_seq + 100;
       credit.consumer = writer;
       credit.window = 10000;
       credit.last_received_seq = highest_seq + 100;
@@ -163,7 +163,7 @@ int Run(int argc, char** argv) {
       // a consumer of its own that offers no window
       credit = stackgen::credit{};
       credit.header.generator_id = 0;
-      credit.header.seq = -1;
+      credit.stored_through_seq = -1;
       credit.consumer = "stackgen-coco@stranger:/nowhere";
       credit.window = 0;
       credit.last_received_seq = -1;

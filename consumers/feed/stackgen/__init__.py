@@ -234,7 +234,10 @@ class StatusMonitor:
 
     def latest(self, process=None):
         """A list of status dicts, one per process heard (only those named `process`, e.g.
-        "stackgen" for generators, when given)."""
+        "stackgen" for generators, when given). Keys: process, name, generator_id, next_seq (a
+        generator's next seq; -1 for consumers), scenes_held (a consumer's scenes; -1 for
+        generators), utime, scenes, rate_hz, received, lost, resent, regenerated,
+        reliable_consumers, held_back_s."""
         return [s for s in self._native.latest() if process is None or s["process"] == process]
 
 

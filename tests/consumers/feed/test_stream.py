@@ -162,7 +162,7 @@ def test_reliable_stream_joins_a_running_generator(tmp_path, processes):
     generator = processes(generator_argv(url, 0, tmp_path / "cache"), "stackgen")
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
-        published = [s["seq"] for s in monitor.latest("stackgen")]
+        published = [s["next_seq"] for s in monitor.latest("stackgen")]
         if published and published[0] > 20:
             break
         time.sleep(0.1)

@@ -6,9 +6,16 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "bus/bounded_decode.h"
+
 namespace stackgen {
 
 cv::Mat DecodeImage(const image& m, std::string* why) {
+  if (m.size == 0 || m.data.empty()) {
+    if (why != nullptr) *why = "has no image data";
+    return cv::Mat();
+  }
+  if (!CheckEncodedImageDims(m, why)) return cv::Mat();
   const int type = m.pixel_format == image::PIXEL_RGB8    ? CV_8UC3
                    : m.pixel_format == image::PIXEL_GRAY8 ? CV_8UC1
                                                           : CV_16UC1;
@@ -19,14 +26,19 @@ cv::Mat DecodeImage(const image& m, std::string* why) {
   if (m.encoding == image::ENCODING_RAW) {
     const size_t bytes = static_cast<size_t>(m.width) * m.height * CV_ELEM_SIZE(type);
     if (m.width > 0 && m.height > 0 && m.data.size() == bytes) {
-      decoded = cv::Mat(m.height, m.width, type, const_cast<uint8_t*>(m.data.data())).clone();
+      // little-endian 16-bit values are this machine's order (x86-64, arm64)
+      decoded = cv::Mat(m.height, m.width, type, const_cast<uint8_t*>(m.data.data()));
     }
   } else {
     const bool png = m.encoding == image::ENCODING_PNG;
     const bool jpeg_ends = m.encoding == image::ENCODING_JPEG && m.data.size() >= 2 &&
                            m.data[m.data.size() - 2] == 0xff && m.data.back() == 0xd9;
     if (png || jpeg_ends) {
-      decoded = cv::imdecode(m.data, cv::IMREAD_UNCHANGED);
+      try {
+        decoded = cv::imdecode(m.data, cv::IMREAD_UNCHANGED);
+      } catch (const cv::Exception&) {
+        decoded = cv::Mat();
+      }
       if (!decoded.empty() && decoded.type() == CV_8UC3) {
         cv::cvtColor(decoded, decoded, cv::COLOR_BGR2RGB);
       }

@@ -11,12 +11,14 @@
 namespace stackgen {
 
 /// Decodes `image` (RAW, PNG or JPEG) whole into a matrix of its pixel format: CV_8UC3 in RGB
-/// order (not OpenCV's BGR), CV_8UC1, or CV_16UC1; a RAW image is copied. Returns an empty
-/// matrix and one line in `*why` when it does not decode to exactly its declared size and
-/// format: libpng checks every chunk's CRC and zlib the data's checksum, so a flipped bit or a
-/// cut shows; a JPEG must also end with its end-of-image marker, as libjpeg fills a cut one
-/// with grey. Call CheckEncodedImageDims (bus/bounded_decode.h) first: the header decides how
-/// much OpenCV allocates.
+/// order (not OpenCV's BGR), CV_8UC1, or CV_16UC1. A RAW image is not copied: the matrix shows
+/// the message's bytes (clone it to keep it longer than the message). The one image decoder of
+/// the consumers (dataset writers and the Python feed). Returns an empty matrix and one line in
+/// `*why` when the image has no data or does not decode to exactly its declared size and format:
+/// its PNG or JPEG header is checked first (CheckEncodedImageDims: the header decides how much
+/// OpenCV allocates), then libpng checks every chunk's CRC and zlib the data's checksum, so a
+/// flipped bit or a cut shows; a JPEG must also end with its end-of-image marker, as libjpeg
+/// fills a cut one with grey.
 cv::Mat DecodeImage(const image& image, std::string* why);
 
 /// `pixels` (CV_8UC3 in RGB order, CV_8UC1 or CV_16UC1) as a PNG file with zlib level

@@ -3,9 +3,9 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "bus/bounded_decode.h"
 #include "bus/rle.h"
 #include "bus/scene_contract.h"
+#include "consumers/dataset/images.h"
 
 namespace stackgen::feed {
 namespace {
@@ -18,32 +18,11 @@ bool Refuse(const std::string& reason, std::string* why) {
 }  // namespace
 
 cv::Mat DecodeImage(const image& message, const std::string& field) {
-  std::string problem;
   if (message.size == 0) throw FeedError("the scene has no " + field + " image");
-  if (!CheckEncodedImageDims(message, &problem)) throw FeedError(field + ": " + problem);
-  const bool sixteen = message.pixel_format == image::PIXEL_DEPTH16 ||
-                       message.pixel_format == image::PIXEL_INSTANCE16;
-  const bool rgb = message.pixel_format == image::PIXEL_RGB8;
-  const int type = sixteen ? CV_16UC1 : rgb ? CV_8UC3 : CV_8UC1;
-  if (message.encoding == image::ENCODING_RAW) {
-    // little-endian 16-bit values are this machine's order (x86-64, arm64)
-    return cv::Mat(message.height, message.width, type, const_cast<uint8_t*>(message.data.data()));
-  }
-  const cv::Mat bytes(1, message.size, CV_8UC1, const_cast<uint8_t*>(message.data.data()));
-  cv::Mat decoded;
-  try {
-    decoded = cv::imdecode(bytes, sixteen ? cv::IMREAD_UNCHANGED
-                                  : rgb   ? cv::IMREAD_COLOR
-                                          : cv::IMREAD_GRAYSCALE);
-  } catch (const cv::Exception& error) {
-    throw FeedError(field + " does not decode: " + error.what());
-  }
-  if (decoded.empty() || decoded.type() != type || decoded.rows != message.height ||
-      decoded.cols != message.width) {
-    throw FeedError(field + " does not decode to a " + std::to_string(message.width) + "x" +
-                    std::to_string(message.height) + " image of its pixel_format");
-  }
-  if (rgb) cv::cvtColor(decoded, decoded, cv::COLOR_BGR2RGB);
+  // the consumers' one decoder (consumers/dataset/images.h)
+  std::string why;
+  cv::Mat decoded = stackgen::DecodeImage(message, &why);
+  if (decoded.empty()) throw FeedError(field + " does not decode: " + why);
   return decoded;
 }
 

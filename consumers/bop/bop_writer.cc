@@ -1,6 +1,5 @@
 #include "consumers/bop/bop_writer.h"
 
-#include <fcntl.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -10,7 +9,6 @@
 #include <cstdio>
 #include <filesystem>
 #include <limits>
-#include <string_view>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
@@ -33,7 +31,6 @@ constexpr const char* kModelsFolder = "models";
 constexpr const char* kModelsInfoFile = "models_info.json";
 constexpr const char* kShardsFolder = "shards";
 constexpr const char* kKeyToShardFile = "key_to_shard.json";
-constexpr std::string_view kTemporarySuffix = ".tmp";
 constexpr int kJournalVersion = 1;
 // chunks (BOP scene folders) of kImagesPerChunk images (consumers/dataset/shards.h), and the
 // ids that fit six digits
@@ -64,11 +61,6 @@ std::string Six(int64_t value) {
   char text[32];
   std::snprintf(text, sizeof(text), "%06lld", static_cast<long long>(value));
   return text;
-}
-
-bool EndsWith(const std::string& text, std::string_view suffix) {
-  return text.size() >= suffix.size() &&
-         text.compare(text.size() - suffix.size(), suffix.size(), suffix) == 0;
 }
 
 }  // namespace
@@ -301,6 +293,43 @@ bool IsImageFileName(const std::string& name) {
   return digits(stem.substr(0, underscore)) && digits(stem.substr(underscore + 1));
 }
 
+// the shards of the chunk in folder `chunk`, chunk `scene_id`, from its journal records (by image
+// id), into `shards` with at most `shard_images` images each
+void WriteShards(const fs::path& chunk, int64_t scene_id,
+                 const std::vector<std::pair<int64_t, json>>& records, int shard_images,
+                 const fs::path& shards_folder) {
+  // the members of each shard, image by image in key order
+  std::map<int64_t, std::vector<std::pair<std::string, std::string>>> shards;
+  for (const auto& [im_id, record] : records) {
+    const json& scene = record.at("scene");
+    const std::string key = Six(scene_id) + "_" + Six(im_id);
+    const std::string rgb = scene.at("rgb").get<std::string>();  // "rgb/000000.png"
+    const size_t slash = rgb.find('/'), dot = rgb.rfind('.');
+    const int32_t height = scene.at("height").get<int32_t>();
+    const int32_t width = scene.at("width").get<int32_t>();
+    json mask = json::object(), mask_visib = json::object();
+    for (size_t g = 0; g < record.at("masks").size(); ++g) {
+      mask[std::to_string(g)] = UncompressedRle(record["masks"][g][0], height, width);
+      mask_visib[std::to_string(g)] = UncompressedRle(record["masks"][g][1], height, width);
+    }
+    const auto read = [&](const std::string& relative) {
+      return ReadWholeFile((chunk / relative).string());
+    };
+    auto& members = shards[ShardOf(scene_id, im_id, shard_images)];
+    members.emplace_back(key + "." + rgb.substr(0, slash) + rgb.substr(dot), read(rgb));
+    members.emplace_back(key + ".depth.png",
+                         read(std::string(kDepthFolder) + "/" + Six(im_id) + ".png"));
+    members.emplace_back(key + ".camera.json", ToolkitText(record.at("camera")));
+    members.emplace_back(key + ".gt.json", ToolkitText(record.at("gt")));
+    members.emplace_back(key + ".gt_info.json", ToolkitText(record.at("gt_info")));
+    members.emplace_back(key + ".mask.json", ToolkitText(mask, true));
+    members.emplace_back(key + ".mask_visib.json", ToolkitText(mask_visib, true));
+  }
+  for (const auto& [shard_id, members] : shards) {
+    WriteTar(shards_folder / ShardFileName(shard_id), members);
+  }
+}
+
 }  // namespace
 
 int64_t BopWriter::SceneId(int32_t generator_id, int64_t seq) {
@@ -360,14 +389,7 @@ BopWriter::BopWriter(const std::string& dir, const BopWriterOptions& options)
     // what an earlier run stored of the models and the camera
     const fs::path models_info = folder / kModelsFolder / kModelsInfoFile;
     if (FileSize(models_info.string()) > 0) {
-      std::string text;
-      {
-        const int64_t size = FileSize(models_info.string());
-        ScopedFd file(open(models_info.c_str(), O_RDONLY | O_CLOEXEC));
-        if (file.get() < 0) throw SystemError("cannot read", models_info.string(), errno);
-        text = ReadAt(file.get(), 0, static_cast<uint64_t>(size), models_info.string());
-      }
-      const json info = json::parse(text, nullptr, false);
+      const json info = json::parse(ReadWholeFile(models_info.string()), nullptr, false);
       if (!info.is_object()) {
         throw std::runtime_error(models_info.string() + " is not a JSON object (damaged?)");
       }
@@ -456,7 +478,7 @@ void BopWriter::CleanFolders(const std::set<std::string>& journaled_files) const
       }
       // temporary files, and with resume image files no journal line names (an Add that never
       // completed wrote them)
-      if ((EndsWith(name, kTemporarySuffix) || (images && IsImageFileName(name))) &&
+      if ((IsTemporaryFile(name) || (images && IsImageFileName(name))) &&
           unlink(it->path().c_str()) != 0) {
         throw SystemError("cannot remove", it->path().string(), errno);
       }
@@ -754,18 +776,19 @@ void BopWriter::WriteChunk(int64_t scene_id) {
   std::vector<std::pair<int64_t, json>> cameras, gts, infos;
   json images = json::array(), annotations = json::array();
   std::map<int32_t, std::string> chunk_classes;
-  std::vector<std::pair<int64_t, std::string>> lines;  // for the shards
-  int64_t annotation_id = 1;
+  // each image's journal record, read and parsed once for the files and the shards
+  std::vector<std::pair<int64_t, json>> records;
   for (auto it = index_.lower_bound({scene_id, 0});
        it != index_.end() && it->first.first == scene_id; ++it) {
-    const int64_t im_id = it->first.second;
-    std::string line = journal_->Read(it->second.offset, it->second.length);
-    json record = json::parse(line);
-    if (options_.shard_images > 0) lines.emplace_back(im_id, std::move(line));
-    cameras.emplace_back(im_id, std::move(record["camera"]));
-    gts.emplace_back(im_id, std::move(record["gt"]));
-    infos.emplace_back(im_id, std::move(record["gt_info"]));
-    for (json& annotation : record["coco"]) {
+    records.emplace_back(it->first.second,
+                         json::parse(journal_->Read(it->second.offset, it->second.length)));
+  }
+  int64_t annotation_id = 1;
+  for (const auto& [im_id, record] : records) {
+    cameras.emplace_back(im_id, record["camera"]);
+    gts.emplace_back(im_id, record["gt"]);
+    infos.emplace_back(im_id, record["gt_info"]);
+    for (json annotation : record["coco"]) {
       annotation["id"] = annotation_id++;
       annotations.push_back(std::move(annotation));
     }
@@ -805,50 +828,13 @@ void BopWriter::WriteChunk(int64_t scene_id) {
                        {"version", "1.0"}}},
                      {"licenses", json::array()}};
   WriteToolkitObject(folder / "scene_gt_coco.json", coco);
-  if (options_.shard_images > 0) WriteShards(scene_id, lines);
+  if (options_.shard_images > 0) {
+    WriteShards(folder, scene_id, records, options_.shard_images, fs::path(dir_) / kShardsFolder);
+  }
 }
 
 int64_t BopWriter::ShardId(int64_t scene_id, int64_t im_id) const {
   return ShardOf(scene_id, im_id, options_.shard_images);
-}
-
-void BopWriter::WriteShards(int64_t scene_id,
-                            const std::vector<std::pair<int64_t, std::string>>& lines) {
-  const fs::path chunk = fs::path(dir_) / ChunkFolder(scene_id);
-  // the members of each shard, image by image in key order
-  std::map<int64_t, std::vector<std::pair<std::string, std::string>>> shards;
-  for (const auto& [im_id, line] : lines) {
-    const json record = json::parse(line);
-    const json& scene = record.at("scene");
-    const std::string key = Six(scene_id) + "_" + Six(im_id);
-    const std::string rgb = scene.at("rgb").get<std::string>();  // "rgb/000000.png"
-    const size_t slash = rgb.find('/'), dot = rgb.rfind('.');
-    const int32_t height = scene.at("height").get<int32_t>();
-    const int32_t width = scene.at("width").get<int32_t>();
-    json mask = json::object(), mask_visib = json::object();
-    for (size_t g = 0; g < record.at("masks").size(); ++g) {
-      mask[std::to_string(g)] = UncompressedRle(record["masks"][g][0], height, width);
-      mask_visib[std::to_string(g)] = UncompressedRle(record["masks"][g][1], height, width);
-    }
-    const auto read = [&](const std::string& relative) {
-      const std::string path = (chunk / relative).string();
-      ScopedFd file(open(path.c_str(), O_RDONLY | O_CLOEXEC));
-      if (file.get() < 0) throw SystemError("cannot read", path, errno);
-      return ReadAt(file.get(), 0, static_cast<uint64_t>(FileSize(path)), path);
-    };
-    auto& members = shards[ShardId(scene_id, im_id)];
-    members.emplace_back(key + "." + rgb.substr(0, slash) + rgb.substr(dot), read(rgb));
-    members.emplace_back(key + ".depth.png",
-                         read(std::string(kDepthFolder) + "/" + Six(im_id) + ".png"));
-    members.emplace_back(key + ".camera.json", ToolkitText(record.at("camera")));
-    members.emplace_back(key + ".gt.json", ToolkitText(record.at("gt")));
-    members.emplace_back(key + ".gt_info.json", ToolkitText(record.at("gt_info")));
-    members.emplace_back(key + ".mask.json", ToolkitText(mask, true));
-    members.emplace_back(key + ".mask_visib.json", ToolkitText(mask_visib, true));
-  }
-  for (const auto& [shard_id, members] : shards) {
-    WriteTar(fs::path(dir_) / kShardsFolder / ShardFileName(shard_id), members);
-  }
 }
 
 void BopWriter::WriteKeyToShard() const {
@@ -912,13 +898,9 @@ bool BopWriter::AddModel(const model& m) {
     auto heard = model_files_.find(m.class_id);
     if (heard == model_files_.end()) {
       // stored by an earlier run: compare with its file once
-      std::string stored;
-      const int64_t size = FileSize(ply_path.string());
-      if (size >= 0) {
-        ScopedFd file(open(ply_path.c_str(), O_RDONLY | O_CLOEXEC));
-        if (file.get() >= 0) stored = ReadAt(file.get(), 0, static_cast<uint64_t>(size), ply_path);
-      }
-      heard = model_files_.emplace(m.class_id, std::move(stored)).first;
+      const bool present = FileSize(ply_path.string()) >= 0;
+      heard =
+          model_files_.emplace(m.class_id, present ? ReadWholeFile(ply_path.string()) : "").first;
     }
     if (heard->second != ply) conflicting_models_.insert(m.class_id);
     return false;

@@ -63,10 +63,10 @@ struct BopWriterOptions {
 /// bbox the amodal box (its default), the segmentation the visible mask as COCO compressed RLE
 /// (the toolkit writes uncompressed runs; pycocotools reads both). Where our labels differ:
 /// px_count_all and bbox_obj cover the silhouette inside the image (the toolkit's also count the
-/// part of a truncated object outside it), and visibility is exact from the instance map (the toolkit's
-/// depth test with delta 5 mm also counts as visible what lies less than 5 mm behind another
-/// surface). Poses and models stay in the frame of the part's mesh file (BOP's datasets put the
-/// origin at the centre of the model's box; ours is the CAD file's).
+/// part of a truncated object outside it), and visibility is exact from the instance map (the
+/// toolkit's depth test with delta 5 mm also counts as visible what lies less than 5 mm behind
+/// another surface). Poses and models stay in the frame of the part's mesh file (BOP's datasets put
+/// the origin at the centre of the model's box; ours is the CAD file's).
 ///
 /// With shard_images N, the images also go into webdataset tar shards as BOP-webdataset has
 /// them (bop_toolkit bop_toolkit_lib/dataset/bop_webdataset.py), for streaming a large set into a
@@ -185,8 +185,6 @@ class BopWriter : public DatasetSink {
   void CleanFolders(const std::set<std::string>& journaled_files) const;
   void Index(const Entry& entry);
   void WriteChunk(int64_t scene_id);
-  // the shards of chunk `scene_id`, from its journal records (by image id)
-  void WriteShards(int64_t scene_id, const std::vector<std::pair<int64_t, std::string>>& lines);
   void WriteKeyToShard() const;
   int64_t ShardId(int64_t scene_id, int64_t im_id) const;
   void WriteCamera(const scene& scene);

@@ -194,17 +194,7 @@ CocoWriter::CocoWriter(const std::string& dir, const CocoWriterOptions& options)
     CleanImagesFolder(journaled_images);
     if (options_.shard_images > 0) {
       // a shard or the index cut short by a crash; every shard is written again by Finish
-      std::error_code error;
-      for (fs::directory_iterator it(folder / kShardsFolder, error), end; !error && it != end;
-           it.increment(error)) {
-        const std::string name = it->path().filename().string();
-        if (name.size() > kTemporarySuffix.size() &&
-            name.compare(name.size() - kTemporarySuffix.size(), kTemporarySuffix.size(),
-                         kTemporarySuffix) == 0 &&
-            unlink(it->path().c_str()) != 0) {
-          throw SystemError("cannot remove", it->path().string(), errno);
-        }
-      }
+      RemoveTemporaryFiles(folder / kShardsFolder);
       for (const auto& [image_id, entry] : index_) {
         dirty_shards_.insert(ShardId(entry.generator_id, entry.seq));
       }
@@ -368,9 +358,7 @@ void CocoWriter::CleanImagesFolder(const std::set<std::string>& journaled_images
     // completed wrote them)
     std::error_code type_error;
     if (!it->is_regular_file(type_error)) continue;
-    const bool temporary = name.size() > kTemporarySuffix.size() &&
-                           name.compare(name.size() - kTemporarySuffix.size(),
-                                        kTemporarySuffix.size(), kTemporarySuffix) == 0;
+    const bool temporary = IsTemporaryFile(name);
     if ((temporary || (options_.resume && IsImageFileName(name))) &&
         unlink(it->path().c_str()) != 0) {
       throw SystemError("cannot remove", it->path().string(), errno);
@@ -709,11 +697,8 @@ void CocoWriter::WriteShard(int64_t shard_id) {
     const std::string image = journal_->Read(entry.image_offset, entry.image_length);
     const std::string file_name = json::parse(image).at("file_name").get<std::string>();
     const std::string key = file_name.substr(0, file_name.rfind('.'));
-    const std::string path = (fs::path(dir_) / kImagesFolder / file_name).string();
-    ScopedFd file(open(path.c_str(), O_RDONLY | O_CLOEXEC));
-    if (file.get() < 0) throw SystemError("cannot read", path, errno);
     members.emplace_back(file_name,
-                         ReadAt(file.get(), 0, static_cast<uint64_t>(FileSize(path)), path));
+                         ReadWholeFile((fs::path(dir_) / kImagesFolder / file_name).string()));
     members.emplace_back(
         key + ".json", "{\"annotations\":[" +
                            (entry.annotations_length > 0

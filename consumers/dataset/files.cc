@@ -62,6 +62,29 @@ std::string ReadAt(int fd, uint64_t offset, uint64_t length, const std::string& 
   return bytes;
 }
 
+std::string ReadWholeFile(const std::string& path) {
+  ScopedFd file(open(path.c_str(), O_RDONLY | O_CLOEXEC));
+  if (file.get() < 0) throw SystemError("cannot read", path, errno);
+  struct stat status {};
+  if (fstat(file.get(), &status) != 0) throw SystemError("cannot read", path, errno);
+  return ReadAt(file.get(), 0, static_cast<uint64_t>(status.st_size), path);
+}
+
+bool IsTemporaryFile(const std::string& name) {
+  constexpr std::string_view kSuffix = ".tmp";
+  return name.size() > kSuffix.size() &&
+         name.compare(name.size() - kSuffix.size(), kSuffix.size(), kSuffix) == 0;
+}
+
+void RemoveTemporaryFiles(const fs::path& path) {
+  std::error_code error;
+  for (fs::directory_iterator it(path, error), end; !error && it != end; it.increment(error)) {
+    if (IsTemporaryFile(it->path().filename().string()) && unlink(it->path().c_str()) != 0) {
+      throw SystemError("cannot remove", it->path().string(), errno);
+    }
+  }
+}
+
 void SyncFolder(const fs::path& path) {
   const std::string name = path.empty() ? "." : path.string();
   ScopedFd folder(open(name.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC));

@@ -41,6 +41,17 @@ int WriteAll(int fd, const char* bytes, size_t size, int64_t offset = -1);
 /// `length` bytes of `fd` (the file `path`, for the message) at `offset`; throws if it cannot.
 std::string ReadAt(int fd, uint64_t offset, uint64_t length, const std::string& path);
 
+/// The whole file `path`; throws naming it and the reason if it cannot be read.
+std::string ReadWholeFile(const std::string& path);
+
+/// Whether `name` is a temporary file of WriteFileAtomically or WriteFileWhole (it ends in ".tmp"):
+/// one a crash left behind, to be removed when a writer opens its dataset again.
+bool IsTemporaryFile(const std::string& name);
+
+/// Removes the temporary files (IsTemporaryFile) in folder `path`, if it exists; throws naming
+/// a file it cannot remove.
+void RemoveTemporaryFiles(const std::filesystem::path& path);
+
 /// Makes the entries of folder `path` (files created, renamed or removed in it) durable.
 void SyncFolder(const std::filesystem::path& path);
 

@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cstdlib>
 #include <cstring>
+#include <mutex>
 #include <stdexcept>
 #include <unordered_map>
 
@@ -153,9 +154,22 @@ struct MessageAuth::Impl {
   uint64_t counter = 0;
   std::unordered_map<uint64_t, ReplayWindow> senders;
   uint64_t uses = 0;
+  // what Verify (on a receiving thread) and the rest share
+  mutable std::mutex stats_mutex;
   AuthCounters counters;
   int64_t messages = 0;
   double seconds = 0;
+
+  // counts a refusal under `kind` and says why; returns -1
+  int64_t Refuse(int64_t AuthCounters::*kind, const std::string& channel, const std::string& text,
+                 std::string* why) {
+    {
+      const std::lock_guard<std::mutex> lock(stats_mutex);
+      ++(counters.*kind);
+    }
+    if (why != nullptr) *why = "refused a message on channel " + channel + ": " + text;
+    return -1;
+  }
 
   ~Impl() {
     EVP_MAC_CTX_free(keyed);
@@ -205,32 +219,47 @@ bool MessageAuth::keyed() const { return impl_->keyed != nullptr; }
 
 const std::string& MessageAuth::key_file() const { return impl_->key_file; }
 
-AuthCounters MessageAuth::counters() const { return impl_->counters; }
+AuthCounters MessageAuth::counters() const {
+  const std::lock_guard<std::mutex> lock(impl_->stats_mutex);
+  return impl_->counters;
+}
 
-int64_t MessageAuth::messages() const { return impl_->messages; }
+int64_t MessageAuth::messages() const {
+  const std::lock_guard<std::mutex> lock(impl_->stats_mutex);
+  return impl_->messages;
+}
 
-double MessageAuth::seconds() const { return impl_->seconds; }
+double MessageAuth::seconds() const {
+  const std::lock_guard<std::mutex> lock(impl_->stats_mutex);
+  return impl_->seconds;
+}
 
-namespace {
-// adds the time from its construction to its end to `*seconds`
-class Timed {
+// adds the time from its construction to its end to the seconds of `impl`, and counts one
+// message when `count`
+class MessageAuth::Timed {
  public:
-  explicit Timed(double* seconds) : seconds_(seconds), start_(Clock::now()) {}
-  ~Timed() { *seconds_ += std::chrono::duration<double>(Clock::now() - start_).count(); }
+  Timed(Impl* impl, bool count) : impl_(impl), count_(count), start_(Clock::now()) {}
+  ~Timed() {
+    const double seconds = std::chrono::duration<double>(Clock::now() - start_).count();
+    const std::lock_guard<std::mutex> lock(impl_->stats_mutex);
+    impl_->seconds += seconds;
+    if (count_) ++impl_->messages;
+  }
+  Timed(const Timed&) = delete;
+  Timed& operator=(const Timed&) = delete;
 
  private:
   using Clock = std::chrono::steady_clock;
-  double* seconds_;
+  Impl* impl_;
+  bool count_;
   Clock::time_point start_;
 };
-}  // namespace
 
 void MessageAuth::Seal(const std::string& channel, const uint8_t* data, size_t size,
                        std::vector<uint8_t>* sealed) {
   sealed->assign(data, data + size);
   if (!keyed()) return;
-  const Timed timed(&impl_->seconds);
-  ++impl_->messages;
+  const Timed timed(impl_.get(), true);
   sealed->resize(size + kAuthTrailerBytes);
   uint8_t* trailer = sealed->data() + size;
   PutU64(impl_->sender, trailer);
@@ -242,21 +271,22 @@ void MessageAuth::Seal(const std::string& channel, const uint8_t* data, size_t s
 
 int64_t MessageAuth::Open(const std::string& channel, const uint8_t* data, size_t size,
                           int64_t now_us, std::string* why) {
+  if (Verify(channel, data, size, why) < 0) return -1;
+  return Admit(channel, data, size, now_us, why);
+}
+
+int64_t MessageAuth::Verify(const std::string& channel, const uint8_t* data, size_t size,
+                            std::string* why) {
   const bool signed_message = HasTrailer(data, size);
   if (!keyed()) {
     return static_cast<int64_t>(signed_message ? size - kAuthTrailerBytes : size);
   }
-  auto refuse = [&](int64_t* counter, const std::string& text) -> int64_t {
-    ++*counter;
-    if (why != nullptr) *why = "refused a message on channel " + channel + ": " + text;
-    return -1;
-  };
-  const Timed timed(&impl_->seconds);
-  ++impl_->messages;
+  const Timed timed(impl_.get(), true);
   if (!signed_message) {
-    return refuse(&impl_->counters.unsigned_messages,
-                  "it is not signed (its sender has no bus key, or this log was recorded "
-                  "without one)");
+    return impl_->Refuse(&AuthCounters::unsigned_messages, channel,
+                         "it is not signed (its sender has no bus key, or this log was recorded "
+                         "without one)",
+                         why);
   }
   // the MAC first: nothing of an unauthenticated message is believed, its sender neither
   const size_t body = size - kAuthTrailerBytes;
@@ -264,19 +294,37 @@ int64_t MessageAuth::Open(const std::string& channel, const uint8_t* data, size_
   uint8_t expected[kMacBytes];
   impl_->Compute(channel, data, body, trailer, expected);
   if (CRYPTO_memcmp(expected, trailer + 24, kMacBytes) != 0) {
-    return refuse(&impl_->counters.forged,
-                  "its MAC does not match (forged, altered, or signed with another key than " +
-                      impl_->key_file + ")");
+    return impl_->Refuse(&AuthCounters::forged, channel,
+                         "its MAC does not match (forged, altered, or signed with another key "
+                         "than " +
+                             impl_->key_file + ")",
+                         why);
   }
+  return static_cast<int64_t>(body);
+}
+
+int64_t MessageAuth::Admit(const std::string& channel, const uint8_t* data, size_t size,
+                           int64_t now_us, std::string* why) {
+  const bool signed_message = HasTrailer(data, size);
+  if (!keyed()) {
+    return static_cast<int64_t>(signed_message ? size - kAuthTrailerBytes : size);
+  }
+  if (!signed_message) {
+    return impl_->Refuse(&AuthCounters::unsigned_messages, channel, "it is not signed", why);
+  }
+  const Timed timed(impl_.get(), false);
+  const size_t body = size - kAuthTrailerBytes;
+  const uint8_t* trailer = data + body;
   const uint64_t sender = GetU64(trailer);
   const uint64_t counter = GetU64(trailer + 8);
   const int64_t stamped = static_cast<int64_t>(GetU64(trailer + 16));
   if (impl_->live) {
     const double age_s = static_cast<double>(now_us - stamped) * 1e-6;
     if (age_s > kMaxMessageAgeS || age_s < -kMaxMessageAgeS) {
-      return refuse(&impl_->counters.replayed,
-                    "it was sent " + std::to_string(static_cast<int64_t>(age_s)) +
-                        " s ago (a replay, or clocks that differ by more than 60 s)");
+      return impl_->Refuse(&AuthCounters::replayed, channel,
+                           "it was sent " + std::to_string(static_cast<int64_t>(age_s)) +
+                               " s ago (a replay, or clocks that differ by more than 60 s)",
+                           why);
     }
   }
   // the sender's window; the least recently heard sender is forgotten beyond kMaxSenders
@@ -293,9 +341,10 @@ int64_t MessageAuth::Open(const std::string& channel, const uint8_t* data, size_
   }
   found->second.last_use = ++impl_->uses;
   if (!found->second.Accept(counter)) {
-    return refuse(&impl_->counters.replayed, "it was received before (sender " +
-                                                 std::to_string(sender) + ", counter " +
-                                                 std::to_string(counter) + ")");
+    return impl_->Refuse(&AuthCounters::replayed, channel,
+                         "it was received before (sender " + std::to_string(sender) +
+                             ", counter " + std::to_string(counter) + ")",
+                         why);
   }
   return static_cast<int64_t>(body);
 }

@@ -51,7 +51,8 @@ struct AuthCounters {
 };
 
 /// Seals outgoing and checks incoming messages of one Bus. Without a key it seals nothing and
-/// passes every message on (a trailer, if any, is cut off unchecked). Not thread-safe.
+/// passes every message on (a trailer, if any, is cut off unchecked). Not thread-safe, except
+/// Verify and the counters, which may run beside the other calls.
 class MessageAuth {
  public:
   /// Reads the key from `key_file` ("" for none). The file must be a regular file of at least
@@ -73,11 +74,23 @@ class MessageAuth {
   void Seal(const std::string& channel, const uint8_t* data, size_t size,
             std::vector<uint8_t>* sealed);
 
-  /// Checks a message received on `channel` at `now_us` (microseconds since the Unix epoch).
-  /// Returns the size of its LCM bytes (the trailer cut off), or -1 when it is refused: then it
-  /// is counted and `*why` (when not null) says why in one line naming the channel.
+  /// Checks a message received on `channel` at `now_us` (microseconds since the Unix epoch):
+  /// Verify, then Admit. Returns the size of its LCM bytes (the trailer cut off), or -1 when it
+  /// is refused: then it is counted and `*why` (when not null) says why in one line naming the
+  /// channel.
   int64_t Open(const std::string& channel, const uint8_t* data, size_t size, int64_t now_us,
                std::string* why);
+
+  /// The first half of Open, safe to call from any thread (a receiving thread checks messages
+  /// before it queues them): refuses a message that is not signed or whose MAC does not match.
+  /// Returns the size of its LCM bytes, or -1 (counted, with `*why`).
+  int64_t Verify(const std::string& channel, const uint8_t* data, size_t size, std::string* why);
+
+  /// The second half of Open, for a message Verify passed, on one thread only: refuses one seen
+  /// before, or stamped too far from `now_us` on a live bus. Returns the size of its LCM bytes,
+  /// or -1 (counted, with `*why`).
+  int64_t Admit(const std::string& channel, const uint8_t* data, size_t size, int64_t now_us,
+                std::string* why);
 
   /// What was refused so far.
   AuthCounters counters() const;
@@ -88,6 +101,7 @@ class MessageAuth {
 
  private:
   struct Impl;
+  class Timed;
   std::unique_ptr<Impl> impl_;
 };
 

@@ -18,34 +18,21 @@
 
 #include "bus/flags.h"
 #include "bus/splitmix.h"
+#include "bus/udpm.h"
 
 namespace stackgen {
 namespace {
 
 // throws a one-line error when a udpm:// URL's multicast group cannot be reached from here.
 void CheckMulticastRoute(const std::string& url) {
-  const std::string scheme = "udpm://";
-  if (url.rfind(scheme, 0) != 0) return;
-  std::string rest = url.substr(scheme.size());
-  rest = rest.substr(0, rest.find('?'));
-  const size_t colon = rest.find(':');
-  const std::string address = rest.substr(0, colon);
-  int port = 7667;
-  if (colon != std::string::npos) {
-    char* end = nullptr;
-    const long value = std::strtol(rest.c_str() + colon + 1, &end, 10);
-    if (end == rest.c_str() + colon + 1 || *end != '\0' || value <= 0 || value > 65535) {
-      throw std::runtime_error("bad port in LCM URL " + url);
-    }
-    port = static_cast<int>(value);
-  }
+  if (url.rfind("udpm://", 0) != 0) return;
+  const UdpmAddress address = ParseUdpmUrl(url);
   sockaddr_in group{};
   group.sin_family = AF_INET;
-  group.sin_port = htons(static_cast<uint16_t>(port));
-  if (inet_pton(AF_INET, address.c_str(), &group.sin_addr) != 1 ||
-      !IN_MULTICAST(ntohl(group.sin_addr.s_addr))) {
-    throw std::runtime_error("LCM URL " + url + " does not name an IPv4 multicast group");
-  }
+  group.sin_port = htons(address.port);
+  group.sin_addr.s_addr = htonl(address.group);
+  char group_text[INET_ADDRSTRLEN] = "?";
+  inet_ntop(AF_INET, &group.sin_addr, group_text, sizeof(group_text));
 
   // connecting a UDP socket only looks up the route: it fails when multicast has none.
   const int fd = socket(AF_INET, SOCK_DGRAM, 0);
@@ -54,8 +41,8 @@ void CheckMulticastRoute(const std::string& url) {
   const int error = errno;
   close(fd);
   if (result != 0) {
-    throw std::runtime_error("multicast to " + address + " is not possible here (" +
-                             strerror(error) +
+    throw std::runtime_error(std::string("multicast to ") + group_text +
+                             " is not possible here (" + strerror(error) +
                              "); enable it with `sudo ip route add 224.0.0.0/4 dev lo` "
                              "(this host only) or pass another --lcm-url");
   }
@@ -101,9 +88,13 @@ struct Bus::Impl {
   bool log_ended = false;
   // an exception a handler threw, kept until HandleFor can rethrow it outside LCM's C code.
   std::exception_ptr pending_error;
-  // subscribers live here (a list: addresses stay valid) and outlive the LCM instance below.
+  // subscribers live here (a list: addresses stay valid) and outlive the LCM instance and the
+  // receiver below.
   std::list<Subscriber> subscribers;
+  // LCM sends on every URL and receives memq:// and file://; udpm:// is received by our own
+  // receiver (udpm.h: liblcm's can be crashed by two datagrams), so LCM never listens there
   std::unique_ptr<lcm::LCM> lcm;
+  std::unique_ptr<UdpmReceiver> receiver;
 
   // true with probability `fraction`, from the seeded engine
   bool Drop(double fraction) {
@@ -124,27 +115,53 @@ struct Bus::Impl {
     }
   }
 
-  static void Dispatch(const lcm::ReceiveBuffer* buffer, const std::string& channel,
-                       Subscriber* subscriber) {
-    Impl* impl = subscriber->impl;
-    if (impl->pending_error) return;
-    if (impl->Drop(impl->options.drop_receive_fraction)) return;
+  // hands a received message to the handlers of its channel once it passed the key check (its
+  // first half, Verify, already done on the receiving thread when `verified`)
+  void Deliver(Subscriber* subscriber, const uint8_t* data, size_t data_size, bool verified) {
+    if (pending_error) return;
+    if (Drop(options.drop_receive_fraction)) return;
     try {
       // the key check; refused messages go no further
       std::string why;
-      const AuthCounters before = impl->auth->counters();
-      const int64_t size = impl->auth->Open(channel, static_cast<const uint8_t*>(buffer->data),
-                                            buffer->data_size, UnixMicros(), &why);
+      const AuthCounters before = auth->counters();
+      const std::string& channel = subscriber->channel;
+      const int64_t size = verified ? auth->Admit(channel, data, data_size, UnixMicros(), &why)
+                                    : auth->Open(channel, data, data_size, UnixMicros(), &why);
       if (size < 0) {
-        impl->ReportRefusal(before, why);
+        ReportRefusal(before, why);
         return;
       }
       for (const BytesHandler& handler : subscriber->handlers) {
-        handler(static_cast<const uint8_t*>(buffer->data), static_cast<size_t>(size));
+        handler(data, static_cast<size_t>(size));
       }
     } catch (...) {
-      impl->pending_error = std::current_exception();
+      pending_error = std::current_exception();
     }
+  }
+
+  // LCM's callback (memq://, file://)
+  static void Dispatch(const lcm::ReceiveBuffer* buffer, const std::string&,
+                       Subscriber* subscriber) {
+    subscriber->impl->Deliver(subscriber, static_cast<const uint8_t*>(buffer->data),
+                              buffer->data_size, false);
+  }
+
+  // the first half of the key check, on the receiver's thread: a message that is not signed
+  // with the key is dropped before it is queued
+  bool Verify(const UdpmMessage& message) {
+    if (!auth->keyed()) return true;
+    std::string why;
+    const AuthCounters before = auth->counters();
+    if (auth->Verify(message.channel, message.data.get(), message.size, &why) >= 0) return true;
+    ReportRefusal(before, why);
+    return false;
+  }
+
+  Subscriber* Find(const std::string& channel) {
+    for (Subscriber& subscriber : subscribers) {
+      if (subscriber.channel == channel) return &subscriber;
+    }
+    return nullptr;
   }
 };
 
@@ -201,6 +218,15 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
     throw std::runtime_error("cannot open the LCM bus at " + url + (why.empty() ? "" : ": " + why));
   }
   if (!said.empty()) std::fputs(said.c_str(), stderr);
+  if (url.rfind("udpm://", 0) == 0) {
+    UdpmLimits limits;
+    limits.max_message_bytes = options.decode_limits.max_message_bytes + kAuthTrailerBytes;
+    limits.max_partial_bytes = std::max(limits.max_partial_bytes, limits.max_message_bytes);
+    Impl* impl = impl_.get();
+    impl_->receiver = std::make_unique<UdpmReceiver>(
+        ParseUdpmUrl(url), limits, [impl](const UdpmMessage& message) { return impl->Verify(message); },
+        program_invocation_short_name);
+  }
 }
 
 Bus::~Bus() = default;
@@ -212,6 +238,10 @@ int64_t Bus::fault_dropped() const { return impl_->fault_dropped; }
 bool Bus::log_ended() const { return impl_->log_ended; }
 
 bool Bus::keyed() const { return impl_->auth->keyed(); }
+
+UdpmCounters Bus::receive_counters() const {
+  return impl_->receiver ? impl_->receiver->counters() : UdpmCounters{};
+}
 
 AuthCounters Bus::auth_counters() const { return impl_->auth->counters(); }
 
@@ -234,24 +264,30 @@ void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t s
 
 void Bus::SubscribeBytes(const std::string& channel, BytesHandler handler, int queue_capacity) {
   // a second handler on a channel joins the first subscription (the larger queue wins)
-  for (Impl::Subscriber& subscriber : impl_->subscribers) {
-    if (subscriber.channel != channel) continue;
-    subscriber.handlers.push_back(std::move(handler));
-    if (queue_capacity > subscriber.queue_capacity) {
-      subscriber.queue_capacity = queue_capacity;
-      subscriber.subscription->setQueueCapacity(queue_capacity);
+  if (Impl::Subscriber* subscriber = impl_->Find(channel)) {
+    subscriber->handlers.push_back(std::move(handler));
+    if (queue_capacity > subscriber->queue_capacity) {
+      subscriber->queue_capacity = queue_capacity;
+      if (subscriber->subscription != nullptr) {
+        subscriber->subscription->setQueueCapacity(queue_capacity);
+      }
+      if (impl_->receiver) impl_->receiver->Subscribe(channel, queue_capacity);
     }
     return;
   }
   impl_->subscribers.push_back(Impl::Subscriber{impl_.get(), channel, {std::move(handler)}});
   Impl::Subscriber& subscriber = impl_->subscribers.back();
+  subscriber.queue_capacity = queue_capacity;
+  if (impl_->receiver) {
+    impl_->receiver->Subscribe(channel, queue_capacity);
+    return;
+  }
   // lcm treats the channel as a regular expression; ours are plain names.
   subscriber.subscription = impl_->lcm->subscribeFunction(channel, &Impl::Dispatch, &subscriber);
   if (subscriber.subscription == nullptr) {
     impl_->subscribers.pop_back();
     throw std::runtime_error("cannot subscribe to channel " + channel);
   }
-  subscriber.queue_capacity = queue_capacity;
   subscriber.subscription->setQueueCapacity(queue_capacity);
 }
 
@@ -263,16 +299,28 @@ int Bus::HandleFor(int timeout_ms) {
     const auto left =
         std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
     const int wait_ms = static_cast<int>(std::max<int64_t>(0, left.count()));
-    const int result = impl_->lcm->handleTimeout(wait_ms);
-    // a signal (e.g. SIGINT for a clean stop) ends the wait like a timeout.
-    if (result < 0 && errno == EINTR) break;
-    // the end of a file:// log: nothing more will come
-    if (result < 0 && impl_->url.rfind("file://", 0) == 0) {
-      impl_->log_ended = true;
-      break;
+    if (impl_->receiver) {
+      // udpm://: messages already checked and reassembled by the receiver's thread
+      UdpmMessage message;
+      const UdpmReceiver::Taken taken = impl_->receiver->Take(wait_ms, &message);
+      if (taken != UdpmReceiver::Taken::kMessage) break;  // a timeout, or a signal
+      if (Impl::Subscriber* subscriber = impl_->Find(message.channel)) {
+        impl_->Deliver(subscriber, message.data.get(), message.size, true);
+      }
+    } else {
+      const int result = impl_->lcm->handleTimeout(wait_ms);
+      // a signal (e.g. SIGINT for a clean stop) ends the wait like a timeout.
+      if (result < 0 && errno == EINTR) break;
+      // the end of a file:// log: nothing more will come
+      if (result < 0 && impl_->url.rfind("file://", 0) == 0) {
+        impl_->log_ended = true;
+        break;
+      }
+      if (result < 0) {
+        throw std::runtime_error("LCM failed while handling messages on " + impl_->url);
+      }
+      if (result == 0) break;
     }
-    if (result < 0) throw std::runtime_error("LCM failed while handling messages on " + impl_->url);
-    if (result == 0) break;
     ++handled;
     if (impl_->pending_error) {
       std::exception_ptr error = impl_->pending_error;

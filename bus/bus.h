@@ -9,6 +9,7 @@
 
 #include "bus/auth.h"
 #include "bus/bounded_decode.h"
+#include "bus/udpm.h"
 
 namespace stackgen {
 
@@ -132,6 +133,9 @@ class Bus {
 
   /// True when the bus signs and checks messages with a key.
   bool keyed() const;
+  /// What receiving a udpm:// bus did with the datagrams it read (udpm.h; all zero on memq://
+  /// and file://): malformed ones dropped, messages given up or dropped for a full queue.
+  UdpmCounters receive_counters() const;
   /// Messages received and refused by the key check (all zero without a key).
   AuthCounters auth_counters() const;
   /// Seconds spent signing and checking messages with the key so far (0 without one).

@@ -1,5 +1,7 @@
 #include "bus/bus.h"
 
+#include <poll.h>
+
 #include <cstdlib>
 #include <string>
 #include <vector>
@@ -9,6 +11,7 @@
 #include <stackgen/status.hpp>
 
 #include "bus/channels.h"
+#include "tests/support/lcm_wire.h"
 #include "tests/support/process.h"
 
 namespace stackgen {
@@ -116,6 +119,90 @@ TEST(BusTest, MulticastRoundTrip) {
   for (int64_t seq = 0; seq < 5; ++seq) sender.Publish(kStatusChannel, MakeStatus(seq));
   for (int attempt = 0; attempt < 50 && seqs.size() < 5; ++attempt) receiver.HandleFor(100);
   EXPECT_EQ(seqs, (std::vector<int64_t>{0, 1, 2, 3, 4}));
+}
+
+// a plain socket on the group of `url` that reads whatever datagrams arrive
+class RawMulticastListener {
+ public:
+  explicit RawMulticastListener(const std::string& url) {
+    const UdpmAddress address = ParseUdpmUrl(url);
+    fd_ = socket(AF_INET, SOCK_DGRAM, 0);
+    const int on = 1;
+    setsockopt(fd_, SOL_SOCKET, SO_REUSEADDR, &on, sizeof(on));
+    const int buffer = 4 << 20;  // the default one holds fewer than three 64 KB datagrams
+    setsockopt(fd_, SOL_SOCKET, SO_RCVBUF, &buffer, sizeof(buffer));
+    sockaddr_in bound{};
+    bound.sin_family = AF_INET;
+    bound.sin_port = htons(address.port);
+    bound.sin_addr.s_addr = htonl(address.group);
+    bind(fd_, reinterpret_cast<sockaddr*>(&bound), sizeof(bound));
+    ip_mreq membership{};
+    membership.imr_multiaddr.s_addr = htonl(address.group);
+    membership.imr_interface.s_addr = htonl(INADDR_ANY);
+    setsockopt(fd_, IPPROTO_IP, IP_ADD_MEMBERSHIP, &membership, sizeof(membership));
+  }
+  ~RawMulticastListener() { close(fd_); }
+
+  // the datagrams that arrive within `timeout_ms` of each other
+  std::vector<std::vector<uint8_t>> Read(int timeout_ms) {
+    std::vector<std::vector<uint8_t>> datagrams;
+    pollfd fd = {fd_, POLLIN, 0};
+    while (poll(&fd, 1, timeout_ms) > 0) {
+      std::vector<uint8_t> datagram(65536);
+      const ssize_t size = recv(fd_, datagram.data(), datagram.size(), 0);
+      if (size < 0) break;
+      datagram.resize(static_cast<size_t>(size));
+      datagrams.push_back(datagram);
+    }
+    return datagrams;
+  }
+
+ private:
+  int fd_ = -1;
+};
+
+// What liblcm sends for a short and a fragmented message is byte for byte the wire format the
+// tests write by hand (tests/support/lcm_wire.h), with liblcm's own message counter.
+TEST(BusTest, LiblcmSendsTheWireFormatOfTheTests) {
+  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
+  const std::string url = testing::FreeMulticastUrl();
+  RawMulticastListener listener(url);
+  Bus sender(url);
+  std::vector<uint8_t> small = {1, 2, 3, 4, 5};
+  std::vector<uint8_t> large(150000);
+  for (size_t i = 0; i < large.size(); ++i) large[i] = static_cast<uint8_t>(i * 7);
+  sender.PublishEncoded(kCreditChannel, small);
+  sender.PublishEncoded(kSceneChannel, large);
+  std::vector<std::vector<uint8_t>> expected = testing::LcmDatagrams(kCreditChannel, small, 0);
+  for (const auto& datagram : testing::LcmDatagrams(kSceneChannel, large, 1)) {
+    expected.push_back(datagram);
+  }
+  EXPECT_EQ(listener.Read(500), expected);
+}
+
+// The two datagrams that make liblcm 1.3.1 write 4 GB past a buffer (lcm#628) reach a bus that
+// listens on their channel, which then takes the next scene as usual (with liblcm's receiver
+// this test dies of SIGSEGV); the datagram is counted as malformed.
+TEST(BusTest, TwoDatagramsOfLcm628DoNotCrashAReceiver) {
+  const std::string url = testing::FreeMulticastUrl();
+  Bus receiver(url);
+  std::vector<int64_t> seqs;
+  receiver.Subscribe<status>(kSceneChannel, [&](const status& m) { seqs.push_back(m.header.seq); });
+  const testing::RawMulticastSender stranger(url);
+  std::vector<uint8_t> first = testing::LcmFragmentHeader(7, 5000, 0, 0, 2);
+  const std::string channel = kSceneChannel;
+  first.insert(first.end(), channel.begin(), channel.end());
+  first.push_back(0);
+  first.resize(first.size() + 1000, 0);
+  std::vector<uint8_t> second = testing::LcmFragmentHeader(7, 5000, 0xFFFFFF00, 1, 2);
+  second.resize(second.size() + 1000, 'A');
+  ASSERT_TRUE(stranger.Send(first));
+  ASSERT_TRUE(stranger.Send(second));
+  Bus sender(url);
+  sender.Publish(kSceneChannel, MakeStatus(42));
+  for (int attempt = 0; attempt < 50 && seqs.empty(); ++attempt) receiver.HandleFor(100);
+  EXPECT_EQ(seqs, std::vector<int64_t>{42});
+  EXPECT_EQ(receiver.receive_counters().malformed, 1);
 }
 
 }  // namespace

@@ -24,6 +24,7 @@
 #include "gen/config/config.h"
 #include "gen/mesh/mesh.h"
 #include "gen/scene/scene_generator.h"
+#include "tests/support/datasets.h"
 #include "tests/support/process.h"
 
 namespace stackgen {
@@ -80,16 +81,6 @@ int ImagesStored(const std::string& dataset) {
     if (entry.path().extension() != ".tmp") ++count;
   }
   return count;
-}
-
-// every file of a dataset but its journal, by path relative to it
-std::map<std::string, std::string> DatasetFiles(const std::string& dataset) {
-  std::map<std::string, std::string> files;
-  for (const auto& entry : fs::recursive_directory_iterator(dataset)) {
-    if (!entry.is_regular_file() || entry.path().filename() == "bop.journal") continue;
-    files[fs::relative(entry.path(), dataset).string()] = ReadFile(entry.path().string());
-  }
-  return files;
 }
 
 std::string Six(int value) {
@@ -417,7 +408,8 @@ TEST_F(BopPipelineTest, KilledAndResumedGivesTheSameFiles) {
   EXPECT_NE(resumed.Stdout().find("resumed"), std::string::npos) << resumed.Stdout();
   ASSERT_EQ(generator.Wait(120), 0) << generator.Stderr();
 
-  const auto expected = DatasetFiles(reference_), actual = DatasetFiles(out);
+  const auto expected = testing::DatasetFiles(reference_, "bop.journal"),
+             actual = testing::DatasetFiles(out, "bop.journal");
   EXPECT_EQ(expected.size(), actual.size());
   for (const auto& [path, bytes] : expected) {
     const auto found = actual.find(path);

@@ -11,6 +11,13 @@
 //   grown, spread over every channel; with --signed-fuzz (and the right key) those on the
 //   channels that cannot add a scene (status, config, labels, credits and resends addressed to
 //   generator 999: its header rewritten) are signed, so they reach the decoders.
+// - with --lcm628: every round, on every channel, the two datagrams that make liblcm 1.3.1 write
+//   about 4 GB past a buffer (a fragment offset that wraps a 32-bit sum, lcm-proj/lcm#628);
+// - with --datagrams N: N raw datagrams in LCM's wire format (tests/support/lcm_wire.h) that no
+//   LCM library sends: real messages (heard on the bus, and the events of --samples LOG), cut
+//   into LC02 and LC03 datagrams, then mutated (bits flipped, header fields rewritten to wrapping
+//   offsets, huge sizes and wrong counts, cut, grown, repeated, reordered, left out, sent from
+//   four sockets at once), spread over --seconds, from a fixed seed.
 // Prints what it sent on stdout and exits 0. Not a test: a program the tests start.
 
 #include <unistd.h>
@@ -24,6 +31,7 @@
 #include <memory>
 #include <random>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <stackgen/config_text.hpp>
@@ -36,6 +44,8 @@
 #include "bus/bus.h"
 #include "bus/channels.h"
 #include "bus/flags.h"
+#include "bus/log.h"
+#include "tests/support/lcm_wire.h"
 
 namespace {
 
@@ -44,6 +54,147 @@ using Clock = std::chrono::steady_clock;
 // SIGINT or SIGTERM ends the attack early (the summary is still printed)
 volatile std::sig_atomic_t g_stop = 0;
 void OnSignal(int) { g_stop = 1; }
+
+using Datagram = std::vector<uint8_t>;
+
+// raw datagrams onto the group, from several sockets (senders), as a stranger writes them
+class DatagramFuzzer {
+ public:
+  DatagramFuzzer(const std::string& url, uint64_t seed) : random_(seed) {
+    for (int i = 0; i < 4; ++i) {
+      senders_.push_back(std::make_unique<stackgen::testing::RawMulticastSender>(url));
+    }
+  }
+
+  int64_t sent() const { return sent_; }
+
+  // the two datagrams of lcm#628 on `channel`: fragment 0 of a 5000-byte message, then a
+  // fragment at offset 0xFFFFFF00
+  void Lcm628(const std::string& channel) {
+    Datagram first = stackgen::testing::LcmFragmentHeader(seqno_, 5000, 0, 0, 2);
+    first.insert(first.end(), channel.begin(), channel.end());
+    first.push_back(0);
+    first.resize(first.size() + 1000, 0);
+    Datagram second = stackgen::testing::LcmFragmentHeader(seqno_, 5000, 0xFFFFFF00, 1, 2);
+    second.resize(second.size() + 1000, 'A');
+    ++seqno_;
+    Send(0, first);
+    Send(0, second);
+  }
+
+  // `bytes` on `channel` as datagrams, mutated one way, at most `budget` of them; returns how many
+  // were sent
+  int64_t Mutated(const std::string& channel, const std::vector<uint8_t>& bytes, int64_t budget) {
+    const int64_t before = sent_;
+    // LC02 when it fits and the coin says so, else LC03 fragments of liblcm's size or smaller
+    std::vector<Datagram> datagrams;
+    const size_t fragment = random_() % 3 == 0 ? stackgen::testing::kLcmFragmentPayload
+                                               : 200 + random_() % 16000;
+    if (channel.size() + 1 + bytes.size() <= stackgen::testing::kLcmShortMessageMax &&
+        random_() % 3 == 0) {
+      datagrams = stackgen::testing::LcmDatagrams(channel, bytes, seqno_);
+    } else {
+      datagrams = Fragments(channel, bytes, fragment);
+    }
+    ++seqno_;
+    if (datagrams.empty()) return 0;
+    Datagram& one = datagrams[random_() % datagrams.size()];
+    int sender = static_cast<int>(random_() % senders_.size());
+    switch (random_() % 10) {
+      case 0:  // bits flipped
+        for (int flip = 0; flip < 1 + static_cast<int>(random_() % 8); ++flip) {
+          one[random_() % one.size()] ^= static_cast<uint8_t>(1u << (random_() % 8));
+        }
+        break;
+      case 1: {  // a header field rewritten, often to a value that wraps or lies
+        static const uint32_t kValues[] = {0, 1, 0xFFFFFFFF, 0xFFFFFF00, 0x80000000,
+                                           0x10000000, 65487, 65535};
+        const size_t at = 4 + 4 * (random_() % 4);
+        const uint32_t value = random_() % 2 == 0 ? kValues[random_() % 8]
+                                                  : static_cast<uint32_t>(random_());
+        for (int i = 0; i < 4 && at + i < one.size(); ++i) {
+          one[at + i] = static_cast<uint8_t>(value >> (24 - 8 * i));
+        }
+        break;
+      }
+      case 2:  // cut
+        one.resize(random_() % (one.size() + 1));
+        break;
+      case 3:  // grown
+        one.resize(std::min<size_t>(65507, one.size() + 1 + random_() % 4096),
+                   static_cast<uint8_t>(random_()));
+        break;
+      case 4:  // a fragment twice
+        datagrams.push_back(one);
+        break;
+      case 5:  // out of order
+        std::shuffle(datagrams.begin(), datagrams.end(), random_);
+        break;
+      case 6:  // one left out
+        datagrams.erase(datagrams.begin() + static_cast<std::ptrdiff_t>(random_() % datagrams.size()));
+        break;
+      case 7:  // a huge message claimed: 200 MB, or beyond any limit
+        for (Datagram& datagram : datagrams) {
+          if (datagram.size() < 20 || datagram[3] != '3') continue;
+          const uint32_t huge = random_() % 2 == 0 ? 200u << 20 : 0xFFFFFFF0u;
+          for (int i = 0; i < 4; ++i) datagram[8 + i] = static_cast<uint8_t>(huge >> (24 - 8 * i));
+        }
+        break;
+      case 8:  // senders interleaved: each datagram from any socket
+        sender = -1;
+        break;
+      default:  // as it was: a stranger's copy (refused by the bus key)
+        break;
+    }
+    for (const Datagram& datagram : datagrams) {
+      if (sent_ - before >= budget) break;
+      if (!datagram.empty()) {
+        Send(sender >= 0 ? sender : static_cast<int>(random_() % senders_.size()), datagram);
+      }
+    }
+    return sent_ - before;
+  }
+
+ private:
+  // LC03 fragments of `size` bytes (the first also holds the channel), whatever the message size
+  std::vector<Datagram> Fragments(const std::string& channel, const std::vector<uint8_t>& bytes,
+                                  size_t size) {
+    std::vector<Datagram> datagrams;
+    if (bytes.empty()) return datagrams;
+    const size_t count = std::min<size_t>(65535, (channel.size() + 1 + bytes.size() + size - 1) / size);
+    size_t offset = 0;
+    for (size_t number = 0; number < count && offset < bytes.size(); ++number) {
+      Datagram datagram = stackgen::testing::LcmFragmentHeader(
+          seqno_, static_cast<uint32_t>(bytes.size()), static_cast<uint32_t>(offset),
+          static_cast<uint16_t>(number), static_cast<uint16_t>(count));
+      size_t room = size;
+      if (number == 0) {
+        datagram.insert(datagram.end(), channel.begin(), channel.end());
+        datagram.push_back(0);
+        room = room > channel.size() + 1 ? room - channel.size() - 1 : 1;
+      }
+      const size_t length = std::min(room, bytes.size() - offset);
+      datagram.insert(datagram.end(), bytes.begin() + static_cast<std::ptrdiff_t>(offset),
+                      bytes.begin() + static_cast<std::ptrdiff_t>(offset + length));
+      offset += length;
+      datagrams.push_back(std::move(datagram));
+    }
+    return datagrams;
+  }
+
+  void Send(int sender, const Datagram& datagram) {
+    // a full send buffer: wait for it rather than lose the datagram (the count is the test's)
+    for (int tries = 0; tries < 1000 && !senders_[sender]->Send(datagram); ++tries) {
+      std::this_thread::sleep_for(std::chrono::microseconds(200));
+    }
+    ++sent_;
+  }
+
+  std::mt19937_64 random_;
+  std::vector<std::unique_ptr<stackgen::testing::RawMulticastSender>> senders_;
+  uint32_t seqno_ = 1000000;
+  int64_t sent_ = 0;
+};
 
 int Run(int argc, char** argv) {
   std::string lcm_url;
@@ -60,10 +211,16 @@ int Run(int argc, char** argv) {
   parser.Switch("--signed-fuzz", &signed_fuzz);
   bool no_attacks = false;
   parser.Switch("--no-attacks", &no_attacks);
+  bool lcm628 = false;
+  parser.Switch("--lcm628", &lcm628);
+  int64_t datagrams = 0;
+  parser.Int("--datagrams", &datagrams, 0, 100000000);
+  std::string samples_log;
+  parser.String("--samples", &samples_log, "an LCM log");
   parser.ParseOrExit(argc, argv, [] {
     std::printf(
         "usage: stackgen-forger --lcm-url URL [--bus-key-file FILE] [--seconds S] [--fuzz N] "
-        "[--signed-fuzz] [--no-attacks]\n");
+        "[--signed-fuzz] [--no-attacks] [--lcm628] [--datagrams N] [--samples LOG]\n");
   });
   attacks = !no_attacks;
 
@@ -79,6 +236,15 @@ int Run(int argc, char** argv) {
   if (!key_file.empty()) keyed = std::make_unique<stackgen::Bus>(stranger.url(), options);
   stackgen::Bus& bus = keyed ? *keyed : stranger;
   std::mt19937_64 random(20261125);
+  DatagramFuzzer raw(stranger.url(), 20261126);
+  // real messages to cut into datagrams: the events of a recorded log, then what it hears
+  std::vector<std::pair<std::string, std::vector<uint8_t>>> datagram_samples;
+  if (!samples_log.empty()) {
+    stackgen::ReadLog(samples_log, [&](const stackgen::LogEvent& event) {
+      datagram_samples.emplace_back(event.channel,
+                                    std::vector<uint8_t>(event.data, event.data + event.size));
+    });
+  }
 
   // what it hears: the writer's name, real scenes and other messages to mutate
   std::string writer;
@@ -86,6 +252,11 @@ int Run(int argc, char** argv) {
   std::vector<std::pair<std::string, std::vector<uint8_t>>> samples;
   int64_t sent = 0, forged_scenes = 0;
   const auto keep_sample = [&](const std::string& channel, std::vector<uint8_t> bytes) {
+    if (datagram_samples.size() < 64) {
+      datagram_samples.emplace_back(channel, bytes);
+    } else {
+      datagram_samples[random() % datagram_samples.size()] = {channel, bytes};
+    }
     if (samples.size() < 64) {
       samples.emplace_back(channel, std::move(bytes));
     } else {
@@ -141,14 +312,31 @@ int Run(int argc, char** argv) {
 
   const auto start = Clock::now();
   int64_t fuzzed = 0;
+  int64_t lcm628_pairs = 0;
+  const std::vector<std::string> every_channel = {
+      stackgen::kSceneChannel,  stackgen::kLabelsChannel, stackgen::kStatusChannel,
+      stackgen::kConfigChannel, stackgen::kModelChannel,  stackgen::kCreditChannel,
+      stackgen::kResendChannel};
   const std::vector<std::string> channels = {stackgen::kSceneChannel,  stackgen::kLabelsChannel,
                                              stackgen::kStatusChannel, stackgen::kConfigChannel,
                                              stackgen::kCreditChannel, stackgen::kResendChannel};
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
-  while (!g_stop &&
-         (Clock::now() - start < std::chrono::duration<double>(seconds) || fuzzed < fuzz)) {
+  while (!g_stop && (Clock::now() - start < std::chrono::duration<double>(seconds) ||
+                     fuzzed < fuzz || (raw.sent() < datagrams && !datagram_samples.empty()))) {
     stranger.HandleFor(20);
+    if (lcm628) {
+      for (const std::string& channel : every_channel) raw.Lcm628(channel);
+      lcm628_pairs += static_cast<int64_t>(every_channel.size());
+    }
+    // raw datagrams, spread over the run like the fuzz below
+    const double share =
+        std::min(1.0, std::chrono::duration<double>(Clock::now() - start).count() / seconds * 1.25);
+    while (!datagram_samples.empty() && raw.sent() < datagrams &&
+           raw.sent() < static_cast<int64_t>(share * static_cast<double>(datagrams))) {
+      const auto& [channel, bytes] = datagram_samples[random() % datagram_samples.size()];
+      raw.Mutated(channel, bytes, datagrams - raw.sent());
+    }
     if (attacks && !writer.empty()) {
       // the writer impersonated: all stored, the largest window; then leaving
       stackgen::credit credit{};
@@ -217,9 +405,12 @@ int Run(int argc, char** argv) {
       ++sent;
     }
   }
-  std::printf("stackgen-forger: sent %lld messages (%lld forged scenes, %lld fuzzed); writer %s\n",
-              static_cast<long long>(sent), static_cast<long long>(forged_scenes),
-              static_cast<long long>(fuzzed), writer.empty() ? "never heard" : writer.c_str());
+  std::printf(
+      "stackgen-forger: sent %lld messages (%lld forged scenes, %lld fuzzed), %lld raw datagrams "
+      "(%lld pairs of lcm#628); writer %s\n",
+      static_cast<long long>(sent), static_cast<long long>(forged_scenes),
+      static_cast<long long>(fuzzed), static_cast<long long>(raw.sent()),
+      static_cast<long long>(lcm628_pairs), writer.empty() ? "never heard" : writer.c_str());
   return 0;
 }
 

@@ -67,5 +67,18 @@ inline void ExpectSameDataset(const std::string& expected, const std::string& ac
   EXPECT_EQ(compared, static_cast<int>(files.size()));
 }
 
+/// Every file of a dataset folder but those named `skip` (a journal), by path relative to it,
+/// with its bytes.
+inline std::map<std::string, std::string> DatasetFiles(const std::string& dataset,
+                                                       const std::string& skip) {
+  namespace fs = std::filesystem;
+  std::map<std::string, std::string> files;
+  for (const auto& entry : fs::recursive_directory_iterator(dataset)) {
+    if (!entry.is_regular_file() || entry.path().filename() == skip) continue;
+    files[fs::relative(entry.path(), dataset).string()] = ReadFile(entry.path().string());
+  }
+  return files;
+}
+
 }  // namespace testing
 }  // namespace stackgen

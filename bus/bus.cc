@@ -13,10 +13,17 @@
 #include <cstring>
 #include <exception>
 #include <list>
+#include <map>
+#include <mutex>
+#include <optional>
 
 #include <lcm/lcm-cpp.hpp>
+#include <openssl/rand.h>
+#include <stackgen/liveness.hpp>
 
+#include "bus/channels.h"
 #include "bus/flags.h"
+#include "bus/liveness.h"
 #include "bus/splitmix.h"
 #include "bus/udpm.h"
 
@@ -76,6 +83,12 @@ struct Bus::Impl {
     int queue_capacity = 0;
   };
 
+  // what the messages heard on one channel showed of their senders' keys (KeyMismatch)
+  struct KeyUse {
+    KeyEvidence evidence;
+    std::chrono::steady_clock::time_point first_mismatch;
+  };
+
   std::string url;
   BusOptions options;
   // signs what is published, checks what is received (auth.h); a buffer for sealed bytes
@@ -88,12 +101,22 @@ struct Bus::Impl {
   bool log_ended = false;
   // an exception a handler threw, kept until HandleFor can rethrow it outside LCM's C code.
   std::exception_ptr pending_error;
+  // the first refusal of each kind (unsigned, forged, replayed) was reported; a message of another
+  // process was taken
+  std::atomic<bool> reported[3] = {false, false, false};
+  std::atomic<bool> taken_any{false};
+  // by channel; written by the receiving thread too
+  mutable std::mutex key_use_mutex;
+  std::map<std::string, KeyUse> key_use;
   // subscribers live here (a list: addresses stay valid) and outlive the LCM instance and the
   // receiver below.
   std::list<Subscriber> subscribers;
   // LCM sends on every URL and receives memq:// and file://; udpm:// is received by our own
   // receiver (udpm.h: liblcm's can be crashed by two datagrams), so LCM never listens there
   std::unique_ptr<lcm::LCM> lcm;
+  // the liveness check of a keyed udpm:// bus, run by the receiver's thread (declared before
+  // the receiver, so that it outlives the thread)
+  std::unique_ptr<LivenessCheck> liveness;
   std::unique_ptr<UdpmReceiver> receiver;
 
   // true with probability `fraction`, from the seeded engine
@@ -105,13 +128,31 @@ struct Bus::Impl {
     return drop;
   }
 
-  // says on stderr why a message was refused when it is the first of its kind
-  void ReportRefusal(const AuthCounters& before, const std::string& why) const {
+  // says on stderr why a message was refused when it is the first of its kind, once this bus
+  // has taken a message: before that, refusals may all be a key that differs from the peers',
+  // which the programs report in one line (KeyMismatch) rather than as warnings
+  void ReportRefusal(const AuthCounters& before, const std::string& why) {
+    if (!taken_any) return;
     const AuthCounters now = auth->counters();
-    if ((before.unsigned_messages == 0 && now.unsigned_messages > 0) ||
-        (before.forged == 0 && now.forged > 0) || (before.replayed == 0 && now.replayed > 0)) {
-      std::fprintf(stderr, "%s: warning: %s; further ones are only counted (status: refused)\n",
-                   program_invocation_short_name, why.c_str());
+    const bool first[3] = {before.unsigned_messages < now.unsigned_messages,
+                           before.forged < now.forged, before.replayed < now.replayed};
+    for (int kind = 0; kind < 3; ++kind) {
+      if (first[kind] && !reported[kind].exchange(true)) {
+        std::fprintf(stderr, "%s: warning: %s; further ones are only counted (status: refused)\n",
+                     program_invocation_short_name, why.c_str());
+        return;
+      }
+    }
+  }
+
+  // notes what a message heard on `channel` showed of its sender's key
+  void NoteKeyUse(const std::string& channel, const uint8_t* data, size_t size, bool verified) {
+    const std::lock_guard<std::mutex> lock(key_use_mutex);
+    KeyUse& use = key_use[channel];
+    const int64_t mismatched = use.evidence.mismatched;
+    use.evidence.Note(*auth, data, size, verified);
+    if (mismatched == 0 && use.evidence.mismatched > 0) {
+      use.first_mismatch = std::chrono::steady_clock::now();
     }
   }
 
@@ -125,11 +166,23 @@ struct Bus::Impl {
       std::string why;
       const AuthCounters before = auth->counters();
       const std::string& channel = subscriber->channel;
-      const int64_t size = verified ? auth->Admit(channel, data, data_size, UnixMicros(), &why)
-                                    : auth->Open(channel, data, data_size, UnixMicros(), &why);
+      if (!verified) {
+        const bool passed = auth->Verify(channel, data, data_size, &why) >= 0;
+        NoteKeyUse(channel, data, data_size, passed);
+        if (!passed) {
+          ReportRefusal(before, why);
+          return;
+        }
+      }
+      const int64_t size = auth->Admit(channel, data, data_size, &why);
       if (size < 0) {
         ReportRefusal(before, why);
         return;
+      }
+      // a message of another process: refusals are no longer a key that differs from all peers'
+      Trailer trailer;
+      if (!ReadTrailer(data, data_size, &trailer) || trailer.sender != auth->sender()) {
+        taken_any = true;
       }
       for (const BytesHandler& handler : subscriber->handlers) {
         handler(data, static_cast<size_t>(size));
@@ -146,15 +199,46 @@ struct Bus::Impl {
                               buffer->data_size, false);
   }
 
-  // the first half of the key check, on the receiver's thread: a message that is not signed
-  // with the key is dropped before it is queued
-  bool Verify(const UdpmMessage& message) {
-    if (!auth->keyed()) return true;
+  // on the receiver's thread, before a message is queued: the first half of the key check (a
+  // message not signed with the key is dropped), the liveness check's own messages, and the
+  // messages of senders that have not answered it (dropped: they are challenged)
+  bool Screen(const UdpmMessage& message) {
+    const uint8_t* data = message.data.get();
+    if (!auth->keyed()) {
+      NoteKeyUse(message.channel, data, message.size, true);
+      return true;
+    }
     std::string why;
     const AuthCounters before = auth->counters();
-    if (auth->Verify(message.channel, message.data.get(), message.size, &why) >= 0) return true;
-    ReportRefusal(before, why);
-    return false;
+    const bool verified = auth->Verify(message.channel, data, message.size, &why) >= 0;
+    NoteKeyUse(message.channel, data, message.size, verified);
+    if (!verified) {
+      ReportRefusal(before, why);
+      return false;
+    }
+    Trailer trailer;
+    ReadTrailer(data, message.size, &trailer);
+    if (message.channel == kLivenessChannel) {
+      stackgen::liveness check;
+      if (DecodeBounded(data, message.size - kAuthTrailerBytes, options.decode_limits, &check,
+                        nullptr)) {
+        liveness->Handle(check, trailer.sender, trailer.counter, UnixMicros());
+      }
+      return false;
+    }
+    if (!auth->Live(trailer.sender)) {
+      liveness->Unanswered(trailer.sender, message.channel, UnixMicros());
+      return false;
+    }
+    return true;
+  }
+
+  // publishes a liveness message from the receiver's thread (LCM's udpm sending takes a lock)
+  void SendLiveness(const stackgen::liveness& message) {
+    const std::vector<uint8_t> bytes = EncodeMessage(message);
+    std::vector<uint8_t> sealed_bytes;
+    auth->Seal(kLivenessChannel, bytes.data(), bytes.size(), &sealed_bytes);
+    lcm->publish(kLivenessChannel, sealed_bytes.data(), static_cast<unsigned int>(sealed_bytes.size()));
   }
 
   Subscriber* Find(const std::string& channel) {
@@ -178,13 +262,15 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
   CheckMulticastRoute(url);
   // the key before the bus: a key file that cannot be used is one line, and nothing is opened
   const bool is_log = url.rfind("file://", 0) == 0;
-  impl_->auth = std::make_unique<MessageAuth>(ResolveBusKeyFile(options.key_file), !is_log);
-  if (!impl_->auth->keyed() && url.rfind("udpm://", 0) == 0) {
+  const bool is_udpm = url.rfind("udpm://", 0) == 0;
+  impl_->auth = std::make_unique<MessageAuth>(
+      options.open_bus ? "" : ResolveBusKeyFile(options.key_file), !is_log && !options.replay);
+  if (options.open_bus && is_udpm) {
     static std::atomic<bool> warned{false};
     if (!warned.exchange(true)) {
       std::fprintf(stderr,
-                   "%s: warning: no bus key (--bus-key-file or STACKGEN_BUS_KEY_FILE): every "
-                   "process that can send to %s is trusted\n",
+                   "%s: warning: an open bus (--open-bus): no bus key, every process that can "
+                   "send to %s is trusted\n",
                    program_invocation_short_name, url.c_str());
     }
   }
@@ -218,14 +304,34 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
     throw std::runtime_error("cannot open the LCM bus at " + url + (why.empty() ? "" : ": " + why));
   }
   if (!said.empty()) std::fputs(said.c_str(), stderr);
-  if (url.rfind("udpm://", 0) == 0) {
+  if (is_udpm) {
+    Impl* impl = impl_.get();
+    if (impl_->auth->keyed()) {
+      impl_->liveness = std::make_unique<LivenessCheck>(
+          impl_->auth.get(), [impl](const liveness& message) { impl->SendLiveness(message); },
+          [](const std::string& line) {
+            std::fprintf(stderr, "%s: warning: %s\n", program_invocation_short_name,
+                         line.c_str());
+          },
+          [] {
+            int64_t nonce = 0;
+            if (RAND_bytes(reinterpret_cast<unsigned char*>(&nonce), sizeof(nonce)) != 1) {
+              throw std::runtime_error("OpenSSL cannot draw a random nonce");
+            }
+            return nonce;
+          });
+    }
     UdpmLimits limits;
     limits.max_message_bytes = options.decode_limits.max_message_bytes + kAuthTrailerBytes;
     limits.max_partial_bytes = std::max(limits.max_partial_bytes, limits.max_message_bytes);
-    Impl* impl = impl_.get();
     impl_->receiver = std::make_unique<UdpmReceiver>(
-        ParseUdpmUrl(url), limits, [impl](const UdpmMessage& message) { return impl->Verify(message); },
+        ParseUdpmUrl(url), limits, [impl](const UdpmMessage& message) { return impl->Screen(message); },
         program_invocation_short_name);
+    if (impl_->liveness) {
+      impl_->receiver->Subscribe(kLivenessChannel, 1);
+      // every process hears that this one starts, and answers
+      if (impl_->auth->liveness()) impl_->liveness->Start(UnixMicros());
+    }
   }
 }
 
@@ -239,11 +345,42 @@ bool Bus::log_ended() const { return impl_->log_ended; }
 
 bool Bus::keyed() const { return impl_->auth->keyed(); }
 
+const std::string& Bus::key_file() const { return impl_->auth->key_file(); }
+
+uint64_t Bus::key_id() const { return impl_->auth->key_id(); }
+
+std::string Bus::KeyMismatch(const std::vector<std::string>& channels, double seconds) const {
+  // what was heard on those channels together, since the first mismatch among them
+  KeyEvidence all;
+  std::optional<std::chrono::steady_clock::time_point> first;
+  std::string names;
+  {
+    const std::lock_guard<std::mutex> lock(impl_->key_use_mutex);
+    for (const std::string& channel : channels) {
+      names += (names.empty() ? "" : ", ") + channel;
+      const auto found = impl_->key_use.find(channel);
+      if (found == impl_->key_use.end()) continue;
+      all.Add(found->second.evidence);
+      if (found->second.evidence.mismatched > 0 &&
+          (!first || found->second.first_mismatch < *first)) {
+        first = found->second.first_mismatch;
+      }
+    }
+  }
+  if (!first || std::chrono::duration<double>(std::chrono::steady_clock::now() - *first).count() <
+                    seconds) {
+    return "";
+  }
+  return all.Mismatch(*impl_->auth, "the messages on " + names + " of " + impl_->url);
+}
+
 UdpmCounters Bus::receive_counters() const {
   return impl_->receiver ? impl_->receiver->counters() : UdpmCounters{};
 }
 
 AuthCounters Bus::auth_counters() const { return impl_->auth->counters(); }
+
+int64_t Bus::live_peers() const { return impl_->auth->answered(); }
 
 double Bus::auth_seconds() const { return impl_->auth->seconds(); }
 

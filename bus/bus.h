@@ -39,11 +39,18 @@ struct BusOptions {
   uint64_t fault_seed = 1;
   /// What decoding one received message may allocate (see DecodeBounded).
   DecodeLimits decode_limits;
-  /// The bus key file (see auth.h): "" (the default) means ResolveBusKeyFile's choice,
-  /// $STACKGEN_BUS_KEY_FILE when set. With a key every message published is signed and every
-  /// message received must be signed with it (others are refused and counted: auth_counters).
-  /// Without one a udpm:// bus warns once per process on stderr that it trusts every sender.
+  /// The bus key file (see auth.h): "" (the default) means ResolveBusKeyFile's choice:
+  /// $STACKGEN_BUS_KEY_FILE when set, else this user's key (made on first use). Every message
+  /// published is signed and every message received must be signed with it (others are refused
+  /// and counted: auth_counters).
   std::string key_file;
+  /// No key at all: every sender is trusted (--open-bus). A udpm:// bus warns once per process
+  /// on stderr that it is open.
+  bool open_bus = false;
+  /// The consumer reads a recording played back onto a live bus (--replay): messages are taken
+  /// without their sender answering the liveness check (auth.h), whatever their age. A file://
+  /// log is always read so.
+  bool replay = false;
 };
 
 /// Parses a --fault-drop value: a number in [0, 1). Throws std::invalid_argument naming `flag`.
@@ -66,7 +73,9 @@ class Bus {
   /// Opens the bus at `url` (udpm://, memq://, file://). For udpm:// it first checks that
   /// multicast can be sent and throws a one-line error saying how to enable it if not.
   /// `options` sets fault injection (none by default) and the bus key; a key file that cannot be
-  /// used throws a one-line error naming it.
+  /// used throws a one-line error naming it. A keyed bus on udpm:// or memq:// takes a sender's
+  /// messages only once it has answered the liveness check (auth.h, liveness.h), unless
+  /// options.replay; it answers the checks of other processes itself, on its receiving thread.
   explicit Bus(const std::string& url, const BusOptions& options = {});
   ~Bus();
   Bus(const Bus&) = delete;
@@ -131,13 +140,24 @@ class Bus {
   /// True once a file:// bus has handed out the last event of its log.
   bool log_ended() const;
 
-  /// True when the bus signs and checks messages with a key.
+  /// True when the bus signs and checks messages with a key; the key file and its id (auth.h).
   bool keyed() const;
+  const std::string& key_file() const;
+  uint64_t key_id() const;
+  /// One line when what was heard on `channels` shows that the processes sending there use
+  /// another bus key than this one (or none, or this bus is open and they sign): messages of
+  /// another key (or unsigned, or signed) for at least `seconds` since the first of them, and
+  /// not one this bus could take; "" otherwise. Programs call it to stop with that line rather
+  /// than wait for ever.
+  std::string KeyMismatch(const std::vector<std::string>& channels, double seconds) const;
   /// What receiving a udpm:// bus did with the datagrams it read (udpm.h; all zero on memq://
   /// and file://): malformed ones dropped, messages given up or dropped for a full queue.
   UdpmCounters receive_counters() const;
   /// Messages received and refused by the key check (all zero without a key).
   AuthCounters auth_counters() const;
+  /// Other processes that have answered this bus's liveness check so far (auth.h): each has
+  /// been challenged back by then, and takes this bus's messages from its answer on.
+  int64_t live_peers() const;
   /// Seconds spent signing and checking messages with the key so far (0 without one).
   double auth_seconds() const;
 

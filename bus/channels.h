@@ -18,4 +18,8 @@ inline constexpr const char* kCreditChannel = "STACKGEN_CREDIT";
 /// Requests for missed scenes, from consumers to a generator (stackgen::resend_request).
 inline constexpr const char* kResendChannel = "STACKGEN_RESEND";
 
+/// The bus key's liveness check: challenges and answers between every two keyed processes
+/// (stackgen::liveness; bus/liveness.h). Sent and heard by the Bus itself.
+inline constexpr const char* kLivenessChannel = "STACKGEN_LIVENESS";
+
 }  // namespace stackgen

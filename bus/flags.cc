@@ -131,11 +131,22 @@ void FlagParser::LcmUrl(std::string* out) {
   });
 }
 
-void FlagParser::BusKeyFile(std::string* out) {
-  Add("--bus-key-file", true, [out](const std::string& value) {
+void FlagParser::BusKey(std::string* key_file, bool* open_bus) {
+  Add("--bus-key-file", true, [key_file](const std::string& value) {
     if (value.empty()) throw UsageError("--bus-key-file wants a file, got \"\"");
-    *out = value;
+    *key_file = value;
   });
+  Switch("--open-bus", open_bus);
+  Exclusive("--bus-key-file", "--open-bus");
+}
+
+void FlagParser::Replay(bool* out) { Switch("--replay", out); }
+
+void FlagParser::Exclusive(const std::string& a, const std::string& b) {
+  if (flags_.count(a) == 0 || flags_.count(b) == 0) {
+    throw std::logic_error("Exclusive(" + a + ", " + b + "): no such flag");
+  }
+  exclusive_.emplace_back(a, b);
 }
 
 void FlagParser::FaultDrop(double* out) {
@@ -242,6 +253,11 @@ bool FlagParser::Parse(int argc, const char* const* argv) {
   }
   for (const auto& [name, flag] : flags_) {
     if (flag.required && !flag.given) throw UsageError(name + " is required");
+  }
+  for (const auto& [a, b] : exclusive_) {
+    if (flags_.at(a).given && flags_.at(b).given) {
+      throw UsageError(a + " and " + b + " exclude each other");
+    }
   }
   return true;
 }

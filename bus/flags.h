@@ -3,9 +3,9 @@
 // The command-line layer of every stackgen process (stackgen, the consumers, the tools): one
 // parser for their flags, so that every program reads `--name value` and `--name=value` alike and
 // reports a bad command line in one line, `<program>: error: <text> (see --help)` on stderr, with
-// exit status 2 (--help: exit status 0). It also hosts the three bus flags every bus process
-// shares,
-// `--lcm-url URL`, `--bus-key-file PATH` and `--fault-drop F`, so they mean the same everywhere.
+// exit status 2 (--help: exit status 0). It also hosts the bus flags every bus process shares,
+// `--lcm-url URL`, `--bus-key-file PATH`, `--open-bus`, `--replay` and `--fault-drop F`, so they
+// mean the same everywhere.
 //
 // The command line, as Parse reads it:
 // - `--name value` or `--name=value` for a flag that takes a value; the value may start with '-'
@@ -99,8 +99,17 @@ class FlagParser {
   void LcmUrl(std::string* out);
 
   /// --bus-key-file PATH, the bus key (auth.h); leaving it out means $STACKGEN_BUS_KEY_FILE when
-  /// set (ResolveBusKeyFile). An empty value is a usage error.
-  void BusKeyFile(std::string* out);
+  /// set, else this user's key (ResolveBusKeyFile). An empty value is a usage error. And
+  /// --open-bus, no key at all (every sender trusted); the two exclude each other.
+  void BusKey(std::string* key_file, bool* open_bus);
+
+  /// --replay: the consumer reads a recording played back onto a live bus (lcm-logplayer), so
+  /// messages are taken without the liveness check of the bus key (auth.h).
+  void Replay(bool* out);
+
+  /// Makes the flags `a` and `b` (registered before) exclude each other: Parse fails with
+  /// UsageError `<a> and <b> exclude each other` when both are given.
+  void Exclusive(const std::string& a, const std::string& b);
 
   /// --fault-drop F, the fraction of received messages the bus drops on purpose: a number in
   /// [0, 1) (ParseDropFraction and its error).
@@ -143,6 +152,7 @@ class FlagParser {
 
   std::string program_;
   std::map<std::string, Flag> flags_;
+  std::vector<std::pair<std::string, std::string>> exclusive_;
   std::vector<std::string>* positional_ = nullptr;
   std::string positional_what_;
   int positional_min_ = 0;

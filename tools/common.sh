@@ -43,19 +43,3 @@ s.bind(("", 0))
 print(s.getsockname()[1])
 PY
 }
-
-# the bus key every process of a run signs its messages with (design.md, "Trust"):
-# $STACKGEN_BUS_KEY_FILE when set, else this user's key, made once (32 random bytes, base64,
-# mode 600) at ${XDG_CONFIG_HOME:-~/.config}/stackgen/bus.key. Exports STACKGEN_BUS_KEY_FILE.
-ensure_bus_key() {
-  if [ -n "${STACKGEN_BUS_KEY_FILE:-}" ]; then export STACKGEN_BUS_KEY_FILE; return 0; fi
-  local dir="${XDG_CONFIG_HOME:-$HOME/.config}/stackgen"
-  STACKGEN_BUS_KEY_FILE="$dir/bus.key"
-  export STACKGEN_BUS_KEY_FILE
-  [ -f "$STACKGEN_BUS_KEY_FILE" ] && return 0
-  mkdir -p "$dir"
-  (umask 077 && head -c 32 /dev/urandom | base64 >"$STACKGEN_BUS_KEY_FILE.tmp" &&
-    mv "$STACKGEN_BUS_KEY_FILE.tmp" "$STACKGEN_BUS_KEY_FILE")
-  echo "stackgen: made a bus key at $STACKGEN_BUS_KEY_FILE; other processes of this bus need it" \
-    "(--bus-key-file or STACKGEN_BUS_KEY_FILE)" >&2
-}

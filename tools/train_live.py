@@ -96,6 +96,12 @@ def parse_args(argv):
                              "the learner is too slow for (default: reliable)")
     source.add_argument("--window", type=positive_int, default=8,
                         help="reliable: scenes a generator may run ahead (default 8)")
+    source.add_argument("--bus-key-file", metavar="FILE", default=None,
+                        help="the bus key of the generators and the stream (default: "
+                             "$STACKGEN_BUS_KEY_FILE, else this user's ~/.config/stackgen/bus.key,"
+                             " made on first use)")
+    source.add_argument("--open-bus", action="store_true",
+                        help="no bus key: nothing signed, every sender trusted")
     source.add_argument("--record", metavar="LOG",
                         help="keep every sample's scene in this LCM log (must not exist)")
     source.add_argument("--replay", metavar="LOG",
@@ -150,6 +156,8 @@ def parse_args(argv):
                     for option in action.option_strings)}
     if args.record and args.replay:
         parser.error("--record and --replay exclude each other")
+    if args.bus_key_file and args.open_bus:
+        parser.error("--bus-key-file and --open-bus exclude each other")
     if args.replay and args.attach:
         parser.error("--replay and --attach exclude each other")
     if not args.attach and not args.replay and args.generators == 0:
@@ -241,7 +249,7 @@ def main(argv):
             args.reuse, reuse_buffer=args.reuse_buffer, grayscale=args.gray, augment=augment,
             min_visib_fract=args.min_visib_fract, seed=args.seed, record=args.record,
             replay=bool(args.replay), timeout=None if args.replay else 120,
-            name="train-live")
+            name="train-live", bus_key_file=args.bus_key_file, open_bus=args.open_bus)
         if args.record:
             settings = {key: getattr(args, key) for key in REPLAYED}
             with open(args.record + ".train.json", "w") as file:
@@ -252,9 +260,12 @@ def main(argv):
             log = open(os.path.join(logs, "stackgen%d.log" % generator_id), "w")
             generators.append((subprocess.Popen(
                 [args.stackgen, "--config", args.config, "--seed", str(args.scene_seed),
-                 "--generator-id", str(generator_id), "--lcm-url", url],
+                 "--generator-id", str(generator_id), "--lcm-url", url] +
+                (["--open-bus"] if args.open_bus else
+                 ["--bus-key-file", args.bus_key_file] if args.bus_key_file else []),
                 stdout=log, stderr=subprocess.STDOUT), log.name))
-        monitor = None if args.replay else stackgen.StatusMonitor(url)
+        monitor = None if args.replay else stackgen.StatusMonitor(
+            url, bus_key_file=args.bus_key_file, open_bus=args.open_bus)
         print("%s: %s, %s stream, %d workers, batch %d, reuse up to %d, %s, %s backbone, %s" % (
             PROGRAM, "replaying " + args.replay if args.replay else "%d generators on %s" % (
                 len(generators), url) if generators else "attached to " + url,

@@ -70,6 +70,8 @@ const cv::Scalar kTextColour(235, 235, 235);
 constexpr int kQueueCapacity = 16;
 // warnings printed one by one; later ones are only counted
 constexpr int kMaxReportedWarnings = 10;
+// generators heard for this long that all use another bus key end the wait (seconds)
+constexpr double kKeyMismatchS = 2.0;
 
 std::atomic<bool> stop_requested{false};
 
@@ -87,7 +89,9 @@ struct Flags {
   int tile_width = 400;
   double timeout_s = 60.0;
   double fault_drop = 0;     // bus only
-  std::string bus_key_file;  // bus only ("": $STACKGEN_BUS_KEY_FILE)
+  std::string bus_key_file;  // bus only ("": ResolveBusKeyFile's choice)
+  bool open_bus = false;     // bus only
+  bool replay = false;       // bus only
 };
 
 void PrintHelp() {
@@ -96,7 +100,8 @@ void PrintHelp() {
       "       %s --bop DIR [--split NAME] --out SHEET.png [--count N] [--columns C]\n"
       "                    [--tile-width W]\n"
       "       %s --lcm-url URL --out SHEET.png [--count N] [--columns C] [--tile-width W]\n"
-      "                    [--timeout S] [--bus-key-file FILE] [--fault-drop F]\n"
+      "                    [--timeout S] [--bus-key-file FILE | --open-bus] [--replay]\n"
+      "                    [--fault-drop F]\n"
       "\n"
       "Draws a contact sheet: a grid of scenes, each scene's image with the visible mask of every\n"
       "instance outlined and its instance id written on it, in the colour of its label:\n"
@@ -173,7 +178,8 @@ Flags ParseFlags(int argc, char** argv) {
   parser.Int("--tile-width", &flags.tile_width, 16, 4096);
   parser.Double("--timeout", &flags.timeout_s, stackgen::Interval::OpenClosed(0, 86400));
   parser.FaultDrop(&flags.fault_drop);
-  parser.BusKeyFile(&flags.bus_key_file);
+  parser.BusKey(&flags.bus_key_file, &flags.open_bus);
+  parser.Replay(&flags.replay);
   // the rules between flags
   const auto check = [&flags, &parser] {
     flags.bus = parser.Given("--lcm-url");
@@ -741,6 +747,8 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
   bus_options.drop_receive_fraction = flags.fault_drop;
   bus_options.fault_seed = 0x5EE;
   bus_options.key_file = flags.bus_key_file;
+  bus_options.open_bus = flags.open_bus;
+  bus_options.replay = flags.replay;
   stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url), bus_options);
   bus.Subscribe<stackgen::scene>(
       stackgen::kSceneChannel,
@@ -798,9 +806,16 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
                         std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                             std::chrono::duration<double>(flags.timeout_s));
   auto last_status = std::chrono::steady_clock::now();
+  const std::vector<std::string> generator_channels = {stackgen::kSceneChannel,
+                                                       stackgen::kConfigChannel};
   while (!stop_requested && static_cast<int>(tiles.size()) < flags.count &&
          std::chrono::steady_clock::now() < deadline && !bus.log_ended()) {
     bus.HandleFor(100);
+    // generators that use another key: one line now rather than an empty sheet at the timeout
+    // (an open viewer reads signed scenes all the same)
+    const std::string mismatch =
+        bus.keyed() ? bus.KeyMismatch(generator_channels, kKeyMismatchS) : "";
+    if (!mismatch.empty()) throw std::runtime_error(mismatch);
     if (live && std::chrono::steady_clock::now() - last_status >= std::chrono::seconds(1)) {
       publish_status();
       last_status = std::chrono::steady_clock::now();
@@ -815,6 +830,8 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
                  static_cast<long long>(repeated));
   }
   if (tiles.empty()) {
+    const std::string mismatch = bus.KeyMismatch(generator_channels, 0);
+    if (!mismatch.empty()) throw std::runtime_error(mismatch);
     throw std::runtime_error("--lcm-url " + bus.url() + ": no valid scene on " +
                              stackgen::kSceneChannel + " within " +
                              std::to_string(static_cast<int>(std::ceil(flags.timeout_s))) + " s");

@@ -26,7 +26,8 @@ struct Flags {
 
 void PrintHelp() {
   std::printf(
-      "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL] [--bus-key-file FILE]\n"
+      "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL]\n"
+      "       [--bus-key-file FILE | --open-bus] [--replay]\n"
       "       [--split NAME] [--jpeg-quality Q] [--shards N] [--window N] [--group-commit N]\n"
       "       [--fault-drop F]\n"
       "\n"
@@ -49,8 +50,9 @@ void PrintHelp() {
       "(colour and depth decoded whole first) is refused, counted and asked for again.\n"
       "\n"
       "Options:\n"
-      "  --out DIR             dataset folder (required). Created if missing; refused if it\n"
-      "                        already holds a bop.journal, unless --resume.\n"
+      "  --out DIR             dataset folder (required): new or empty; with --resume, one\n"
+      "                        that holds its bop.journal. Anything else is refused: nothing\n"
+      "                        is ever written over.\n"
       "%s"
       "  --split NAME          the split folder (default train_pbr; BOP: train, val, test).\n"
       "  --jpeg-quality Q      store colour images as JPEG of quality Q, 1..100, as BOP's PBR\n"
@@ -82,6 +84,7 @@ int main(int argc, char** argv) {
 
   stackgen::WriterProgram program;
   program.name = kProgram;
+  program.journal = "bop.journal";
   program.open = [&](const stackgen::WriterFlags& writer_flags) {
     stackgen::BopWriterOptions options;
     options.split = flags.split;

@@ -22,7 +22,8 @@ struct Flags {
 
 void PrintHelp() {
   std::printf(
-      "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL] [--bus-key-file FILE]\n"
+      "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL]\n"
+      "       [--bus-key-file FILE | --open-bus] [--replay]\n"
       "       [--min-visib-fract F] [--shards N] [--window N] [--group-commit N]\n"
       "       [--fault-drop F]\n"
       "\n"
@@ -47,8 +48,9 @@ void PrintHelp() {
       "area, bbox) and the full one (amodal_segmentation, px_count_all, amodal_bbox).\n"
       "\n"
       "Options:\n"
-      "  --out DIR             dataset folder (required). Created if missing; refused if it\n"
-      "                        already holds a non-empty annotations.json (never overwritten).\n"
+      "  --out DIR             dataset folder (required): new or empty; with --resume, one\n"
+      "                        that holds its annotations.journal. Anything else is refused:\n"
+      "                        nothing is ever written over.\n"
       "%s"
       "  --min-visib-fract F   also drop annotated objects whose visible fraction (visib_fract)\n"
       "                        is below F, 0..1: a stricter filter than the generator's\n"
@@ -86,6 +88,7 @@ int main(int argc, char** argv) {
 
   stackgen::WriterProgram program;
   program.name = kProgram;
+  program.journal = "annotations.journal";
   program.open = [&](const stackgen::WriterFlags& writer_flags) {
     stackgen::CocoWriterOptions options;
     options.min_visib_fract = flags.min_visib_fract;

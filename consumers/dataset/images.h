@@ -16,9 +16,11 @@ namespace stackgen {
 /// the consumers (dataset writers and the Python feed). Returns an empty matrix and one line in
 /// `*why` when the image has no data or does not decode to exactly its declared size and format:
 /// its PNG or JPEG header is checked first (CheckEncodedImageDims: the header decides how much
-/// OpenCV allocates), then libpng checks every chunk's CRC and zlib the data's checksum, so a
-/// flipped bit or a cut shows; a JPEG must also end with its end-of-image marker, as libjpeg
-/// fills a cut one with grey.
+/// is allocated), then a PNG is read by libpng itself with every chunk's CRC checked, ancillary
+/// ones too (OpenCV lets libpng only warn about those), zlib's checksum of the image data, the
+/// IEND chunk and nothing after it, so a flipped bit or a cut shows, and libpng prints nothing;
+/// a JPEG (OpenCV) must also end with its end-of-image marker, as libjpeg fills a cut one with
+/// grey.
 cv::Mat DecodeImage(const image& image, std::string* why);
 
 /// `pixels` (CV_8UC3 in RGB order, CV_8UC1 or CV_16UC1) as a PNG file with zlib level

@@ -25,6 +25,9 @@ namespace {
 
 // scenes LCM keeps waiting for us while a scene is written
 constexpr int kQueueCapacity = 1000;
+// generators heard for this long that all use another bus key stop the writer (seconds): they
+// publish their config every second, so one with the right key would have been heard by then
+constexpr double kKeyMismatchS = 2.0;
 // decode errors and invalid scenes reported one by one; later ones are only counted
 constexpr int kMaxReportedErrors = 10;
 // a seq whose copies failed the checks this often is given up (a generator that makes a bad
@@ -50,6 +53,57 @@ std::string ConsumerName(const std::string& program, const std::string& out) {
   std::error_code error;
   const std::filesystem::path absolute = std::filesystem::absolute(out, error);
   return program + "@" + host + ":" + (error ? out : absolute.string());
+}
+
+// The output folder must be absent or empty, or (with --resume) hold this program's journal: a
+// writer never writes into what is not its own dataset, and a dataset is resumed, not started
+// again. Returns whether the folder is absent (the writer makes it). Throws one line naming it.
+bool CheckOutputFolder(const WriterProgram& program, const WriterFlags& flags) {
+  namespace fs = std::filesystem;
+  std::error_code error;
+  const fs::file_status status = fs::status(flags.out, error);
+  if (!fs::exists(status)) return true;
+  if (!fs::is_directory(status)) {
+    throw std::runtime_error("--out " + flags.out + " is not a folder");
+  }
+  const fs::directory_iterator entries(flags.out, error);
+  if (error) throw std::runtime_error("cannot read the folder " + flags.out + ": " + error.message());
+  std::set<std::string> names;  // sorted: the error names the first few
+  for (const fs::directory_entry& entry : entries) names.insert(entry.path().filename().string());
+  const bool journal = names.count(program.journal) != 0;
+  std::string first;
+  for (const std::string& name : names) {
+    if (first.size() > 60) {
+      first += ", ...";
+      break;
+    }
+    first += (first.empty() ? "" : ", ") + name;
+  }
+  if (first.empty()) return false;
+  if (journal && !flags.resume) {
+    throw std::runtime_error(flags.out + " holds a " + program.name + " dataset (" +
+                             program.journal +
+                             "): continue it with --resume, or choose an empty or new --out "
+                             "folder");
+  }
+  if (!journal) {
+    throw std::runtime_error(flags.out + " is not empty (it holds " + first + ") and holds no " +
+                             program.name + " dataset (no " + program.journal + "): " +
+                             program.name + " writes only into an empty or new --out folder" +
+                             (flags.resume ? ", or resumes its own dataset" : ""));
+  }
+  return false;
+}
+
+// removes what a writer that stored nothing made in `out` (it was empty when it started), and
+// `out` itself when the writer made it
+void RemoveDatasetFolder(const std::string& out, bool created_folder) {
+  namespace fs = std::filesystem;
+  std::error_code ignored;
+  for (const fs::directory_entry& entry : fs::directory_iterator(out, ignored)) {
+    fs::remove_all(entry.path(), ignored);
+  }
+  if (created_folder) fs::remove(out, ignored);
 }
 
 }  // namespace
@@ -78,7 +132,8 @@ void AddWriterFlags(FlagParser* parser, WriterFlags* flags) {
   parser->Int("--count", &flags->count, 0, INT64_MAX);
   parser->Switch("--resume", &flags->resume);
   parser->LcmUrl(&flags->lcm_url);
-  parser->BusKeyFile(&flags->bus_key_file);
+  parser->BusKey(&flags->bus_key_file, &flags->open_bus);
+  parser->Replay(&flags->replay);
   parser->Int("--window", &flags->window, 1, 10000);
   parser->Int("--group-commit", &flags->group_commit, 1, 10000);
   parser->FaultDrop(&flags->fault_drop);
@@ -103,7 +158,12 @@ std::string WriterFlagsHelp(const std::string& journal) {
          "  --bus-key-file FILE   the bus key shared with the generators: messages not signed "
          "with\n"
          "                        it are refused and counted, credits are signed (default:\n"
-         "                        $STACKGEN_BUS_KEY_FILE; none: warns that the bus is open).\n"
+         "                        $STACKGEN_BUS_KEY_FILE, else this user's key\n"
+         "                        ~/.config/stackgen/bus.key, made on first use).\n"
+         "  --open-bus            no bus key: sign nothing, trust every sender on the group.\n"
+         "  --replay              the scenes come from a recording played back onto the bus\n"
+         "                        (lcm-logplayer): take them without the liveness check that\n"
+         "                        refuses recordings by default (a file:// log needs no flag).\n"
          "  --window N            scenes a generator may run ahead of what is stored, 1..10000\n"
          "                        (default 8).\n"
          "  --group-commit N      scenes made durable together, 1..10000 (default 16): scenes\n"
@@ -124,6 +184,7 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
   std::unique_ptr<DatasetSink> writer;
   std::unique_ptr<Bus> bus_owner;
   std::unique_ptr<SceneClient> client;
+  bool created_folder = false;
   try {
     // stop cleanly on SIGINT and SIGTERM: the handler only sets a flag
     struct sigaction action {};
@@ -139,9 +200,12 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
     bus_options.drop_receive_fraction = flags.fault_drop;
     bus_options.fault_seed = 0xC0C0;
     bus_options.key_file = flags.bus_key_file;
+    bus_options.open_bus = flags.open_bus;
+    bus_options.replay = flags.replay;
     bus_owner = std::make_unique<Bus>(ResolveLcmUrl(flags.lcm_url), bus_options);
     Bus& bus = *bus_owner;
-    // then the dataset: a folder that holds one is refused before listening
+    // then the dataset: a folder that is not empty is this writer's dataset to resume, or refused
+    created_folder = CheckOutputFolder(program, flags);
     writer = program.open(flags);
     if (flags.resume) {
       std::printf("%s: resumed %s: %lld scenes stored%s\n", name_text, flags.out.c_str(),
@@ -323,10 +387,13 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
     const auto start = std::chrono::steady_clock::now();
     const int64_t stored_at_start = writer->num_images();
     auto last_progress = start;
+    const std::vector<std::string> generator_channels = {kSceneChannel, kConfigChannel};
     while (!stop_requested && !enough() && !bus.log_ended()) {
       // with scenes staged, only those already waiting: the group ends when none is left
       bus.HandleFor(writer->num_staged() > 0 ? 0 : 50);
       commit();
+      const std::string mismatch = bus.KeyMismatch(generator_channels, kKeyMismatchS);
+      if (!mismatch.empty()) throw std::runtime_error(mismatch);
       if (client) client->Service();
       const auto now = std::chrono::steady_clock::now();
       if (client && now - last_status >= std::chrono::seconds(1)) publish_status(now);
@@ -343,6 +410,11 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
       }
     }
     if (show_progress) std::fprintf(stderr, "\n");
+    // a log whose scenes were all refused for their key is an error, not an empty dataset
+    if (bus.log_ended() && writer->num_images() == stored_at_start) {
+      const std::string mismatch = bus.KeyMismatch(generator_channels, 0);
+      if (!mismatch.empty()) throw std::runtime_error(mismatch);
+    }
 
     // generators stop waiting for us; a valid dataset of what arrived
     commit();
@@ -389,7 +461,11 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
     // a write error (full disk, ...): leave what is stored valid and say so. No leaving credit:
     // the generators wait (up to their --consumer-timeout) for this writer to be resumed.
     std::string state;
-    if (writer && (writer->num_images() > 0 || flags.resume)) {
+    if (writer && writer->num_images() == 0 && !flags.resume) {
+      // nothing stored: nothing left behind (the folder was empty or absent when it started)
+      writer.reset();
+      RemoveDatasetFolder(flags.out, created_folder);
+    } else if (writer && (writer->num_images() > 0 || flags.resume)) {
       try {
         writer->Finish();
         state = "; " + flags.out + " holds " + std::to_string(writer->num_images()) + " scenes (" +

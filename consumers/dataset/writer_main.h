@@ -23,7 +23,9 @@ struct WriterFlags {
   std::string out;
   int64_t count = 0;
   std::string lcm_url;
-  std::string bus_key_file;  // "": $STACKGEN_BUS_KEY_FILE
+  std::string bus_key_file;  // "": $STACKGEN_BUS_KEY_FILE, else this user's key
+  bool open_bus = false;
+  bool replay = false;
   bool resume = false;
   int64_t window = 8;
   int64_t group_commit = 16;
@@ -31,7 +33,7 @@ struct WriterFlags {
 };
 
 /// Registers the WriterFlags on `parser`: --out (required), --count, --resume, --lcm-url,
-/// --bus-key-file, --window, --group-commit, --fault-drop.
+/// --bus-key-file, --open-bus, --replay, --window, --group-commit, --fault-drop.
 void AddWriterFlags(FlagParser* parser, WriterFlags* flags);
 
 /// The help text of those flags, for a program's --help (`program` names its journal).
@@ -41,6 +43,9 @@ std::string WriterFlagsHelp(const std::string& journal);
 struct WriterProgram {
   /// Its name in messages and credits: "stackgen-coco".
   std::string name;
+  /// Its journal's file name in the dataset folder ("annotations.journal"): a folder that holds
+  /// it is the program's dataset.
+  std::string journal;
   /// Opens the dataset in flags.out (resumed with flags.resume). Called after the bus is open, so
   /// a bad URL or key leaves nothing on disk.
   std::function<std::unique_ptr<DatasetSink>(const WriterFlags&)> open;
@@ -52,7 +57,10 @@ struct WriterProgram {
 
 /// Runs a writer program to its end: stores the scenes on STACKGEN_SCENE until flags.count are
 /// stored, SIGINT or SIGTERM, or the end of a file:// log; returns the exit status (0, or 1
-/// after printing one error line; what is stored stays valid).
+/// after printing one error line; what is stored stays valid). Without --resume, flags.out must
+/// be absent or empty: a writer never writes into a folder that is not its own dataset; with
+/// it, the folder must hold the program's journal. A run that stops with an error before it
+/// stored anything leaves no dataset behind.
 int RunWriter(const WriterProgram& program, const WriterFlags& flags);
 
 }  // namespace stackgen

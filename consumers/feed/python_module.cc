@@ -389,7 +389,7 @@ PYBIND11_MODULE(_native, m) {
                        int32_t shard_count, int64_t count, int queue, bool repeats,
                        bool decode_instance_map, bool decode_depth, int decode_threads,
                        const std::string& name, double fault_drop, bool publish_status,
-                       const std::string& bus_key_file) {
+                       const std::string& bus_key_file, bool open_bus, bool replay) {
              SceneStreamOptions options;
              options.url = url;
              options.channel = channel;
@@ -408,6 +408,8 @@ PYBIND11_MODULE(_native, m) {
              options.fault_drop = fault_drop;
              options.publish_status = publish_status;
              options.bus_key_file = bus_key_file;
+             options.open_bus = open_bus;
+             options.replay = replay;
              py::gil_scoped_release release;
              return std::make_unique<SceneStream>(options);
            }),
@@ -415,7 +417,8 @@ PYBIND11_MODULE(_native, m) {
            py::arg("generator_ids"), py::arg("shard_index"), py::arg("shard_count"),
            py::arg("count"), py::arg("queue"), py::arg("repeats"), py::arg("decode_instance_map"),
            py::arg("decode_depth"), py::arg("decode_threads"), py::arg("name"),
-           py::arg("fault_drop"), py::arg("publish_status"), py::arg("bus_key_file") = "")
+           py::arg("fault_drop"), py::arg("publish_status"), py::arg("bus_key_file") = "",
+           py::arg("open_bus") = false, py::arg("replay") = false)
       .def(
           "next",
           [](SceneStream& stream, std::optional<double> timeout_s) {
@@ -456,16 +459,18 @@ PYBIND11_MODULE(_native, m) {
       .def_property_readonly("is_log", &SceneStream::is_log);
 
   py::class_<LogAppender>(m, "LogAppender")
-      .def(py::init([](const std::string& path, const std::string& bus_key_file) {
+      .def(py::init([](const std::string& path, const std::string& bus_key_file, bool open_bus) {
              try {
-               return std::make_unique<LogAppender>(path, ResolveBusKeyFile(bus_key_file));
+               return std::make_unique<LogAppender>(
+                   path, open_bus ? "" : ResolveBusKeyFile(bus_key_file));
              } catch (const std::runtime_error& error) {
                throw FeedError(error.what());
              }
            }),
-           py::arg("path"), py::arg("bus_key_file") = "",
-           "Appends events to an LCM log; with a bus key (bus_key_file, else "
-           "$STACKGEN_BUS_KEY_FILE) each is signed so the log replays under that key.")
+           py::arg("path"), py::arg("bus_key_file") = "", py::arg("open_bus") = false,
+           "Appends events to an LCM log, each signed with the bus key (bus_key_file, else "
+           "$STACKGEN_BUS_KEY_FILE, else this user's key) so the log replays under that key; "
+           "open_bus: unsigned.")
       .def(
           "append",
           [](LogAppender& log, const std::string& channel, const py::bytes& data, int64_t utime) {
@@ -482,11 +487,11 @@ PYBIND11_MODULE(_native, m) {
       .def_property_readonly("path", &LogAppender::path);
 
   py::class_<StatusMonitor>(m, "StatusMonitor")
-      .def(py::init([](const std::string& url) {
+      .def(py::init([](const std::string& url, const std::string& bus_key_file, bool open_bus) {
              py::gil_scoped_release release;
-             return std::make_unique<StatusMonitor>(url);
+             return std::make_unique<StatusMonitor>(url, bus_key_file, open_bus);
            }),
-           py::arg("url"))
+           py::arg("url"), py::arg("bus_key_file") = "", py::arg("open_bus") = false)
       .def("latest", [](const StatusMonitor& monitor) {
         py::list statuses;
         for (const auto& [name, message] : monitor.Latest()) statuses.append(StatusDict(message));

@@ -34,6 +34,8 @@ using SceneKey = std::pair<int32_t, int64_t>;  // generator_id, seq
 
 // problems reported one by one on stderr; later ones are only counted
 constexpr int kMaxReported = 10;
+// generators heard for this long that all use another bus key fail a live stream (seconds)
+constexpr double kKeyMismatchS = 2.0;
 // best effort: scene keys remembered to recognise a repeat (a resend for a reliable consumer)
 constexpr size_t kRecentKeys = 4096;
 // reliable: a seq is given up (skipped) after this many copies of it failed the checks
@@ -311,9 +313,17 @@ struct SceneStream::Impl {
       counters.lost = delivery.lost;
       counters.reasked = delivery.reasked;
     };
+    const std::vector<std::string> generator_channels = {options.channel, kConfigChannel};
     while (!stop) {
       bus->HandleFor(20);
       credit_handed();
+      // generators that use another key would never be heard (an open best-effort stream reads
+      // signed scenes all the same; a reliable one's credits would be refused): say so rather
+      // than wait
+      if (client || bus->keyed()) {
+        const std::string mismatch = bus->KeyMismatch(generator_channels, kKeyMismatchS);
+        if (!mismatch.empty()) throw FeedError(mismatch);
+      }
       {
         const std::lock_guard<std::mutex> lock(mutex);
         counters.fault_dropped = bus->fault_dropped();
@@ -342,6 +352,7 @@ struct SceneStream::Impl {
     std::map<std::string, int64_t> other_channels;
     std::map<std::tuple<int32_t, int64_t, int64_t>, int64_t> seen;
     int64_t scene_events = 0;
+    KeyEvidence key_evidence;
     LogSummary summary;
     try {
       summary = ReadLog(log_path, [&](const LogEvent& event) {
@@ -351,9 +362,10 @@ struct SceneStream::Impl {
           return;
         }
         ++scene_events;
-        // the key check, as on a live bus (no age: a log is old)
+        // the key check, as on a live bus (no liveness: a log is a recording)
         std::string refused;
-        const int64_t body = log_auth->Open(event.channel, event.data, event.size, 0, &refused);
+        const int64_t body = log_auth->Open(event.channel, event.data, event.size, &refused);
+        key_evidence.Note(*log_auth, event.data, event.size, body >= 0);
         if (body < 0) {
           const AuthCounters counted = log_auth->counters();
           {
@@ -362,7 +374,8 @@ struct SceneStream::Impl {
             counters.refused_forged = counted.forged;
             counters.refused_replayed = counted.replayed;
           }
-          Report(refused);
+          // the first says why; the rest are counted (all refused fails the stream at the end)
+          if (counted.total() == 1) Report(refused);
           return;
         }
         const size_t size = static_cast<size_t>(body);
@@ -423,6 +436,10 @@ struct SceneStream::Impl {
       throw FeedError(log_path + " holds no events on channel " + options.channel +
                       (found.empty() ? "" : " (it has " + found + ")"));
     }
+    // a log whose every scene was refused for its key: an error, not an empty stream
+    const std::string mismatch =
+        key_evidence.Mismatch(*log_auth, "the scenes of " + log_path + " on " + options.channel);
+    if (!mismatch.empty()) throw FeedError(mismatch);
     if (summary.truncated_bytes > 0) {
       std::fprintf(stderr, "stackgen-feed: %s ends with a torn event of %lld bytes (skipped)\n",
                    log_path.c_str(), static_cast<long long>(summary.truncated_bytes));
@@ -502,8 +519,8 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
       throw FeedError(impl.log_path + " is not an LCM log (it does not start with an LCM event)");
     }
     try {
-      impl.log_auth =
-          std::make_unique<MessageAuth>(ResolveBusKeyFile(impl.options.bus_key_file), false);
+      impl.log_auth = std::make_unique<MessageAuth>(
+          options.open_bus ? "" : ResolveBusKeyFile(options.bus_key_file), false);
     } catch (const std::exception& error) {
       throw FeedError(error.what());
     }
@@ -512,6 +529,8 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
     bus_options.drop_receive_fraction = options.fault_drop;
     bus_options.fault_seed = 0xFEED;
     bus_options.key_file = options.bus_key_file;
+    bus_options.open_bus = options.open_bus;
+    bus_options.replay = options.replay;
     try {
       impl.bus = std::make_unique<Bus>(impl.url, bus_options);
     } catch (const std::exception& error) {

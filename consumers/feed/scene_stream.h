@@ -62,9 +62,15 @@ struct SceneStreamOptions {
   int decode_threads = 2;
   /// The consumer's name in credits and status; empty: "stackgen-feed@<host>:<pid>[/shard i/k]".
   std::string name;
-  /// The bus key file (bus/auth.h); empty: $STACKGEN_BUS_KEY_FILE when set, else none. A log is
-  /// checked with it too (it replays with the key it was recorded under).
+  /// The bus key file (bus/auth.h); empty: $STACKGEN_BUS_KEY_FILE when set, else this user's
+  /// key (made on first use). A log is checked with it too (it replays with the key it was
+  /// recorded under).
   std::string bus_key_file;
+  /// No key at all: every sender trusted, nothing signed (an open bus, or a log recorded on one).
+  bool open_bus = false;
+  /// Live bus: the scenes come from a recording played back onto the bus (lcm-logplayer): taken
+  /// without the liveness check of the bus key, which refuses recordings by default.
+  bool replay = false;
   /// Drop this fraction of received messages on purpose, [0, 1) (tests and demos).
   double fault_drop = 0;
   /// Live bus: publish the stream's counters on STACKGEN_STATUS every second.
@@ -103,7 +109,9 @@ class SceneStream {
  public:
   /// Opens the bus (throwing FeedError with the URL and reason if it cannot: a bad URL, no
   /// multicast route) or checks the log (FeedError if it is missing, a folder or not an LCM
-  /// log), then starts reading. Throws FeedError on options out of range.
+  /// log), then starts reading. Throws FeedError on options out of range. The stream fails
+  /// (Next throws FeedError, one line) when the generators heard for 2 s all use another bus
+  /// key (or none), and when every scene of a log was refused for its key.
   explicit SceneStream(const SceneStreamOptions& options);
   /// Close().
   ~SceneStream();

@@ -29,11 +29,15 @@ struct StatusMonitor::Impl {
   pid_t pid = 0;
 };
 
-StatusMonitor::StatusMonitor(const std::string& url) : impl_(std::make_unique<Impl>()) {
+StatusMonitor::StatusMonitor(const std::string& url, const std::string& key_file, bool open_bus)
+    : impl_(std::make_unique<Impl>()) {
   Impl* impl = impl_.get();
   impl->pid = getpid();
   try {
-    impl->bus = std::make_unique<Bus>(ResolveLcmUrl(url));
+    BusOptions options;
+    options.key_file = key_file;
+    options.open_bus = open_bus;
+    impl->bus = std::make_unique<Bus>(ResolveLcmUrl(url), options);
   } catch (const std::exception& error) {
     throw FeedError(error.what());
   }

@@ -37,6 +37,10 @@ namespace {
 
 std::atomic<bool> g_stop{false};
 
+// consumers heard for this long that all use another bus key stop the generator (seconds): they
+// credit every 0.2 s, so one with the right key would have been heard by then
+constexpr double kKeyMismatchS = 2.0;
+
 void OnSignal(int) { g_stop = true; }
 
 constexpr const char* kUsage = R"(usage: stackgen [flags]
@@ -53,7 +57,10 @@ flags:
   --lcm-url URL       LCM bus (default: $STACKGEN_LCM_URL, else
                       udpm://239.255.76.67:7667?ttl=0&recv_buf_size=4194304)
   --bus-key-file FILE sign every message with this shared key and refuse messages not signed
-                      with it (default: $STACKGEN_BUS_KEY_FILE; none: warns that the bus is open)
+                      with it (default: $STACKGEN_BUS_KEY_FILE, else this user's key
+                      ~/.config/stackgen/bus.key, made on first use; every process of the bus
+                      needs the same key)
+  --open-bus          no bus key: sign nothing and trust every sender on the group
   --cache-dir DIR     where convex decompositions are cached
                       (default: $XDG_CACHE_HOME/stackgen, else ~/.cache/stackgen)
   --resume            continue at the seq the reliable consumers (dataset writers) have
@@ -178,7 +185,7 @@ int Run(int argc, char** argv) {
   parser.Int("--seed", &seed_flag, 0, INT64_MAX);
   parser.Int("--generator-id", &generator_id, 0, kMaxGeneratorId);
   parser.LcmUrl(&lcm_url);
-  parser.BusKeyFile(&bus_options.key_file);
+  parser.BusKey(&bus_options.key_file, &bus_options.open_bus);
   parser.String("--cache-dir", &cache_dir);
   parser.Switch("--resume", &resume);
   parser.Switch("--check", &check);
@@ -196,7 +203,10 @@ int Run(int argc, char** argv) {
   SceneGenerator generator(config, generator_id, seed, cache_dir);
   std::printf("stackgen: generator %d, seed %llu, config %s, bus %s (%s)\n%s\n", generator_id,
               static_cast<unsigned long long>(seed), config.path.c_str(), bus.url().c_str(),
-              bus.keyed() ? "signed" : "open: no bus key", generator.Description().c_str());
+              bus.keyed() ? ("signed with " + bus.key_file() + ", key id " + KeyIdText(bus.key_id()))
+                                .c_str()
+                          : "open: no bus key",
+              generator.Description().c_str());
   std::fflush(stdout);
   if (check) {
     std::printf("stackgen: --check: the config, the bus and the renderer are usable\n");
@@ -276,7 +286,9 @@ int Run(int argc, char** argv) {
     bus.Publish(kStatusChannel, hello);
   }
 
-  // serves the consumers; one that holds scenes of another run stops this one with an error
+  // serves the consumers; one that holds scenes of another run stops this one with an error, and
+  // so do consumers heard for seconds that use another bus key (they would never be served)
+  const std::vector<std::string> consumer_channels = {kCreditChannel, kResendChannel};
   const auto serve = [&](int timeout_ms) {
     server.Service(timeout_ms);
     if (!server.run_conflict().empty()) {
@@ -284,6 +296,8 @@ int Run(int argc, char** argv) {
                                ": continue it with that run's --seed and --config, or give the "
                                "writer another --out");
     }
+    const std::string mismatch = bus.KeyMismatch(consumer_channels, kKeyMismatchS);
+    if (!mismatch.empty()) throw std::runtime_error(mismatch);
   };
   // hear which reliable consumers are there before the first scene (they credit every 0.2 s)
   const auto listen = [&](double seconds, const std::function<bool()>& done) {
@@ -473,6 +487,9 @@ int Run(int argc, char** argv) {
   if (count > 0 && next_seq == count) {
     while (!server.AllStoredThrough(count - 1) && !g_stop) wait_for_consumers(20);
   }
+  // consumers that use another key were heard, and none with this one: nothing was delivered
+  const std::string mismatch = bus.KeyMismatch(consumer_channels, 0);
+  if (!mismatch.empty()) throw std::runtime_error(mismatch);
   publish_periodic(true);
   if (progress) std::fprintf(stderr, "\n");
 

@@ -36,19 +36,19 @@ struct Opened {
   int64_t size;
   std::string why;
 };
-Opened Open(MessageAuth& auth, const std::string& channel, const std::vector<uint8_t>& sealed,
-            int64_t now_us = UnixMicros()) {
+Opened Open(MessageAuth& auth, const std::string& channel, const std::vector<uint8_t>& sealed) {
   Opened opened{};
-  opened.size = auth.Open(channel, sealed.data(), sealed.size(), now_us, &opened.why);
+  opened.size = auth.Open(channel, sealed.data(), sealed.size(), &opened.why);
   return opened;
 }
 
 // A sealed message opens under the same key, once: a copy sent again is a replay; altered bytes,
-// another channel, another key and no trailer are refused, each counted under its reason.
+// another channel, another key (named by its key id) and no trailer are refused, each counted
+// under its reason.
 TEST(MessageAuthTest, ForgedAlteredAndReplayedAreRefused) {
   const testing::ScratchDir dir("auth");
   MessageAuth sender(KeyFile(dir, "a.key", kKey), true);
-  MessageAuth receiver(KeyFile(dir, "b.key", kKey), true);
+  MessageAuth receiver(KeyFile(dir, "b.key", kKey), false);
   MessageAuth stranger(KeyFile(dir, "c.key", kOtherKey), true);
   ASSERT_TRUE(sender.keyed());
   const std::vector<uint8_t> payload = Bytes("a credit, say");
@@ -73,7 +73,11 @@ TEST(MessageAuthTest, ForgedAlteredAndReplayedAreRefused) {
   stranger.Seal("STACKGEN_CREDIT", payload.data(), payload.size(), &foreign);
   const Opened forged = Open(receiver, "STACKGEN_CREDIT", foreign);
   EXPECT_EQ(forged.size, -1);
-  EXPECT_NE(forged.why.find("MAC does not match"), std::string::npos) << forged.why;
+  EXPECT_NE(forged.why.find("signed with another bus key (key id " + KeyIdText(stranger.key_id())),
+            std::string::npos)
+      << forged.why;
+  EXPECT_NE(forged.why.find("has key id " + KeyIdText(receiver.key_id())), std::string::npos)
+      << forged.why;
   const Opened bare = Open(receiver, "STACKGEN_CREDIT", payload);
   EXPECT_EQ(bare.size, -1);
   EXPECT_NE(bare.why.find("not signed"), std::string::npos) << bare.why;
@@ -87,34 +91,102 @@ TEST(MessageAuthTest, ForgedAlteredAndReplayedAreRefused) {
 }
 
 // Messages of one sender may arrive out of order within the replay window (1024 counters), but
-// each counter opens once, one older than the window never, and on a live bus neither does one
-// stamped over a minute away; a log (not live) has no age limit.
-TEST(MessageAuthTest, ReplayWindowAndAge) {
+// each counter opens once, and one older than the window never.
+TEST(MessageAuthTest, ReplayWindow) {
+  const testing::ScratchDir dir("auth");
+  const std::string key = KeyFile(dir, "a.key", kKey);
+  MessageAuth sender(key, true);
+  MessageAuth receiver(key, false);
+  const std::vector<uint8_t> payload = Bytes("x");
+  std::vector<std::vector<uint8_t>> sealed(1100);
+  for (auto& message : sealed) sender.Seal("C", payload.data(), payload.size(), &message);
+  EXPECT_EQ(Open(receiver, "C", sealed[5]).size, 1);
+  EXPECT_EQ(Open(receiver, "C", sealed[3]).size, 1);  // late, not seen: taken
+  EXPECT_EQ(Open(receiver, "C", sealed[3]).size, -1);
+  EXPECT_EQ(Open(receiver, "C", sealed[1099]).size, 1);
+  EXPECT_EQ(Open(receiver, "C", sealed[4]).size, -1);  // 1095 counters back: beyond the window
+  EXPECT_EQ(Open(receiver, "C", sealed[1000]).size, 1);
+}
+
+// With liveness, a sender's messages are taken only once it has answered, and only those it
+// signed after its answer: a recording of it (older messages) is refused whatever its age; a
+// process's own messages need no answer, and a log (no liveness) takes them all.
+TEST(MessageAuthTest, LivenessTakesOnlyWhatFollowsTheAnswer) {
   const testing::ScratchDir dir("auth");
   const std::string key = KeyFile(dir, "a.key", kKey);
   MessageAuth sender(key, true);
   MessageAuth live(key, true);
-  const std::vector<uint8_t> payload = Bytes("x");
-  std::vector<std::vector<uint8_t>> sealed(1100);
-  for (auto& message : sealed) sender.Seal("C", payload.data(), payload.size(), &message);
-  EXPECT_EQ(Open(live, "C", sealed[5]).size, 1);
-  EXPECT_EQ(Open(live, "C", sealed[3]).size, 1);  // late, not seen: taken
-  EXPECT_EQ(Open(live, "C", sealed[3]).size, -1);
-  EXPECT_EQ(Open(live, "C", sealed[1099]).size, 1);
-  EXPECT_EQ(Open(live, "C", sealed[4]).size, -1);  // 1095 counters back: beyond the window
-  EXPECT_EQ(Open(live, "C", sealed[1000]).size, 1);
-
-  std::vector<uint8_t> fresh;
-  sender.Seal("C", payload.data(), payload.size(), &fresh);
-  const Opened late = Open(live, "C", fresh, UnixMicros() + 61'000'000);
-  EXPECT_EQ(late.size, -1);
-  EXPECT_NE(late.why.find("s ago"), std::string::npos) << late.why;
   MessageAuth log(key, false);
-  EXPECT_EQ(Open(log, "C", fresh, UnixMicros() + 3'600'000'000).size, 1);
+  const std::vector<uint8_t> payload = Bytes("scene");
+  std::vector<std::vector<uint8_t>> sealed(5);
+  for (auto& message : sealed) sender.Seal("S", payload.data(), payload.size(), &message);
+  EXPECT_FALSE(live.Live(sender.sender()));
+  const Opened unanswered = Open(live, "S", sealed[0]);
+  EXPECT_EQ(unanswered.size, -1);
+  EXPECT_NE(unanswered.why.find("has not answered"), std::string::npos) << unanswered.why;
+  live.Proven(sender.sender(), 3);  // it answered in its message 3
+  EXPECT_TRUE(live.Live(sender.sender()));
+  const Opened before = Open(live, "S", sealed[1]);  // counter 2: signed before the answer
+  EXPECT_EQ(before.size, -1);
+  EXPECT_NE(before.why.find("before it answered"), std::string::npos) << before.why;
+  EXPECT_EQ(Open(live, "S", sealed[3]).size, 5);  // counter 4
+  EXPECT_EQ(Open(live, "S", sealed[4]).size, 5);
+  EXPECT_EQ(live.counters().replayed, 2);
+  for (const auto& message : sealed) EXPECT_EQ(Open(log, "S", message).size, 5);
+  std::vector<uint8_t> own;
+  live.Seal("S", payload.data(), payload.size(), &own);
+  EXPECT_EQ(Open(live, "S", own).size, 5);
+}
+
+// One key has one key id on every host, another key another; an open process has none.
+TEST(MessageAuthTest, KeyIdsTellKeysApart) {
+  const testing::ScratchDir dir("auth");
+  MessageAuth a(KeyFile(dir, "a.key", kKey), true);
+  MessageAuth same(KeyFile(dir, "same.key", kKey), true);
+  MessageAuth other(KeyFile(dir, "b.key", kOtherKey), true);
+  MessageAuth open("", true);
+  EXPECT_EQ(a.key_id(), same.key_id());
+  EXPECT_NE(a.key_id(), other.key_id());
+  EXPECT_NE(a.key_id(), 0u);
+  EXPECT_EQ(open.key_id(), 0u);
+  EXPECT_NE(a.sender(), same.sender());
+  EXPECT_EQ(KeyIdText(0x0123456789abcdefULL), "0123456789abcdef");
+}
+
+// What a process heard tells it that its peers use another key, none, or (open) one, in one
+// line naming both key ids; a single message it could take clears it.
+TEST(MessageAuthTest, KeyEvidenceNamesTheMismatch) {
+  const testing::ScratchDir dir("auth");
+  MessageAuth ours(KeyFile(dir, "a.key", kKey), false);
+  MessageAuth theirs(KeyFile(dir, "b.key", kOtherKey), false);
+  MessageAuth open("", false);
+  const std::vector<uint8_t> payload = Bytes("scene");
+  std::vector<uint8_t> foreign, own;
+  theirs.Seal("S", payload.data(), payload.size(), &foreign);
+  ours.Seal("S", payload.data(), payload.size(), &own);
+
+  KeyEvidence other_key;
+  other_key.Note(ours, foreign.data(), foreign.size(), false);
+  const std::string line = other_key.Mismatch(ours, "the scenes");
+  EXPECT_NE(line.find("signed with another bus key (key id " + KeyIdText(theirs.key_id())),
+            std::string::npos)
+      << line;
+  EXPECT_NE(line.find(KeyIdText(ours.key_id())), std::string::npos) << line;
+  EXPECT_EQ(line.find('\n'), std::string::npos);
+  other_key.Note(ours, own.data(), own.size(), true);
+  EXPECT_EQ(other_key.Mismatch(ours, "the scenes"), "");
+
+  KeyEvidence no_key;
+  no_key.Note(ours, payload.data(), payload.size(), false);
+  EXPECT_NE(no_key.Mismatch(ours, "the scenes").find("not signed"), std::string::npos);
+  KeyEvidence signed_for_open;
+  signed_for_open.Note(open, own.data(), own.size(), true);
+  EXPECT_NE(signed_for_open.Mismatch(open, "the scenes").find("--open-bus"), std::string::npos);
+  EXPECT_EQ(KeyEvidence{}.Mismatch(ours, "the scenes"), "");
 }
 
 // Without a key nothing is sealed or refused, and a trailer is cut off unchecked, so a process
-// with no key still reads what keyed processes send.
+// with an open bus still reads what keyed processes send.
 TEST(MessageAuthTest, NoKeyPassesEverything) {
   const testing::ScratchDir dir("auth");
   MessageAuth sender(KeyFile(dir, "a.key", kKey), true);
@@ -132,8 +204,36 @@ TEST(MessageAuthTest, NoKeyPassesEverything) {
   EXPECT_EQ(keyless.counters().total(), 0);
 }
 
-// A key file that cannot serve is refused with one line naming it: missing, a folder, too short,
-// readable by other users.
+// The key is on by default: with no flag and no $STACKGEN_BUS_KEY_FILE a process uses this
+// user's key at $XDG_CONFIG_HOME/stackgen/bus.key, made once (mode 600, in a folder of mode
+// 700), and every later process reads the same one.
+TEST(MessageAuthTest, TheDefaultKeyIsMadeOnFirstUse) {
+  const testing::ScratchDir dir("auth");
+  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
+  const testing::ScopedEnv config("XDG_CONFIG_HOME", (dir.path() + "/config").c_str());
+  const std::string path = dir.path() + "/config/stackgen/bus.key";
+  EXPECT_EQ(DefaultBusKeyFile(), path);
+  EXPECT_EQ(ResolveBusKeyFile(""), path);
+  struct stat info {};
+  ASSERT_EQ(stat(path.c_str(), &info), 0);
+  EXPECT_EQ(info.st_mode & 0777, 0600u);
+  ASSERT_EQ(stat((dir.path() + "/config/stackgen").c_str(), &info), 0);
+  EXPECT_EQ(info.st_mode & 0777, 0700u);
+  const std::string key = testing::ReadFile(path);
+  EXPECT_EQ(key.size(), 45u);  // 32 bytes in base64 and a newline
+  EXPECT_EQ(ResolveBusKeyFile(""), path);
+  EXPECT_EQ(testing::ReadFile(path), key);
+  EXPECT_FALSE(MakeBusKeyFile(path));
+  MessageAuth first(path, true), second(ResolveBusKeyFile(""), true);
+  EXPECT_EQ(first.key_id(), second.key_id());
+  // the flag and the environment come first
+  EXPECT_EQ(ResolveBusKeyFile("/elsewhere.key"), "/elsewhere.key");
+  const testing::ScopedEnv from_env("STACKGEN_BUS_KEY_FILE", "/env.key");
+  EXPECT_EQ(ResolveBusKeyFile(""), "/env.key");
+}
+
+// A key file that cannot serve is refused with one line naming it: missing, a folder, a FIFO,
+// too short, readable by other users.
 TEST(MessageAuthTest, BadKeyFilesAreOneLine) {
   const testing::ScratchDir dir("auth");
   const auto error_of = [](const std::string& path) -> std::string {
@@ -148,6 +248,10 @@ TEST(MessageAuthTest, BadKeyFilesAreOneLine) {
   EXPECT_NE(error_of(missing).find("cannot open bus key file " + missing), std::string::npos)
       << error_of(missing);
   EXPECT_NE(error_of(dir.path()).find("is not a regular file"), std::string::npos);
+  // a FIFO is refused at once (opening one waits for a writer unless told not to)
+  const std::string fifo = dir.path() + "/fifo.key";
+  ASSERT_EQ(mkfifo(fifo.c_str(), 0600), 0);
+  EXPECT_NE(error_of(fifo).find("is not a regular file"), std::string::npos) << error_of(fifo);
   const std::string short_key = KeyFile(dir, "short.key", "abc\n");
   EXPECT_NE(error_of(short_key).find("holds 3 bytes; a key needs at least 32"), std::string::npos)
       << error_of(short_key);
@@ -196,10 +300,9 @@ TEST(BusAuthTest, OnlyTheKeyHolderIsHeard) {
   EXPECT_EQ(replay.auth_counters().forged, 1);
   EXPECT_EQ(replay.auth_counters().unsigned_messages, 1);
 
-  // a process with no key reads all three (trailers cut off, nothing checked)
+  // a process with an open bus reads all three (trailers cut off, nothing checked)
   BusOptions none;
-  none.key_file = "";
-  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
+  none.open_bus = true;
   Bus unkeyed("file://" + log_path + "?speed=0", none);
   EXPECT_FALSE(unkeyed.keyed());
   int read = 0;

@@ -205,7 +205,7 @@ int Run(int argc, char** argv) {
   bool attacks = true;
   stackgen::FlagParser parser("stackgen-forger");
   parser.LcmUrl(&lcm_url);
-  parser.BusKeyFile(&key_file);
+  parser.String("--bus-key-file", &key_file, "a file");
   parser.Double("--seconds", &seconds, stackgen::Interval::OpenClosed(0, 3600));
   parser.Int("--fuzz", &fuzz, 0, 10000000);
   parser.Switch("--signed-fuzz", &signed_fuzz);
@@ -224,12 +224,12 @@ int Run(int argc, char** argv) {
   });
   attacks = !no_attacks;
 
-  // a stranger: the suite's key ($STACKGEN_BUS_KEY_FILE) is not its own, only --bus-key-file;
-  // what it sends unsigned goes out on a bus with no key
-  // what it sends unsigned goes out on a bus with no key. It reads with no key either: a MAC
-  // keeps no secret, so a stranger hears everything
-  unsetenv("STACKGEN_BUS_KEY_FILE");
-  stackgen::Bus stranger(stackgen::ResolveLcmUrl(lcm_url));
+  // a stranger: the suite's key ($STACKGEN_BUS_KEY_FILE) is not its own, only --bus-key-file.
+  // What it sends unsigned goes out on an open bus, which it reads too: a MAC keeps no secret,
+  // so a stranger hears everything. A keyed bus of its own answers the liveness checks by itself
+  stackgen::BusOptions open;
+  open.open_bus = true;
+  stackgen::Bus stranger(stackgen::ResolveLcmUrl(lcm_url), open);
   stackgen::BusOptions options;
   options.key_file = key_file;
   std::unique_ptr<stackgen::Bus> keyed;

@@ -9,10 +9,12 @@
 #include <chrono>
 #include <csignal>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <regex>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -67,14 +69,24 @@ class TrustTest : public ::testing::Test {
         << "the suite runs with a bus key (tests/CMakeLists.txt); run this through ctest";
     cache_ = scratch_.path() + "/cache";
     reference_ = scratch_.path() + "/reference";
-    // the reference: a plain run with the key and no stranger; its peak memory too
+    recording_ = scratch_.path() + "/reference.lcmlog";
+    logger_ = testing::FindOnPath("lcm-logger");
+    player_ = testing::FindOnPath("lcm-logplayer");
+    ASSERT_FALSE(logger_.empty() || player_.empty())
+        << "lcm-logger and lcm-logplayer are not on PATH (Debian package liblcm-bin)";
+    // the reference: a plain run with the key and no stranger, recorded; its peak memory too
     const std::string url = testing::FreeMulticastUrl();
+    Process record({logger_, "--lcm-url", url, "--channel", "STACKGEN_(SCENE|CONFIG)", "--quiet",
+                    recording_},
+                   reference_ + "-logger");
     Process coco(Coco(reference_, url), reference_ + "-coco");
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
     Process generator(Generator(url, cache_), reference_ + "-gen");
     Watch(generator, coco, &reference_peak_gen_kb_, &reference_peak_coco_kb_);
     ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
     ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+    record.Signal(SIGINT);
+    ASSERT_EQ(record.Wait(10), 0) << record.Stderr();
   }
 
   // samples both processes' memory every 50 ms until the generator exits (at most 600 s)
@@ -92,6 +104,9 @@ class TrustTest : public ::testing::Test {
   testing::ScratchDir scratch_{"trust"};
   std::string cache_;
   std::string reference_;
+  std::string recording_;  // the reference run's STACKGEN_SCENE and STACKGEN_CONFIG
+  std::string logger_;
+  std::string player_;
   int64_t reference_peak_gen_kb_ = 0;
   int64_t reference_peak_coco_kb_ = 0;
 };
@@ -101,11 +116,8 @@ class TrustTest : public ::testing::Test {
 // recording of the run's first seconds is replayed into it: each kind is refused and counted by
 // both processes, the generator finishes, and the dataset is the clean run's.
 TEST_F(TrustTest, StrangersAreRefusedAndCounted) {
-  const std::string logger = testing::FindOnPath("lcm-logger");
-  const std::string player = testing::FindOnPath("lcm-logplayer");
-  if (logger.empty() || player.empty()) {
-    GTEST_SKIP() << "lcm-logger or lcm-logplayer not on PATH (Debian package liblcm-bin)";
-  }
+  const std::string& logger = logger_;
+  const std::string& player = player_;
   const std::string url = testing::FreeMulticastUrl();
   const std::string out = scratch_.path() + "/attacked";
   const std::string wrong_key = scratch_.path() + "/wrong.key";
@@ -186,6 +198,89 @@ TEST_F(TrustTest, FuzzLeavesBothRunning) {
   // and the fuzz reached them: refused by the key check, or signed and then refused as invalid
   const std::vector<int64_t> writer_refused = Refused(coco.Stdout());
   EXPECT_GT(writer_refused[0], 0) << coco.Stdout();
+}
+
+// A recording of the keyed reference run played onto a bus by lcm-logplayer, seconds after it was
+// made, into a fresh writer is refused whole (its sender never answers the liveness check: no
+// time window to slip through), counted as replayed with one warning that names --replay; told
+// that it reads a replay, a writer stores it: the reference dataset, file for file.
+TEST_F(TrustTest, ARecordingIsTakenOnlyAsAReplay) {
+  const std::string refused = scratch_.path() + "/refused";
+  {
+    const std::string url = testing::FreeMulticastUrl();
+    Process coco(Coco(refused, url), refused + "-coco");
+    ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+    Process player({player_, "--lcm-url", url, recording_}, refused + "-player");
+    ASSERT_EQ(player.Wait(120), 0) << player.Stderr();
+    coco.Signal(SIGINT);
+    ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+    EXPECT_EQ(ImagesStored(refused), 0);
+    EXPECT_NE(coco.Stderr().find("does not answer the liveness check"), std::string::npos)
+        << coco.Stderr();
+    EXPECT_NE(coco.Stderr().find("--replay"), std::string::npos) << coco.Stderr();
+    EXPECT_GT(Refused(coco.Stdout())[2], 0) << coco.Stdout();
+  }
+  const std::string taken = scratch_.path() + "/taken";
+  const std::string url = testing::FreeMulticastUrl();
+  std::vector<std::string> argv = Coco(taken, url);
+  argv.push_back("--replay");
+  Process coco(argv, taken + "-coco");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  Process player({player_, "--lcm-url", url, "-s", "4", recording_}, taken + "-player");
+  ASSERT_EQ(player.Wait(120), 0) << player.Stderr();
+  ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
+  ExpectSameDataset(reference_, taken, kScenes);
+}
+
+// A writer and a generator with different bus keys, or one with an open bus (--open-bus) and
+// one with a key, each stop within seconds with one error line that names the mismatch (and
+// the key ids), exit 1, and the writer leaves no dataset folder behind.
+TEST(TrustKeysTest, DifferentKeysSayItAndStop) {
+  const testing::ScratchDir scratch("trust-keys");
+  const std::string wrong_key = scratch.path() + "/wrong.key";
+  std::ofstream(wrong_key) << "not the key of this deployment, but long enough to be one\n";
+  chmod(wrong_key.c_str(), 0600);
+  struct Case {
+    std::string name;
+    std::vector<std::string> writer_flags, generator_flags;
+    std::string writer_says, generator_says;
+  };
+  const std::vector<Case> cases = {
+      {"another key", {"--bus-key-file", wrong_key}, {}, "signed with another bus key (key id",
+       "signed with another bus key (key id"},
+      {"an open generator", {}, {"--open-bus"}, "are not signed", "runs with an open bus"}};
+  for (const Case& test : cases) {
+    SCOPED_TRACE(test.name);
+    const std::string url = testing::FreeMulticastUrl();
+    const std::string out = scratch.path() + "/" + test.name;
+    std::vector<std::string> coco_argv = Coco(out, url);
+    coco_argv.insert(coco_argv.end(), test.writer_flags.begin(), test.writer_flags.end());
+    Process coco(coco_argv, out + "-coco");
+    ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+    std::vector<std::string> generator_argv = Generator(url, scratch.path() + "/cache");
+    generator_argv.insert(generator_argv.end(), test.generator_flags.begin(),
+                          test.generator_flags.end());
+    const auto start = std::chrono::steady_clock::now();
+    Process generator(generator_argv, out + "-gen");
+    EXPECT_EQ(coco.Wait(120), 1) << coco.Stderr();
+    const double writer_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    EXPECT_EQ(generator.Wait(120), 1) << generator.Stderr();
+    const double generator_s =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    std::printf("%s: the writer stopped after %.1f s, the generator after %.1f s\n",
+                test.name.c_str(), writer_s, generator_s);
+    for (const auto& [process, says, program] :
+         {std::make_tuple(&coco, test.writer_says, std::string("stackgen-coco")),
+          std::make_tuple(&generator, test.generator_says, std::string("stackgen"))}) {
+      const std::string err = process->Stderr();
+      const size_t at = err.find(program + ": error: the messages on ");
+      ASSERT_NE(at, std::string::npos) << err;
+      EXPECT_NE(err.find(says, at), std::string::npos) << err;
+      EXPECT_EQ(err.find(program + ": error:", at + 1), std::string::npos) << err;
+    }
+    EXPECT_FALSE(std::filesystem::exists(out)) << out << " was left behind";
+  }
 }
 
 }  // namespace

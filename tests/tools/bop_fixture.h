@@ -16,13 +16,13 @@ inline const std::string kFixtureLog =
 
 /// Writes the BOP dataset of the fixture log into `out` (a folder that does not exist yet) with
 /// stackgen-bop; returns its exit code, and what it printed in `output`. The log was recorded
-/// without a bus key, so stackgen-bop runs without one.
+/// on an open bus (no key), so stackgen-bop reads it with --open-bus.
 inline int MakeFixtureBop(const std::string& out, const std::string& log_prefix,
                           std::string* output) {
-  const ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
   std::string stdout_text, stderr_text;
   const int code = RunToEnd(std::string(STACKGEN_BIN_DIR) + "/stackgen-bop",
-                            {"--out", out, "--lcm-url", "file://" + kFixtureLog + "?speed=0"},
+                            {"--out", out, "--lcm-url", "file://" + kFixtureLog + "?speed=0",
+                             "--open-bus"},
                             log_prefix, &stdout_text, &stderr_text, 120);
   *output = stdout_text + stderr_text;
   return code;

@@ -247,6 +247,21 @@ TEST(LcmToolsTest, RecordWritesOnlyStackgenChannels) {
   EXPECT_TRUE(events.empty()) << "recorded another channel: " << events.begin()->first;
 }
 
+// --channels that is not a regular expression is one line and exit 2 at once (lcm-logger would
+// print GLib's error and record nothing until stopped), and no log is made.
+TEST(LcmToolsTest, RecordRefusesABadRegex) {
+  const ScratchDir scratch("lcm-tools");
+  const std::string log = scratch.path() + "/run.lcmlog";
+  Process record({kRecord, "--lcm-url", testing::FreeMulticastUrl(), "--channels", "(", "--out",
+                  log},
+                 scratch.path() + "/record");
+  EXPECT_EQ(record.Wait(30), 2);
+  EXPECT_EQ(record.Stderr(),
+            "tools/record: error: --channels '(' is not a regular expression (missing closing "
+            "parenthesis)\n");
+  EXPECT_FALSE(fs::exists(log));
+}
+
 // tools/record refuses a log file that exists, and leaves it alone.
 TEST(LcmToolsTest, RecordRefusesExistingFile) {
   const ScratchDir scratch("lcm-tools");

@@ -145,13 +145,27 @@ TEST(StatsDatasetTest, SignedLogLeavesOutForgeries) {
   const Dataset dataset = ReadDataset(path, {});
   EXPECT_EQ(dataset.scenes, 3);
   EXPECT_EQ(dataset.samples.size(), 3u);
+  // read with the stranger's key the log is no dataset: one line naming both key ids
+  ReadOptions theirs_only;
+  theirs_only.bus_key_file = scratch.path() + "/third.key";
+  std::ofstream(theirs_only.bus_key_file) << "a third key, also 32 bytes or more of it\n";
+  fs::permissions(theirs_only.bus_key_file, fs::perms::owner_read | fs::perms::owner_write);
+  try {
+    ReadDataset(path, theirs_only);
+    FAIL() << "a log of other keys was read";
+  } catch (const std::runtime_error& error) {
+    const std::string text = error.what();
+    EXPECT_NE(text.find("signed with another bus key"), std::string::npos) << text;
+    EXPECT_EQ(text.find('\n'), std::string::npos) << text;
+  }
 }
 
 // A log: instances of every labels message, other channels skipped, a truncated last event
 // ignored and reported; a corrupt header is an error naming the file and byte.
 TEST(StatsDatasetTest, ReadsLcmLog) {
-  // LogWriter writes unsigned events: read without the suite's bus key
-  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
+  // LogWriter writes unsigned events: read as a log of an open bus
+  ReadOptions open;
+  open.open_bus = true;
   const ScratchDir scratch;
   const std::string path = scratch.path() + "/run.lcmlog";
   {
@@ -175,7 +189,7 @@ TEST(StatsDatasetTest, ReadsLcmLog) {
     }
   }
   ASSERT_TRUE(IsLcmLog(path));
-  const Dataset whole = ReadDataset(path, {});
+  const Dataset whole = ReadDataset(path, open);
   EXPECT_EQ(whole.kind, "LCM log");
   EXPECT_EQ(whole.scenes, 3);
   ASSERT_EQ(whole.samples.size(), 6u);
@@ -185,7 +199,7 @@ TEST(StatsDatasetTest, ReadsLcmLog) {
   // cut into the last event: the first events stay
   const auto size = fs::file_size(path);
   fs::resize_file(path, size - 7);
-  const Dataset cut = ReadDataset(path, {});
+  const Dataset cut = ReadDataset(path, open);
   EXPECT_EQ(cut.samples.size(), 6u);  // the cut event was a status message
   EXPECT_GT(cut.truncated_bytes, 0);
 
@@ -197,7 +211,7 @@ TEST(StatsDatasetTest, ReadsLcmLog) {
   bytes[second + 20] = '\xFF';
   std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes;
   try {
-    ReadDataset(path, {});
+    ReadDataset(path, open);
     FAIL() << "a corrupt log was read";
   } catch (const std::runtime_error& error) {
     EXPECT_EQ(std::string(error.what()),
@@ -215,12 +229,11 @@ TEST(StatsDatasetTest, BopReadsLikeTheLog) {
   const std::string bop = scratch.path() + "/bop";
   std::string output;
   ASSERT_EQ(testing::MakeFixtureBop(bop, scratch.path() + "/bop", &output), 0) << output;
-  // the log was recorded without a bus key
-  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
   for (const bool all_instances : {false, true}) {
     SCOPED_TRACE(all_instances ? "all instances" : "annotated");
     ReadOptions options;
     options.all_instances = all_instances;
+    options.open_bus = true;  // the log was recorded on an open bus
     const Dataset log = ReadDataset(testing::kFixtureLog, options);
     const Dataset read = ReadDataset(bop, options);
     EXPECT_EQ(read.kind, "BOP");

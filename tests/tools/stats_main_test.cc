@@ -433,8 +433,7 @@ TEST(StatsMainTest, OneDatasetSummary) {
 // An LCM log of labels (some scenes also on STACKGEN_SCENE, other channels mixed in) gives the
 // same sample as the COCO file of the same scenes; --all-instances adds the hidden ones.
 TEST(StatsMainTest, LcmLogReadsLikeCoco) {
-  // the log is written unsigned: read without the suite's bus key
-  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
+  // the log is written unsigned: read as a log of an open bus (--open-bus)
   const ScratchDir scratch;
   const std::string dir = scratch.path();
   const std::vector<Scene> scenes = MakeScenes(10, 0);
@@ -444,7 +443,7 @@ TEST(StatsMainTest, LcmLogReadsLikeCoco) {
 
   // compared with each other: nothing differs
   const Result both =
-      RunStats({dir + "/a.log", dir + "/a.json", "--out", dir + "/plots"}, dir + "/r");
+      RunStats({dir + "/a.log", dir + "/a.json", "--out", dir + "/plots", "--open-bus"}, dir + "/r");
   ASSERT_EQ(both.code, 0) << both.err;
   const std::vector<std::string> lines = Lines(both.out);
   ASSERT_GE(lines.size(), kIdenticalLines.size());
@@ -455,7 +454,7 @@ TEST(StatsMainTest, LcmLogReadsLikeCoco) {
       << both.out;
 
   // the summaries agree to the last digit
-  const Result log = RunStats({dir + "/a.log", "--out", dir + "/plots"}, dir + "/r");
+  const Result log = RunStats({dir + "/a.log", "--out", dir + "/plots", "--open-bus"}, dir + "/r");
   const Result coco = RunStats({dir + "/a.json", "--out", dir + "/plots"}, dir + "/r");
   ASSERT_EQ(log.code, 0) << log.err;
   const std::vector<std::string> log_lines = Lines(log.out), coco_lines = Lines(coco.out);
@@ -463,7 +462,8 @@ TEST(StatsMainTest, LcmLogReadsLikeCoco) {
 
   // the hidden instances too
   const Result all =
-      RunStats({dir + "/a.log", "--out", dir + "/plots", "--all-instances"}, dir + "/r");
+      RunStats({dir + "/a.log", "--out", dir + "/plots", "--all-instances", "--open-bus"},
+               dir + "/r");
   ASSERT_EQ(all.code, 0) << all.err;
   EXPECT_EQ(Lines(all.out)[0].rfind("alpha: n=60 ", 0), 0u) << all.out;
 }
@@ -514,11 +514,12 @@ TEST(StatsMainTest, BopDatasetReadsLikeTheLog) {
   const std::string bop = dir + "/bop";
   std::string output;
   ASSERT_EQ(testing::MakeFixtureBop(bop, dir + "/bop", &output), 0) << output;
-  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
   for (const bool all_instances : {false, true}) {
     SCOPED_TRACE(all_instances ? "--all-instances" : "annotated");
     std::vector<std::string> bop_args = {bop, "--out", dir + "/plots"};
-    std::vector<std::string> log_args = {testing::kFixtureLog, "--out", dir + "/plots"};
+    // the fixture log was recorded on an open bus
+    std::vector<std::string> log_args = {testing::kFixtureLog, "--out", dir + "/plots",
+                                         "--open-bus"};
     if (all_instances) {
       bop_args.push_back("--all-instances");
       log_args.push_back("--all-instances");

@@ -20,6 +20,7 @@
 #include "bus/channels.h"
 #include "consumers/coco/coco_writer.h"
 #include "tests/consumers/coco/coco_test_scenes.h"
+#include "tests/support/live_bus.h"
 #include "tests/support/process.h"
 #include "tests/tools/bop_fixture.h"
 
@@ -250,6 +251,7 @@ TEST(ViewTest, DrawsScenesFromTheBus) {
   ASSERT_TRUE(view.WaitForOutput("listening on " + url + " channel STACKGEN_SCENE", 30))
       << view.Stderr();
   Bus bus(url);
+  ASSERT_TRUE(testing::WaitForLivePeer(bus, 10)) << "stackgen-view never answered";
   Send(bus, testing::SceneA());
   Send(bus, testing::SceneA());
   Send(bus, testing::SceneD());
@@ -279,6 +281,7 @@ TEST(ViewTest, SkipsCorruptScenes) {
                scratch.path() + "/run");
   ASSERT_TRUE(view.WaitForOutput("listening", 30)) << view.Stderr();
   Bus bus(url);
+  ASSERT_TRUE(testing::WaitForLivePeer(bus, 10)) << "stackgen-view never answered";
   std::vector<stackgen::status> statuses;
   bus.Subscribe<stackgen::status>(kStatusChannel,
                                   [&](const stackgen::status& m) { statuses.push_back(m); });
@@ -321,6 +324,7 @@ TEST(ViewTest, TimeoutWritesWhatArrived) {
                  scratch.path() + "/one");
     ASSERT_TRUE(view.WaitForOutput("listening", 30)) << view.Stderr();
     Bus bus(url);
+    ASSERT_TRUE(testing::WaitForLivePeer(bus, 10)) << "stackgen-view never answered";
     Send(bus, testing::SceneB());
     ASSERT_EQ(view.Wait(30), 0) << view.Stderr();
     EXPECT_NE(view.Stderr().find("only 1 of 3 scenes arrived before the timeout"),
@@ -382,6 +386,26 @@ TEST(ViewTest, BadInputIsOneLine) {
   EXPECT_EQ(err, "stackgen-view: error: --bop " + scratch.path() +
                      "/empty: no BOP split folder in it (SPLIT/SCENE_ID/scene_gt.json)\n");
 
+  // a log whose scenes the bus key refuses (the fixture log is unsigned): one line saying so,
+  // not a warning and an error; with --open-bus it is drawn
+  const std::string log_url = "file://" + testing::kFixtureLog + "?speed=0";
+  EXPECT_EQ(RunToEnd({"--lcm-url", log_url, "--out", scratch.path() + "/s.png"},
+                     scratch.path() + "/unsigned", &out, &err),
+            1);
+  EXPECT_EQ(err.rfind("stackgen-view: error: the messages on STACKGEN_SCENE, STACKGEN_CONFIG of " +
+                          log_url,
+                      0),
+            0u)
+      << err;
+  EXPECT_NE(err.find("are not signed"), std::string::npos) << err;
+  EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
+  EXPECT_FALSE(fs::exists(scratch.path() + "/s.png"));
+  EXPECT_EQ(RunToEnd({"--lcm-url", log_url, "--out", scratch.path() + "/s.png", "--open-bus",
+                      "--count", "4"},
+                     scratch.path() + "/open", &out, &err),
+            0)
+      << err;
+
   for (const std::vector<std::string>& args :
        {std::vector<std::string>{"--coco", scratch.path(), "--out", "s.png", "--count", "0"},
         {"--bop", scratch.path(), "--coco", scratch.path(), "--out", "s.png"},
@@ -397,7 +421,8 @@ TEST(ViewTest, BadInputIsOneLine) {
         {"--coco", scratch.path(), "--lcm-url", "default", "--out", "s.png"},
         {"--out", "s.png"},
         {"--coco", scratch.path()},
-        {"--coco", scratch.path(), "--out", "s.png", "--bogus"}}) {
+        {"--coco", scratch.path(), "--out", "s.png", "--bogus"},
+        {"--lcm-url", "default", "--out", "s.png", "--open-bus", "--bus-key-file", "k"}}) {
     EXPECT_EQ(RunToEnd(args, scratch.path() + "/bad", &out, &err), 2) << args.back();
     EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;
     EXPECT_EQ(err.rfind("stackgen-view: error: ", 0), 0u) << err;

@@ -304,9 +304,10 @@ void ReadLcmLog(const std::string& path, const ReadOptions& options, Dataset* da
   // scenes by (generator_id, seq): the labels and the scene of one render count once
   std::set<std::pair<int32_t, int64_t>> seen;
   int64_t messages = 0;
-  // a log recorded with a bus key is read with it ($STACKGEN_BUS_KEY_FILE): what a stranger
-  // sent on the bus while it was recorded is left out; without a key nothing is checked
-  MessageAuth auth(ResolveBusKeyFile(""), false);
+  // a log recorded with a bus key is read with it: what a stranger sent on the bus while it was
+  // recorded is left out; with an open bus nothing is checked
+  MessageAuth auth(options.open_bus ? "" : ResolveBusKeyFile(options.bus_key_file), false);
+  KeyEvidence key_evidence;
   std::string first_refusal;
   try {
     const LogSummary summary = ReadLog(path, [&](const LogEvent& logged) {
@@ -314,7 +315,8 @@ void ReadLcmLog(const std::string& path, const ReadOptions& options, Dataset* da
       const bool is_scene = logged.channel == kSceneChannel;
       if (!is_labels && !is_scene) return;
       std::string why;
-      const int64_t body = auth.Open(logged.channel, logged.data, logged.size, 0, &why);
+      const int64_t body = auth.Open(logged.channel, logged.data, logged.size, &why);
+      key_evidence.Note(auth, logged.data, logged.size, body >= 0);
       if (body < 0) {
         if (first_refusal.empty()) first_refusal = why;
         return;
@@ -346,6 +348,9 @@ void ReadLcmLog(const std::string& path, const ReadOptions& options, Dataset* da
   } catch (const DecodeError& error) {
     throw std::runtime_error(path + ": " + error.what());
   }
+  // every message refused for its key: one line saying so (not a warning and an error)
+  const std::string mismatch = key_evidence.Mismatch(auth, "the messages of " + path);
+  if (!mismatch.empty()) throw std::runtime_error(mismatch);
   if (auth.counters().total() > 0) {
     std::fprintf(stderr, "stackgen-stats: warning: %s: left out %lld messages (%s)\n", path.c_str(),
                  static_cast<long long>(auth.counters().total()), first_refusal.c_str());

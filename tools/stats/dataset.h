@@ -84,6 +84,10 @@ struct ReadOptions {
   /// The split folder of BOP datasets; empty: train_pbr, else the only split there (see
   /// FindBopSplit in tools/bop_dataset.h). Not used for the other kinds.
   std::string bop_split;
+  /// The bus key that LCM logs are checked with (bus/auth.h): "" for ResolveBusKeyFile's choice,
+  /// or none at all with `open_bus` (a log recorded on an open bus).
+  std::string bus_key_file;
+  bool open_bus = false;
 };
 
 /// The posture of an instance whose rotation is world_R_object, measured in the reference frame

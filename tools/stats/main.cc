@@ -47,7 +47,7 @@ void PrintHelp() {
   std::printf(
       "Usage: %s DATASET_A [DATASET_B] --out DIR [--alpha A] [--frame CLASS=RZ,RY,RX]...\n"
       "                      [--class NAME] [--all-instances] [--split NAME] [--permutations N]\n"
-      "                      [--seed S] [--calibrate N]\n"
+      "                      [--seed S] [--calibrate N] [--bus-key-file FILE | --open-bus]\n"
       "\n"
       "The pile and posture statistics of the instances of one dataset, or the comparison of two\n"
       "(the paper's Figure 3 and section 4, done so that it can tell piles apart). A dataset is a "
@@ -117,6 +117,10 @@ void PrintHelp() {
       "                          compare whole piles, the bottom parts too.\n"
       "  --split NAME            the split folder of BOP datasets (default: train_pbr, else the\n"
       "                          only split folder there); other kinds ignore it.\n"
+      "  --bus-key-file FILE     LCM logs: the bus key they were recorded under; messages not\n"
+      "                          signed with it are left out (default: $STACKGEN_BUS_KEY_FILE,\n"
+      "                          else this user's ~/.config/stackgen/bus.key).\n"
+      "  --open-bus              LCM logs: check no key (a log recorded on an open bus).\n"
       "  --permutations N        random reassignments of whole piles per comparison, 19..1e6\n"
       "                          (default 999: p-values down to 0.001).\n"
       "  --seed S                seed of the permutations, >= 0 (default 1): the same seed, the\n"
@@ -169,6 +173,7 @@ Flags ParseFlags(int argc, char** argv) {
   parser.String("--class", &flags.read.class_name, "a class name");
   parser.Switch("--all-instances", &flags.read.all_instances);
   parser.String("--split", &flags.read.bop_split, "a folder name");
+  parser.BusKey(&flags.read.bus_key_file, &flags.read.open_bus);
   parser.Int("--permutations", &flags.permutations, 19, 1000000);
   parser.Int("--seed", &flags.seed, 0, INT64_MAX);
   parser.Int("--calibrate", &flags.calibrate, 1, 100000);

@@ -139,12 +139,20 @@ class Stream:
     bus_key_file: the bus key (see the README, "Trust"): scenes not signed with it are refused
         and counted (counters "refused_unsigned", "refused_forged", "refused_replayed"), and
         credits are signed; a log is checked with it too. None: $STACKGEN_BUS_KEY_FILE when set,
-        else no key (a warning: the bus is open).
+        else this user's key ~/.config/stackgen/bus.key (made on first use), as every stackgen
+        program does.
+    open_bus: no key at all: nothing signed, every sender trusted (an open bus, or a log
+        recorded on one). Excludes bus_key_file.
+    replay: a live bus that carries a recording played back (lcm-logplayer): its scenes are
+        taken without the liveness check that refuses recordings by default. (A file:// log
+        needs no flag.)
 
     Raises StreamError (one line naming the URL, file or value) for a bus that cannot be opened
     (a bad URL, no multicast route), a missing log or one that is not an LCM log, a log event on
-    the channel that is not a stackgen.scene of this build, a log without scenes, and a stream
-    used in another process than the one that opened it (a DataLoader worker must open its own).
+    the channel that is not a stackgen.scene of this build, a log without scenes, generators
+    that use another bus key (heard for 2 s, none with this one) or a log whose every scene the
+    key refuses, and a stream used in another process than the one that opened it (a
+    DataLoader worker must open its own).
     A scene that fails its checks (sizes, images, masks, ids) is skipped and counted in
     `counters["bad_messages"]`, with a line on stderr for the first ten.
     """
@@ -152,7 +160,7 @@ class Stream:
     def __init__(self, lcm_url=None, reliable=True, window=8, generator_ids=None, timeout=None,
                  count=0, shard=(0, 1), queue=16, instance_map=True, depth=False, repeats=False,
                  decode_threads=2, channel=SCENE_CHANNEL, name=None, fault_drop=0.0,
-                 status=True, bus_key_file=None):
+                 status=True, bus_key_file=None, open_bus=False, replay=False):
         if lcm_url is not None and (not isinstance(lcm_url, str) or lcm_url == ""):
             raise ValueError("lcm_url must be a non-empty URL string or None, got %r" % (lcm_url,))
         if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
@@ -167,6 +175,8 @@ class Stream:
             _check_int("generator id", g, 0, 65535) for g in generator_ids]
         if bus_key_file is not None and (not isinstance(bus_key_file, str) or bus_key_file == ""):
             raise ValueError("bus_key_file must be a non-empty path or None, got %r" % (bus_key_file,))
+        if bus_key_file is not None and open_bus:
+            raise ValueError("bus_key_file and open_bus=True exclude each other")
         if not isinstance(fault_drop, (int, float)) or not 0 <= fault_drop < 1:
             raise ValueError("fault_drop must be in [0, 1), got %r" % (fault_drop,))
         self.timeout = timeout
@@ -179,7 +189,7 @@ class Stream:
             decode_depth=bool(depth),
             decode_threads=_check_int("decode_threads", decode_threads, 1, 16), name=name or "",
             fault_drop=float(fault_drop), publish_status=bool(status),
-            bus_key_file=bus_key_file or "")
+            bus_key_file=bus_key_file or "", open_bus=bool(open_bus), replay=bool(replay))
 
     def __iter__(self):
         return self
@@ -227,10 +237,13 @@ class Stream:
 
 class StatusMonitor:
     """The latest STACKGEN_STATUS of every process on a bus (generators: rate_hz, scenes,
-    held_back_s, ...), heard in a thread of its own. Sends nothing."""
+    held_back_s, ...), heard in a thread of its own. Sends nothing but the liveness check of the
+    bus key (bus_key_file and open_bus as for Stream)."""
 
-    def __init__(self, lcm_url=None):
-        self._native = _native.StatusMonitor(lcm_url or "")
+    def __init__(self, lcm_url=None, bus_key_file=None, open_bus=False):
+        if bus_key_file is not None and open_bus:
+            raise ValueError("bus_key_file and open_bus=True exclude each other")
+        self._native = _native.StatusMonitor(lcm_url or "", bus_key_file or "", bool(open_bus))
 
     def latest(self, process=None):
         """A list of status dicts, one per process heard (only those named `process`, e.g.
@@ -244,10 +257,14 @@ class StatusMonitor:
 class LogRecorder:
     """Appends scenes to an LCM log on STACKGEN_SCENE that several processes may share (one
     write per event, O_APPEND). The log is what `Stream(lcm_url="file://PATH", repeats=True)`
-    reads back in the same order, and what stackgen-coco, stackgen-stats and tools/spy read."""
+    reads back in the same order, and what stackgen-coco, stackgen-stats and tools/spy read.
+    Each event is signed with the bus key (bus_key_file and open_bus as for Stream), so the log
+    is read back with the same key."""
 
-    def __init__(self, path, channel=SCENE_CHANNEL):
-        self._native = _native.LogAppender(_os.fspath(path))
+    def __init__(self, path, channel=SCENE_CHANNEL, bus_key_file=None, open_bus=False):
+        if bus_key_file is not None and open_bus:
+            raise ValueError("bus_key_file and open_bus=True exclude each other")
+        self._native = _native.LogAppender(_os.fspath(path), bus_key_file or "", bool(open_bus))
         self.channel = channel
 
     def append(self, scene, utime=None):

@@ -110,6 +110,8 @@ class StreamDataset(IterableDataset):
         a scene its n-th use (reuse must be 1). With the same workers, batch size and seed a
         training run sees the same batches as the recorded one.
     depth: add depth_mm to the target.
+    bus_key_file, open_bus: the bus key, as for stackgen.Stream (default: this user's key; the
+        recording is signed with it too).
 
     Usable with DataLoader(num_workers=k) (k <= 256): each worker opens its own stream on one
     shard of the seqs. Raises stackgen.StreamError as the stream does, ValueError for bad
@@ -119,7 +121,8 @@ class StreamDataset(IterableDataset):
     def __init__(self, lcm_url=None, *, reliable=True, window=8, generator_ids=None,
                  timeout=None, count=0, reuse=1, reuse_buffer=32, grayscale=False, augment=None,
                  min_visib_fract=0.3, seed=0, record=None, replay=False, depth=False, queue=16,
-                 decode_threads=None, fault_drop=0.0, name=None):
+                 decode_threads=None, fault_drop=0.0, name=None, bus_key_file=None,
+                 open_bus=False):
         super().__init__()
         if isinstance(reuse, bool) or not isinstance(reuse, int) or reuse < 1:
             raise ValueError("reuse must be a whole number >= 1, got %r" % (reuse,))
@@ -144,7 +147,8 @@ class StreamDataset(IterableDataset):
                 raise ValueError("a replay repeats what the recording repeated: reuse must be 1")
         # a bad URL, no multicast route, a missing log or a log that is not one is refused here,
         # not later in each worker (a best-effort look that sends nothing)
-        stackgen.Stream(url, reliable=False, count=1, status=False).close()
+        stackgen.Stream(url, reliable=False, count=1, status=False, bus_key_file=bus_key_file,
+                        open_bus=open_bus).close()
         if record is not None:
             record = os.fspath(record)
             # refuse an existing file, create it empty for the workers to append to
@@ -175,6 +179,8 @@ class StreamDataset(IterableDataset):
         self.decode_threads = decode_threads
         self.fault_drop = fault_drop
         self.name = name
+        self.bus_key_file = bus_key_file
+        self.open_bus = bool(open_bus)
 
     def _open(self, worker, workers):
         if workers > MAX_WORKERS:
@@ -195,7 +201,8 @@ class StreamDataset(IterableDataset):
             shard=(worker, workers), queue=self.queue, depth=self.depth, repeats=self.replay,
             # only augmentation reads the instance map; the masks come from the RLE otherwise
             instance_map=self.augment is not None, decode_threads=self._decode_threads(workers),
-            fault_drop=self.fault_drop, name=name)
+            fault_drop=self.fault_drop, name=name, bus_key_file=self.bus_key_file,
+            open_bus=self.open_bus)
 
     def _decode_threads(self, workers):
         if self.decode_threads is not None:
@@ -215,7 +222,8 @@ class StreamDataset(IterableDataset):
         if stream is None:
             return
 
-        recorder = stackgen.LogRecorder(self.record) if self.record else None
+        recorder = stackgen.LogRecorder(self.record, bus_key_file=self.bus_key_file,
+                                        open_bus=self.open_bus) if self.record else None
         picker = np.random.default_rng([self.seed, worker, 0x5EED])
         buffer = []  # [scene, uses] of recent scenes, oldest first
         ended = False

@@ -17,6 +17,7 @@
 #include "bus/bus.h"
 #include "bus/channels.h"
 #include "tests/consumers/coco/coco_test_scenes.h"
+#include "tests/support/live_bus.h"
 #include "tests/support/process.h"
 
 namespace stackgen {
@@ -131,6 +132,7 @@ TEST(CocoMainTest, StoresScenesFromTheBus) {
       << coco.Stderr();
 
   Bus bus(url);
+  ASSERT_TRUE(testing::WaitForLivePeer(bus, 10)) << "stackgen-coco never answered";
   const auto send = [&bus](const auto& message) {
     bus.Publish(kSceneChannel, message);
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
@@ -171,6 +173,7 @@ TEST(CocoMainTest, DamagedCopyIsRefusedAndAskedForAgain) {
   ASSERT_TRUE(coco.WaitForOutput("listening on " + url, 30)) << coco.Stderr();
 
   Bus bus(url);
+  ASSERT_TRUE(testing::WaitForLivePeer(bus, 10)) << "stackgen-coco never answered";
   bool asked_again = false;
   bus.Subscribe<resend_request>(kResendChannel, [&](const resend_request& request) {
     for (int64_t seq : request.seqs) asked_again = asked_again || seq == 0;
@@ -211,6 +214,7 @@ TEST(CocoMainTest, SignalFinishesDataset) {
                  dir + "/run");
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
     Bus bus(url);
+    ASSERT_TRUE(testing::WaitForLivePeer(bus, 10)) << "stackgen-coco never answered";
     bus.Publish(kSceneChannel, testing::SceneA());
     bus.Publish(kSceneChannel, testing::SceneD());
     std::this_thread::sleep_for(std::chrono::milliseconds(500));

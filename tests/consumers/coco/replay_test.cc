@@ -121,7 +121,9 @@ std::map<std::string, std::string> ImageFiles(const std::string& dir) {
 // runs stackgen-coco on the log itself (file://LOG?speed=0), with no --count: it stops at the
 // end of the log; returns its exit code
 int ReplayFromFile(const std::string& out, const std::string& log_prefix, std::string* output) {
-  Process coco({kCoco, "--lcm-url", "file://" + kLog + "?speed=0", "--out", out}, log_prefix);
+  // the fixture log was recorded on an open bus (no key): it is read with --open-bus
+  Process coco({kCoco, "--lcm-url", "file://" + kLog + "?speed=0", "--out", out, "--open-bus"},
+               log_prefix);
   const int code = coco.Wait(120);
   *output = coco.Stdout() + coco.Stderr();
   return code;
@@ -130,8 +132,6 @@ int ReplayFromFile(const std::string& out, const std::string& log_prefix, std::s
 // Read straight from the log (file://LOG?speed=0), stackgen-coco writes one image per logged
 // scene and exactly the logged labels as annotations, and exits 0 at the end of the log.
 TEST(CocoReplayTest, FileReplayMatchesTheLog) {
-  // the fixture log was recorded without a bus key: it replays without one
-  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
   std::string error;
   const std::vector<scene> scenes = FixtureScenes(kLog, &error);
   ASSERT_TRUE(error.empty()) << error;
@@ -148,7 +148,6 @@ TEST(CocoReplayTest, FileReplayMatchesTheLog) {
 // gives the labels of the log and the same annotations.json (but its info) and images as the
 // file replay.
 TEST(CocoReplayTest, LogplayerReplayMatchesFileReplay) {
-  const testing::ScopedEnv no_key("STACKGEN_BUS_KEY_FILE", nullptr);
   const std::string logplayer = FindOnPath("lcm-logplayer");
   if (logplayer.empty()) GTEST_SKIP() << "lcm-logplayer not on PATH (Debian package liblcm-bin)";
   std::string error;
@@ -159,7 +158,8 @@ TEST(CocoReplayTest, LogplayerReplayMatchesFileReplay) {
   // live: the writer listens first, then the log is played at its recorded pace
   const std::string live = scratch.path() + "/live";
   const std::string url = testing::FreeMulticastUrl();
-  Process coco({kCoco, "--lcm-url", url, "--count", std::to_string(scenes.size()), "--out", live},
+  Process coco({kCoco, "--lcm-url", url, "--count", std::to_string(scenes.size()), "--out", live,
+                "--open-bus"},
                scratch.path() + "/coco");
   ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
   Process player({logplayer, "--lcm-url", url, kLog}, scratch.path() + "/logplayer");

@@ -75,13 +75,6 @@ class Process:
 
 
 @pytest.fixture
-def no_bus_key(monkeypatch):
-    """The fixture log was recorded without a bus key, so it replays without one: the suite's
-    $STACKGEN_BUS_KEY_FILE (tests/CMakeLists.txt) would refuse its unsigned scenes."""
-    monkeypatch.delenv("STACKGEN_BUS_KEY_FILE", raising=False)
-
-
-@pytest.fixture
 def processes(tmp_path):
     """Starts programs (argv, name) and kills those still running at the end of the test."""
     started = []

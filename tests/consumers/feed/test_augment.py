@@ -11,10 +11,9 @@ import stackgen
 import stackgen.torch as sgt
 from conftest import TINY_LOG
 
-# the fixture log is unsigned (conftest.no_bus_key)
-pytestmark = pytest.mark.usefixtures("no_bus_key")
-
 URL = "file://" + TINY_LOG
+# the fixture log was recorded on an open bus (no key): it is read with open_bus=True
+OPEN = dict(open_bus=True)
 # every geometric lever on, with large ranges, and the photometric ones
 EVERYTHING = dict(hflip=0.5, vflip=0.5, crop=0.7, crop_scale=(0.4, 1.0), zoom=0.7,
                   zoom_range=(0.6, 1.6), affine=0.7, rotate_deg=40, shear_deg=10, translate=0.2,
@@ -23,7 +22,7 @@ NOTHING = dict(hflip=0, vflip=0, crop=0, zoom=0, affine=0, erase=0, brightness=0
 
 
 def scenes():
-    return list(stackgen.Stream(URL))
+    return list(stackgen.Stream(URL, **OPEN))
 
 
 def samples(augment, seeds=range(6), min_visib_fract=0.3):
@@ -31,7 +30,7 @@ def samples(augment, seeds=range(6), min_visib_fract=0.3):
     result = []
     for seed in seeds:
         dataset = sgt.StreamDataset(URL, augment=augment, seed=seed,
-                                    min_visib_fract=min_visib_fract)
+                                    min_visib_fract=min_visib_fract, **OPEN)
         for scene in scenes():
             result.append((scene, dataset.sample(scene)[1]))
     return result
@@ -132,7 +131,7 @@ def test_no_augmentation_keeps_the_scene_labels():
 # seed gives other ones
 def test_same_log_and_seed_give_identical_batches():
     def batches(seed, workers):
-        dataset = sgt.StreamDataset(URL, augment=sgt.Augment(**EVERYTHING), seed=seed)
+        dataset = sgt.StreamDataset(URL, augment=sgt.Augment(**EVERYTHING), seed=seed, **OPEN)
         loader = DataLoader(dataset, batch_size=2, num_workers=workers, collate_fn=sgt.collate)
         return [(torch.stack(images), [t["boxes"] for t in targets],
                  [t["masks"] for t in targets]) for images, targets in loader]
@@ -150,13 +149,13 @@ def test_same_log_and_seed_give_identical_batches():
 
 # a gray image: one channel in [0, 1]; the default replicates a gray camera to three channels
 def test_grayscale_option():
-    dataset = sgt.StreamDataset(URL, grayscale=True)
+    dataset = sgt.StreamDataset(URL, grayscale=True, **OPEN)
     scene = scenes()[0]
     image, _ = dataset.sample(scene)
     assert image.shape == (1, scene.height, scene.width) and image.dtype == torch.float32
     expected = cv2.cvtColor(scene.rgb, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255
     assert np.allclose(image[0].numpy(), expected)
-    image, _ = sgt.StreamDataset(URL).sample(scene)
+    image, _ = sgt.StreamDataset(URL, **OPEN).sample(scene)
     assert image.shape == (3, scene.height, scene.width)
 
 

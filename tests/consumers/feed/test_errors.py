@@ -12,6 +12,8 @@ import stackgen.torch as sgt
 from conftest import TINY_LOG, free_url
 
 URL = "file://" + TINY_LOG
+# the fixture log was recorded on an open bus (no key): it is read with open_bus=True
+OPEN = dict(open_bus=True)
 
 
 def one_line(error):
@@ -78,6 +80,33 @@ def test_scene_type_mismatch_and_log_without_scenes(tmp_path):
     assert "no events on channel STACKGEN_SCENE (it has STACKGEN_LABELS x2)" in one_line(error)
 
 
+# a log recorded with another bus key is one line naming both key ids, not an empty stream (and
+# the first refusal is the only line on stderr); the fixture log, recorded on an open bus, is
+# one line saying so without open_bus; a key and an open bus exclude each other
+def test_log_of_another_key_is_one_line(tmp_path, capfd):
+    other = tmp_path / "other.key"
+    other.write_text("another deployment's key, 32 bytes or more of it\n")
+    other.chmod(0o600)
+    raw = [data for channel, data in log_events(TINY_LOG) if channel == "STACKGEN_SCENE"]
+    log = tmp_path / "other.lcmlog"
+    appender = stackgen._native.LogAppender(str(log), str(other))
+    for data in raw:
+        appender.append("STACKGEN_SCENE", data, 0)
+    capfd.readouterr()
+    with pytest.raises(stackgen.StreamError) as error:
+        list(stackgen.Stream("file://%s" % log))
+    text = one_line(error)
+    assert "signed with another bus key" in text and str(log) in text
+    assert len(capfd.readouterr().err.strip().splitlines()) <= 1
+    assert [s.seq for s in stackgen.Stream("file://%s" % log, bus_key_file=str(other))] == [
+        0, 1, 2, 3]
+    with pytest.raises(stackgen.StreamError) as error:
+        list(stackgen.Stream(URL))
+    assert "not signed" in one_line(error) and "--open-bus" in one_line(error)
+    with pytest.raises(ValueError):
+        stackgen.Stream(URL, bus_key_file=str(other), open_bus=True)
+
+
 # a bus URL that names no bus, or no multicast group, is refused with the URL named
 def test_unusable_bus():
     for url in ("bogus://x", "udpm://10.1.2.3:7667?ttl=0"):
@@ -132,8 +161,8 @@ def _read_in_child(stream, queue):
 
 # a stream opened in one process cannot be read in another (a DataLoader worker that inherited
 # it would share its socket and its scenes): the worker gets one line saying to open its own
-def test_stream_cannot_be_shared_between_processes(no_bus_key):
-    stream = stackgen.Stream(URL)
+def test_stream_cannot_be_shared_between_processes():
+    stream = stackgen.Stream(URL, **OPEN)
     context = multiprocessing.get_context("fork")
     queue = context.Queue()
     child = context.Process(target=_read_in_child, args=(stream, queue))
@@ -152,8 +181,8 @@ def _close_in_child(stream, queue):
 
 # a forked process that inherited a stream (and dropped it on the way out) neither stops the
 # parent's threads nor waits on its locks: close is a no-op there and counters are empty
-def test_stream_closed_in_a_forked_process(no_bus_key):
-    stream = stackgen.Stream(URL)
+def test_stream_closed_in_a_forked_process():
+    stream = stackgen.Stream(URL, **OPEN)
     assert stream.next(timeout=5) is not None
     context = multiprocessing.get_context("fork")
     queue = context.Queue()
@@ -192,9 +221,9 @@ def test_bad_arguments(tmp_path):
 
 # the lcm-gen Python types in the package decode the bytes of the recorded log as the C++
 # stream does
-def test_python_message_types_decode_the_log(no_bus_key):
+def test_python_message_types_decode_the_log():
     raw = [data for channel, data in log_events(TINY_LOG) if channel == "STACKGEN_SCENE"]
-    streamed = list(stackgen.Stream(URL))
+    streamed = list(stackgen.Stream(URL, **OPEN))
     assert len(raw) == len(streamed) == 4
     for data, scene in zip(raw, streamed):
         message = stackgen.scene.decode(data)

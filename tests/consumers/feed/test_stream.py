@@ -224,7 +224,9 @@ def test_bad_copy_does_not_move_where_a_stream_joins(tmp_path, processes):
     stranger.instances[0].class_id = 0
     log = tmp_path / "stranger.lcmlog"
     stackgen._native.LogAppender(str(log)).append("STACKGEN_SCENE", stranger.encode(), 0)
-    with stackgen.Stream(url, reliable=True, count=3, timeout=60) as stream:
+    # the stranger's copy is a recording played onto the bus: only a stream told that it reads
+    # a replay takes it (a live one refuses it before any check)
+    with stackgen.Stream(url, reliable=True, count=3, timeout=60, replay=True) as stream:
         subprocess.run(["lcm-logplayer", "-l", url, str(log)], check=True, timeout=30)
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline and stream.counters["bad_messages"] == 0:
@@ -235,9 +237,11 @@ def test_bad_copy_does_not_move_where_a_stream_joins(tmp_path, processes):
     assert seqs == [0, 1, 2]
 
 
-# with another bus key than the generator's, a stream takes no scene: each is refused as forged
-# and counted; a key file that cannot serve is one line naming it
-def test_stream_with_another_key_takes_nothing(tmp_path, processes):
+# with another bus key than the generator's, a stream takes no scene and says so in one line
+# within seconds (not a timeout), and so does a reliable stream on an open bus (open_bus=True)
+# while the generator signs: its credits would be refused (a best-effort one reads the signed
+# scenes); a key file that cannot serve is one line naming it
+def test_stream_with_another_key_says_so(tmp_path, processes):
     bad = tmp_path / "short.key"
     bad.write_text("short\n")
     bad.chmod(0o600)
@@ -247,12 +251,18 @@ def test_stream_with_another_key_takes_nothing(tmp_path, processes):
     other = tmp_path / "other.key"
     other.write_text("another deployment's key, 32 bytes or more of it\n")
     other.chmod(0o600)
-    url = free_url()
-    with stackgen.Stream(url, reliable=False, bus_key_file=str(other)) as stream:
-        generator = processes(generator_argv(url, 3, tmp_path / "cache"), "stackgen")
-        assert generator.wait(120) == 0, generator.stderr()
-        with pytest.raises(stackgen.StreamTimeout):
-            stream.next(timeout=1)
-        counters = stream.counters
-    assert counters["refused_forged"] >= 3
-    assert counters["received"] == 0
+    for options, says in ((dict(bus_key_file=str(other), reliable=False),
+                           "signed with another bus key"),
+                          (dict(open_bus=True, reliable=True), "runs with an open bus")):
+        url = free_url()
+        with stackgen.Stream(url, timeout=60, **options) as stream:
+            processes(generator_argv(url, 20, tmp_path / "cache"), "stackgen")
+            with pytest.raises(stackgen.StreamError) as error:
+                for _ in stream:
+                    pass
+            counters = stream.counters
+        text = str(error.value)
+        assert says in text and "\n" not in text, text
+        if "bus_key_file" in options:
+            assert str(other) in text and counters["refused_forged"] >= 1
+            assert counters["received"] == 0

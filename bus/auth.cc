@@ -6,8 +6,8 @@
 
 #include <array>
 #include <cerrno>
-#include <cstdio>
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <mutex>
@@ -133,11 +133,11 @@ void ComputeMac(EVP_MAC_CTX* keyed, const std::string& channel, const uint8_t* d
   uint8_t length[8];
   PutU64(channel.size(), length);
   size_t written = 0;
-  const bool ok = ctx != nullptr && EVP_MAC_update(ctx, length, sizeof(length)) == 1 &&
-                  EVP_MAC_update(ctx, reinterpret_cast<const uint8_t*>(channel.data()),
-                                 channel.size()) == 1 &&
-                  EVP_MAC_update(ctx, data, size) == 1 && EVP_MAC_update(ctx, fields, 24) == 1 &&
-                  EVP_MAC_final(ctx, out, &written, kMacBytes) == 1 && written == kMacBytes;
+  const bool ok =
+      ctx != nullptr && EVP_MAC_update(ctx, length, sizeof(length)) == 1 &&
+      EVP_MAC_update(ctx, reinterpret_cast<const uint8_t*>(channel.data()), channel.size()) == 1 &&
+      EVP_MAC_update(ctx, data, size) == 1 && EVP_MAC_update(ctx, fields, 24) == 1 &&
+      EVP_MAC_final(ctx, out, &written, kMacBytes) == 1 && written == kMacBytes;
   EVP_MAC_CTX_free(ctx);
   if (!ok) throw std::runtime_error("OpenSSL cannot compute an HMAC-SHA256");
 }
@@ -189,8 +189,8 @@ bool MakeBusKeyFile(const std::string& path) {
   std::string temporary = path + ".XXXXXX";
   const int fd = mkstemp(temporary.data());  // mode 600
   if (fd < 0) fail("mkstemp");
-  const bool written = write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size()) &&
-                       fsync(fd) == 0;
+  const bool written =
+      write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size()) && fsync(fd) == 0;
   const int write_error = errno;
   close(fd);
   if (!written) {
@@ -216,8 +216,8 @@ std::string ResolveBusKeyFile(const std::string& flag_value) {
   const std::string path = DefaultBusKeyFile();
   if (MakeBusKeyFile(path)) {
     std::fprintf(stderr,
-                 "%s: made a bus key at %s (mode 600); every process of this bus needs it: other "
-                 "hosts a copy of it (--bus-key-file or STACKGEN_BUS_KEY_FILE)\n",
+                 "%s: made a bus key at %s (mode 600): every process of this bus uses it; "
+                 "copy it to other hosts, or point STACKGEN_BUS_KEY_FILE at a copy\n",
                  program_invocation_short_name, path.c_str());
   }
   return path;
@@ -250,8 +250,7 @@ std::string RefusedSummary(const AuthCounters& counters) {
          std::to_string(counters.replayed) + " replayed";
 }
 
-void KeyEvidence::Note(const MessageAuth& auth, const uint8_t* data, size_t size,
-                       bool verified) {
+void KeyEvidence::Note(const MessageAuth& auth, const uint8_t* data, size_t size, bool verified) {
   Trailer trailer;
   const bool signed_message = ReadTrailer(data, size, &trailer);
   if (auth.keyed() ? verified : !signed_message) {
@@ -284,8 +283,8 @@ std::string KeyEvidence::Mismatch(const MessageAuth& auth, const std::string& wh
     return heard + " are not signed (their sender runs with --open-bus, or recorded them so): " +
            "give it " + ours + ", or open this process too (--open-bus)";
   }
-  return heard + " are signed with another bus key (key id " + KeyIdText(other_key_id) +
-         ") than " + ours +
+  return heard + " are signed with another bus key (key id " + KeyIdText(other_key_id) + ") than " +
+         ours +
          ": give every process of the bus the same key file (--bus-key-file FILE or "
          "STACKGEN_BUS_KEY_FILE; by default each user's ~/.config/stackgen/bus.key)";
 }
@@ -372,10 +371,10 @@ MessageAuth::MessageAuth(const std::string& key_file, bool liveness)
   const std::string label = "stackgen bus key id";
   uint8_t id[kMacBytes];
   size_t written = 0;
-  const bool ok = ctx != nullptr &&
-                  EVP_MAC_update(ctx, reinterpret_cast<const uint8_t*>(label.data()),
-                                 label.size()) == 1 &&
-                  EVP_MAC_final(ctx, id, &written, kMacBytes) == 1 && written == kMacBytes;
+  const bool ok =
+      ctx != nullptr &&
+      EVP_MAC_update(ctx, reinterpret_cast<const uint8_t*>(label.data()), label.size()) == 1 &&
+      EVP_MAC_final(ctx, id, &written, kMacBytes) == 1 && written == kMacBytes;
   EVP_MAC_CTX_free(ctx);
   if (!ok) throw std::runtime_error("OpenSSL cannot compute an HMAC-SHA256");
   impl_->key_id = GetU64(id);
@@ -476,9 +475,9 @@ int64_t MessageAuth::Verify(const std::string& channel, const uint8_t* data, siz
   }
   if (trailer.key_id != impl_->key_id) {
     return impl_->Refuse(&AuthCounters::forged, channel,
-                         "it is signed with another bus key (key id " +
-                             KeyIdText(trailer.key_id) + "; this process's " + impl_->key_file +
-                             " has key id " + KeyIdText(impl_->key_id) + ")",
+                         "it is signed with another bus key (key id " + KeyIdText(trailer.key_id) +
+                             "; this process's " + impl_->key_file + " has key id " +
+                             KeyIdText(impl_->key_id) + ")",
                          why);
   }
   // the MAC: nothing of an unauthenticated message is believed, its sender neither
@@ -487,8 +486,8 @@ int64_t MessageAuth::Verify(const std::string& channel, const uint8_t* data, siz
   uint8_t expected[kMacBytes];
   ComputeMac(impl_->keyed, channel, data, body, fields, expected);
   if (CRYPTO_memcmp(expected, fields + 24, kMacBytes) != 0) {
-    return impl_->Refuse(&AuthCounters::forged, channel, "its MAC does not match (forged or altered)",
-                         why);
+    return impl_->Refuse(&AuthCounters::forged, channel,
+                         "its MAC does not match (forged or altered)", why);
   }
   return static_cast<int64_t>(body);
 }

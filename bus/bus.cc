@@ -17,8 +17,8 @@
 #include <mutex>
 #include <optional>
 
-#include <lcm/lcm-cpp.hpp>
 #include <openssl/rand.h>
+#include <lcm/lcm-cpp.hpp>
 #include <stackgen/liveness.hpp>
 
 #include "bus/channels.h"
@@ -48,8 +48,8 @@ void CheckMulticastRoute(const std::string& url) {
   const int error = errno;
   close(fd);
   if (result != 0) {
-    throw std::runtime_error(std::string("multicast to ") + group_text +
-                             " is not possible here (" + strerror(error) +
+    throw std::runtime_error(std::string("multicast to ") + group_text + " is not possible here (" +
+                             strerror(error) +
                              "); enable it with `sudo ip route add 224.0.0.0/4 dev lo` "
                              "(this host only) or pass another --lcm-url");
   }
@@ -238,7 +238,8 @@ struct Bus::Impl {
     const std::vector<uint8_t> bytes = EncodeMessage(message);
     std::vector<uint8_t> sealed_bytes;
     auth->Seal(kLivenessChannel, bytes.data(), bytes.size(), &sealed_bytes);
-    lcm->publish(kLivenessChannel, sealed_bytes.data(), static_cast<unsigned int>(sealed_bytes.size()));
+    lcm->publish(kLivenessChannel, sealed_bytes.data(),
+                 static_cast<unsigned int>(sealed_bytes.size()));
   }
 
   Subscriber* Find(const std::string& channel) {
@@ -310,8 +311,7 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
       impl_->liveness = std::make_unique<LivenessCheck>(
           impl_->auth.get(), [impl](const liveness& message) { impl->SendLiveness(message); },
           [](const std::string& line) {
-            std::fprintf(stderr, "%s: warning: %s\n", program_invocation_short_name,
-                         line.c_str());
+            std::fprintf(stderr, "%s: warning: %s\n", program_invocation_short_name, line.c_str());
           },
           [] {
             int64_t nonce = 0;
@@ -325,7 +325,8 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
     limits.max_message_bytes = options.decode_limits.max_message_bytes + kAuthTrailerBytes;
     limits.max_partial_bytes = std::max(limits.max_partial_bytes, limits.max_message_bytes);
     impl_->receiver = std::make_unique<UdpmReceiver>(
-        ParseUdpmUrl(url), limits, [impl](const UdpmMessage& message) { return impl->Screen(message); },
+        ParseUdpmUrl(url), limits,
+        [impl](const UdpmMessage& message) { return impl->Screen(message); },
         program_invocation_short_name);
     if (impl_->liveness) {
       impl_->receiver->Subscribe(kLivenessChannel, 1);
@@ -367,8 +368,8 @@ std::string Bus::KeyMismatch(const std::vector<std::string>& channels, double se
       }
     }
   }
-  if (!first || std::chrono::duration<double>(std::chrono::steady_clock::now() - *first).count() <
-                    seconds) {
+  if (!first ||
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - *first).count() < seconds) {
     return "";
   }
   return all.Mismatch(*impl_->auth, "the messages on " + names + " of " + impl_->url);

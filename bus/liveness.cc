@@ -3,6 +3,22 @@
 #include <utility>
 
 namespace stackgen {
+namespace {
+
+// a liveness message of `kind` from `challenger` to `responder` with `nonce`
+liveness Make(int8_t kind, uint64_t challenger, uint64_t responder, int64_t nonce, int64_t now_us) {
+  liveness message{};
+  message.header.seq = -1;
+  message.header.generator_id = -1;
+  message.header.utime = now_us;
+  message.kind = kind;
+  message.challenger = static_cast<int64_t>(challenger);
+  message.responder = static_cast<int64_t>(responder);
+  message.nonce = nonce;
+  return message;
+}
+
+}  // namespace
 
 LivenessCheck::LivenessCheck(MessageAuth* auth, Send send, Warn warn,
                              std::function<int64_t()> nonce)
@@ -10,16 +26,8 @@ LivenessCheck::LivenessCheck(MessageAuth* auth, Send send, Warn warn,
 
 void LivenessCheck::Start(int64_t now_us) {
   start_nonce_ = nonce_();
-  liveness message{};
-  message.header.seq = -1;
-  message.header.generator_id = -1;
-  message.header.utime = now_us;
-  message.kind = liveness::CHALLENGE;
-  message.challenger = static_cast<int64_t>(auth_->sender());
-  message.responder = 0;
-  message.nonce = start_nonce_;
   ++challenges_;
-  send_(message);
+  send_(Make(liveness::CHALLENGE, auth_->sender(), 0, start_nonce_, now_us));
 }
 
 void LivenessCheck::Challenge(uint64_t responder, int64_t now_us) {
@@ -42,16 +50,8 @@ void LivenessCheck::Challenge(uint64_t responder, int64_t now_us) {
   Challenged& challenged = found->second;
   if (now_us - challenged.last_us <= static_cast<int64_t>(kRechallengeS * 1e6)) return;
   challenged.last_us = now_us;
-  liveness message{};
-  message.header.seq = -1;
-  message.header.generator_id = -1;
-  message.header.utime = now_us;
-  message.kind = liveness::CHALLENGE;
-  message.challenger = static_cast<int64_t>(auth_->sender());
-  message.responder = static_cast<int64_t>(responder);
-  message.nonce = challenged.nonce;
   ++challenges_;
-  send_(message);
+  send_(Make(liveness::CHALLENGE, auth_->sender(), responder, challenged.nonce, now_us));
 }
 
 void LivenessCheck::Handle(const liveness& message, uint64_t from, uint64_t counter,
@@ -63,16 +63,8 @@ void LivenessCheck::Handle(const liveness& message, uint64_t from, uint64_t coun
   if (message.kind == liveness::CHALLENGE) {
     // a challenge must come from the challenger it names
     if (challenger != from || (responder != 0 && responder != self)) return;
-    liveness answer{};
-    answer.header.seq = -1;
-    answer.header.generator_id = -1;
-    answer.header.utime = now_us;
-    answer.kind = liveness::ANSWER;
-    answer.challenger = message.challenger;
-    answer.responder = static_cast<int64_t>(self);
-    answer.nonce = message.nonce;
     ++answers_;
-    send_(answer);
+    send_(Make(liveness::ANSWER, challenger, self, message.nonce, now_us));
     // and the challenger in turn, so that its messages are taken from its first one on
     if (!auth_->Live(from)) Challenge(from, now_us);
     return;

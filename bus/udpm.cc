@@ -87,12 +87,18 @@ UdpmAddress ParseUdpmUrl(const std::string& url) {
     char* end = nullptr;
     const long value = std::strtol(text.c_str(), &end, 10);
     if (text.empty() || *end != '\0' || value < 0 || value > (1L << 30)) {
-      throw std::runtime_error("bad recv_buf_size in LCM URL " + url +
-                               " (bytes, 0..1073741824)");
+      throw std::runtime_error("bad recv_buf_size in LCM URL " + url + " (bytes, 0..1073741824)");
     }
     address.recv_buf_size = static_cast<int>(value);
   }
   return address;
+}
+
+std::string ReceiveSummary(const UdpmCounters& counters) {
+  return "received " + std::to_string(counters.datagrams) +
+         " datagrams: " + std::to_string(counters.malformed) + " malformed, " +
+         std::to_string(counters.abandoned) + " messages given up incomplete, " +
+         std::to_string(counters.queue_full) + " dropped for a full queue";
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -105,8 +111,8 @@ struct UdpmReassembler::Impl {
     uint32_t seqno = 0;
     uint32_t size = 0;
     uint16_t fragments = 0;
-    std::unique_ptr<uint8_t[]> data;  // not initialised: every byte is written before use
-    std::vector<bool> heard;          // by fragment number
+    std::unique_ptr<uint8_t[]> data;     // not initialised: every byte is written before use
+    std::vector<bool> heard;             // by fragment number
     std::map<uint32_t, uint32_t> spans;  // offset -> end of the fragments heard
     uint16_t fragments_heard = 0;
     uint64_t bytes_heard = 0;
@@ -256,8 +262,7 @@ UdpmReassembler::UdpmReassembler(const UdpmLimits& limits,
 
 UdpmReassembler::~UdpmReassembler() = default;
 
-bool UdpmReassembler::Add(uint64_t sender, const uint8_t* data, size_t size,
-                          UdpmMessage* message) {
+bool UdpmReassembler::Add(uint64_t sender, const uint8_t* data, size_t size, UdpmMessage* message) {
   Impl& impl = *impl_;
   ++impl.counters.datagrams;
   if (size < kShortHeaderBytes || size >= kDatagramBuffer) return impl.Malformed(sender);
@@ -283,7 +288,7 @@ struct UdpmReceiver::Impl {
   int wake_fd = -1;  // the thread says "queued" here
   int stop_fd = -1;  // the destructor says "stop" here
 
-  mutable std::mutex mutex;  // guards what follows
+  mutable std::mutex mutex;             // guards what follows
   std::map<std::string, int> capacity;  // by channel
   std::map<std::string, int> queued;    // by channel
   std::deque<UdpmMessage> queue;
@@ -327,8 +332,7 @@ struct UdpmReceiver::Impl {
       const ssize_t size = recvfrom(socket_fd, buffer.data(), buffer.size(), MSG_DONTWAIT,
                                     reinterpret_cast<sockaddr*>(&from), &from_length);
       if (size < 0) continue;
-      const uint64_t sender =
-          (uint64_t{ntohl(from.sin_addr.s_addr)} << 16) | ntohs(from.sin_port);
+      const uint64_t sender = (uint64_t{ntohl(from.sin_addr.s_addr)} << 16) | ntohs(from.sin_port);
       UdpmMessage message;
       const bool complete =
           reassembler->Add(sender, buffer.data(), static_cast<size_t>(size), &message);
@@ -370,8 +374,7 @@ UdpmReceiver::UdpmReceiver(const UdpmAddress& address, const UdpmLimits& limits,
   inet_ntop(AF_INET, &group, group_text, sizeof(group_text));
   const std::string where = std::string(group_text) + ":" + std::to_string(address.port);
   const auto fail = [&where](const std::string& call) {
-    throw std::runtime_error("cannot receive from multicast group " + where + ": " +
-                             Errno(call));
+    throw std::runtime_error("cannot receive from multicast group " + where + ": " + Errno(call));
   };
 
   // a socket on the port, shared with every other process of the bus on this host
@@ -410,8 +413,8 @@ UdpmReceiver::UdpmReceiver(const UdpmAddress& address, const UdpmLimits& limits,
   ip_mreq membership{};
   membership.imr_multiaddr = group;
   membership.imr_interface.s_addr = htonl(INADDR_ANY);
-  if (setsockopt(impl.socket_fd, IPPROTO_IP, IP_ADD_MEMBERSHIP, &membership,
-                 sizeof(membership)) < 0) {
+  if (setsockopt(impl.socket_fd, IPPROTO_IP, IP_ADD_MEMBERSHIP, &membership, sizeof(membership)) <
+      0) {
     fail("setsockopt(IP_ADD_MEMBERSHIP)");
   }
   impl.wake_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);

@@ -92,6 +92,10 @@ struct UdpmCounters {
   int64_t queue_full = 0;
 };
 
+/// "received D datagrams: M malformed, A messages given up incomplete, Q dropped for a full
+/// queue": how the programs' summary lines say it.
+std::string ReceiveSummary(const UdpmCounters& counters);
+
 /// One message off the wire: its channel and bytes.
 struct UdpmMessage {
   std::string channel;

@@ -77,7 +77,8 @@ cv::Mat DecodePng(const std::vector<uint8_t>& data, int type, std::string* why) 
   PngSource source;
   source.data = data.data();
   source.size = data.size();
-  png_structp png = png_create_read_struct(PNG_LIBPNG_VER_STRING, &source, OnPngError, OnPngWarning);
+  png_structp png =
+      png_create_read_struct(PNG_LIBPNG_VER_STRING, &source, OnPngError, OnPngWarning);
   png_infop info = png != nullptr ? png_create_info_struct(png) : nullptr;
   if (info == nullptr) {
     png_destroy_read_struct(&png, nullptr, nullptr);
@@ -121,8 +122,8 @@ cv::Mat DecodeImage(const image& m, std::string* why) {
   } else if (m.encoding == image::ENCODING_PNG) {
     decoded = DecodePng(m.data, type, &png_error);
   } else {
-    const bool jpeg_ends = m.data.size() >= 2 && m.data[m.data.size() - 2] == 0xff &&
-                           m.data.back() == 0xd9;
+    const bool jpeg_ends =
+        m.data.size() >= 2 && m.data[m.data.size() - 2] == 0xff && m.data.back() == 0xd9;
     if (jpeg_ends) {
       try {
         decoded = cv::imdecode(m.data, cv::IMREAD_UNCHANGED);

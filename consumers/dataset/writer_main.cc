@@ -67,7 +67,8 @@ bool CheckOutputFolder(const WriterProgram& program, const WriterFlags& flags) {
     throw std::runtime_error("--out " + flags.out + " is not a folder");
   }
   const fs::directory_iterator entries(flags.out, error);
-  if (error) throw std::runtime_error("cannot read the folder " + flags.out + ": " + error.message());
+  if (error)
+    throw std::runtime_error("cannot read the folder " + flags.out + ": " + error.message());
   std::set<std::string> names;  // sorted: the error names the first few
   for (const fs::directory_entry& entry : entries) names.insert(entry.path().filename().string());
   const bool journal = names.count(program.journal) != 0;
@@ -433,6 +434,9 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
       std::fprintf(stderr, "%s: skipped %lld undecodable messages, refused %lld invalid scenes\n",
                    name_text, static_cast<long long>(decode_errors),
                    static_cast<long long>(invalid_scenes));
+    }
+    if (bus.url().rfind("udpm://", 0) == 0) {
+      std::printf("%s: %s\n", name_text, ReceiveSummary(bus.receive_counters()).c_str());
     }
     if (bus.keyed()) {
       const int64_t stored = writer->num_images();

@@ -117,7 +117,8 @@ TEST(BusTest, MulticastRoundTrip) {
   Bus receiver(url);
   Bus sender(url);
   std::vector<int64_t> seqs;
-  receiver.Subscribe<status>(kStatusChannel, [&](const status& m) { seqs.push_back(m.header.seq); });
+  receiver.Subscribe<status>(kStatusChannel,
+                             [&](const status& m) { seqs.push_back(m.header.seq); });
   for (int64_t seq = 0; seq < 5; ++seq) {
     for (int attempt = 0; attempt < 50 && static_cast<int64_t>(seqs.size()) <= seq; ++attempt) {
       sender.Publish(kStatusChannel, MakeStatus(seq));
@@ -136,7 +137,8 @@ TEST(BusTest, OpenBusesNeedNoAnswer) {
   Bus sender(url, open);
   EXPECT_FALSE(sender.keyed());
   std::vector<int64_t> seqs;
-  receiver.Subscribe<status>(kStatusChannel, [&](const status& m) { seqs.push_back(m.header.seq); });
+  receiver.Subscribe<status>(kStatusChannel,
+                             [&](const status& m) { seqs.push_back(m.header.seq); });
   for (int64_t seq = 0; seq < 5; ++seq) sender.Publish(kStatusChannel, MakeStatus(seq));
   for (int attempt = 0; attempt < 50 && seqs.size() < 5; ++attempt) receiver.HandleFor(100);
   EXPECT_EQ(seqs, (std::vector<int64_t>{0, 1, 2, 3, 4}));

@@ -126,7 +126,9 @@ TEST_F(DeliveryFixture, SeqsHaveFieldsOfTheirOwn) {
   int64_t stored_through = -2;
   for (const credit& m : credits) {
     if (m.header.generator_id == 0) stored_through = m.stored_through_seq;
-    if (m.header.generator_id == -1) EXPECT_EQ(m.stored_through_seq, -1);
+    if (m.header.generator_id == -1) {
+      EXPECT_EQ(m.stored_through_seq, -1);
+    }
   }
   EXPECT_EQ(stored_through, 2);
   EXPECT_EQ(client_->StoredThrough(0), 2);

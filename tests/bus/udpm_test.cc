@@ -114,7 +114,8 @@ TEST(UdpmReassemblerTest, EveryInconsistentDatagramIsDropped) {
       {"a channel without its NUL", {no_nul}},
       {"a channel of 64 bytes", {long_channel}},
       {"an empty channel", {empty_channel}},
-      {"a fragment header cut short", {std::vector<uint8_t>(good[0].begin(), good[0].begin() + 19)}},
+      {"a fragment header cut short",
+       {std::vector<uint8_t>(good[0].begin(), good[0].begin() + 19)}},
       {"message size 0", {with(good[0], 8, 4, 0)}},
       {"message size above the limit", {with(good[0], 8, 4, 0xFFFFFFFF)}},
       {"fragment count 0", {with(good[0], 18, 2, 0)}},
@@ -243,9 +244,9 @@ TEST(UdpmUrlTest, ParsesGroupPortAndBuffer) {
   EXPECT_EQ(address.port, 7811);
   EXPECT_EQ(address.recv_buf_size, 4096);
   EXPECT_EQ(ParseUdpmUrl("udpm://239.255.76.67").port, 7667);
-  for (const std::string bad : {"udpm://10.0.0.1:7667", "udpm://239.255.76.67:0",
-                                "udpm://239.255.76.67:x", "udpm://239.255.76.67:1?recv_buf_size=-1",
-                                "memq://"}) {
+  for (const std::string bad :
+       {"udpm://10.0.0.1:7667", "udpm://239.255.76.67:0", "udpm://239.255.76.67:x",
+        "udpm://239.255.76.67:1?recv_buf_size=-1", "memq://"}) {
     EXPECT_THROW(ParseUdpmUrl(bad), std::runtime_error) << bad;
   }
 }

@@ -31,7 +31,8 @@ using testing::Process;
 constexpr int kScenes = 8;
 const std::string kBin = STACKGEN_BIN_DIR;
 const std::string kForger = std::string(STACKGEN_TEST_BIN_DIR) + "/stackgen-forger";
-const std::string kFixtureLog = std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/logs/tiny.lcmlog";
+const std::string kFixtureLog =
+    std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/logs/tiny.lcmlog";
 
 // a reliable stackgen.Stream that prints a digest of every scene it hands out, then its counters
 constexpr const char* kStreamScript = R"(
@@ -92,8 +93,7 @@ class DatagramFuzzTest : public ::testing::Test {
                  "--lcm-url", url},
                 base + "-bop-log");
     const testing::ScopedEnv python_path("PYTHONPATH", STACKGEN_PYTHON_DIR);
-    Process stream({STACKGEN_PYTHON, scratch_.path() + "/stream.py", url,
-                    std::to_string(kScenes)},
+    Process stream({STACKGEN_PYTHON, scratch_.path() + "/stream.py", url, std::to_string(kScenes)},
                    base + "-stream");
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
     ASSERT_TRUE(bop.WaitForOutput("listening", 30)) << bop.Stderr();
@@ -104,14 +104,15 @@ class DatagramFuzzTest : public ::testing::Test {
       argv.insert(argv.end(), forger_flags.begin(), forger_flags.end());
       forger = std::make_unique<Process>(argv, base + "-forger");
     }
-    Process generator({kBin + "/stackgen", "--count", std::to_string(kScenes), "--seed", "3",
-                       "--lcm-url", url, "--cache-dir", scratch_.path() + "/cache",
-                       "--consumer-timeout", "20"},
-                      base + "-gen");
+    Process generator(
+        {kBin + "/stackgen", "--count", std::to_string(kScenes), "--seed", "3", "--lcm-url", url,
+         "--cache-dir", scratch_.path() + "/cache", "--consumer-timeout", "20"},
+        base + "-gen");
     // the peak memory of each while the generator runs, then the others' to their end
-    std::vector<std::pair<std::string, Process*>> all = {
-        {"stackgen", &generator}, {"stackgen-coco", &coco}, {"stackgen-bop", &bop},
-        {"stackgen.Stream", &stream}};
+    std::vector<std::pair<std::string, Process*>> all = {{"stackgen", &generator},
+                                                         {"stackgen-coco", &coco},
+                                                         {"stackgen-bop", &bop},
+                                                         {"stackgen.Stream", &stream}};
     for (int i = 0; i < 12000; ++i) {
       bool running = false;
       for (const auto& [what, process] : all) {
@@ -192,6 +193,17 @@ TEST_F(DatagramFuzzTest, FiftyThousandMutatedDatagrams) {
   const std::string& forger = fuzzed.stdout_of["stackgen-forger"];
   std::printf("%s", forger.c_str());
   EXPECT_NE(forger.find("50000 raw datagrams"), std::string::npos) << forger;
+  // what the receivers made of them: most malformed, counted
+  for (const std::string program : {"stackgen", "stackgen-coco", "stackgen-bop"}) {
+    const std::string& out = fuzzed.stdout_of[program];
+    const std::regex counts(program + R"(: received (\d+) datagrams: (\d+) malformed, (\d+) )"
+                                      R"(messages given up incomplete)");
+    std::smatch match;
+    ASSERT_TRUE(std::regex_search(out, match, counts)) << out;
+    std::printf("%s: %s datagrams received, %s malformed, %s messages given up\n", program.c_str(),
+                match[1].str().c_str(), match[2].str().c_str(), match[3].str().c_str());
+    EXPECT_GT(std::stoll(match[2].str()), 1000) << out;
+  }
 }
 
 }  // namespace

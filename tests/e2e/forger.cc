@@ -88,8 +88,8 @@ class DatagramFuzzer {
     const int64_t before = sent_;
     // LC02 when it fits and the coin says so, else LC03 fragments of liblcm's size or smaller
     std::vector<Datagram> datagrams;
-    const size_t fragment = random_() % 3 == 0 ? stackgen::testing::kLcmFragmentPayload
-                                               : 200 + random_() % 16000;
+    const size_t fragment =
+        random_() % 3 == 0 ? stackgen::testing::kLcmFragmentPayload : 200 + random_() % 16000;
     if (channel.size() + 1 + bytes.size() <= stackgen::testing::kLcmShortMessageMax &&
         random_() % 3 == 0) {
       datagrams = stackgen::testing::LcmDatagrams(channel, bytes, seqno_);
@@ -107,11 +107,11 @@ class DatagramFuzzer {
         }
         break;
       case 1: {  // a header field rewritten, often to a value that wraps or lies
-        static const uint32_t kValues[] = {0, 1, 0xFFFFFFFF, 0xFFFFFF00, 0x80000000,
-                                           0x10000000, 65487, 65535};
+        static const uint32_t kValues[] = {0,          1,          0xFFFFFFFF, 0xFFFFFF00,
+                                           0x80000000, 0x10000000, 65487,      65535};
         const size_t at = 4 + 4 * (random_() % 4);
-        const uint32_t value = random_() % 2 == 0 ? kValues[random_() % 8]
-                                                  : static_cast<uint32_t>(random_());
+        const uint32_t value =
+            random_() % 2 == 0 ? kValues[random_() % 8] : static_cast<uint32_t>(random_());
         for (int i = 0; i < 4 && at + i < one.size(); ++i) {
           one[at + i] = static_cast<uint8_t>(value >> (24 - 8 * i));
         }
@@ -131,7 +131,8 @@ class DatagramFuzzer {
         std::shuffle(datagrams.begin(), datagrams.end(), random_);
         break;
       case 6:  // one left out
-        datagrams.erase(datagrams.begin() + static_cast<std::ptrdiff_t>(random_() % datagrams.size()));
+        datagrams.erase(datagrams.begin() +
+                        static_cast<std::ptrdiff_t>(random_() % datagrams.size()));
         break;
       case 7:  // a huge message claimed: 200 MB, or beyond any limit
         for (Datagram& datagram : datagrams) {
@@ -161,7 +162,8 @@ class DatagramFuzzer {
                                   size_t size) {
     std::vector<Datagram> datagrams;
     if (bytes.empty()) return datagrams;
-    const size_t count = std::min<size_t>(65535, (channel.size() + 1 + bytes.size() + size - 1) / size);
+    const size_t count =
+        std::min<size_t>(65535, (channel.size() + 1 + bytes.size() + size - 1) / size);
     size_t offset = 0;
     for (size_t number = 0; number < count && offset < bytes.size(); ++number) {
       Datagram datagram = stackgen::testing::LcmFragmentHeader(

@@ -76,9 +76,9 @@ class TrustTest : public ::testing::Test {
         << "lcm-logger and lcm-logplayer are not on PATH (Debian package liblcm-bin)";
     // the reference: a plain run with the key and no stranger, recorded; its peak memory too
     const std::string url = testing::FreeMulticastUrl();
-    Process record({logger_, "--lcm-url", url, "--channel", "STACKGEN_(SCENE|CONFIG)", "--quiet",
-                    recording_},
-                   reference_ + "-logger");
+    Process record(
+        {logger_, "--lcm-url", url, "--channel", "STACKGEN_(SCENE|CONFIG)", "--quiet", recording_},
+        reference_ + "-logger");
     Process coco(Coco(reference_, url), reference_ + "-coco");
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
     Process generator(Generator(url, cache_), reference_ + "-gen");
@@ -246,7 +246,10 @@ TEST(TrustKeysTest, DifferentKeysSayItAndStop) {
     std::string writer_says, generator_says;
   };
   const std::vector<Case> cases = {
-      {"another key", {"--bus-key-file", wrong_key}, {}, "signed with another bus key (key id",
+      {"another key",
+       {"--bus-key-file", wrong_key},
+       {},
+       "signed with another bus key (key id",
        "signed with another bus key (key id"},
       {"an open generator", {}, {"--open-bus"}, "are not signed", "runs with an open bus"}};
   for (const Case& test : cases) {

@@ -97,9 +97,8 @@ class RawMulticastSender {
 
   /// Sends one datagram; false when the kernel refused it (e.g. a full send buffer).
   bool Send(const std::vector<uint8_t>& datagram) const {
-    return sendto(fd_, datagram.data(), datagram.size(), 0,
-                  reinterpret_cast<const sockaddr*>(&to_), sizeof(to_)) ==
-           static_cast<ssize_t>(datagram.size());
+    return sendto(fd_, datagram.data(), datagram.size(), 0, reinterpret_cast<const sockaddr*>(&to_),
+                  sizeof(to_)) == static_cast<ssize_t>(datagram.size());
   }
 
  private:

@@ -20,10 +20,10 @@ inline const std::string kFixtureLog =
 inline int MakeFixtureBop(const std::string& out, const std::string& log_prefix,
                           std::string* output) {
   std::string stdout_text, stderr_text;
-  const int code = RunToEnd(std::string(STACKGEN_BIN_DIR) + "/stackgen-bop",
-                            {"--out", out, "--lcm-url", "file://" + kFixtureLog + "?speed=0",
-                             "--open-bus"},
-                            log_prefix, &stdout_text, &stderr_text, 120);
+  const int code =
+      RunToEnd(std::string(STACKGEN_BIN_DIR) + "/stackgen-bop",
+               {"--out", out, "--lcm-url", "file://" + kFixtureLog + "?speed=0", "--open-bus"},
+               log_prefix, &stdout_text, &stderr_text, 120);
   *output = stdout_text + stderr_text;
   return code;
 }

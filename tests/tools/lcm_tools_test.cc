@@ -252,9 +252,9 @@ TEST(LcmToolsTest, RecordWritesOnlyStackgenChannels) {
 TEST(LcmToolsTest, RecordRefusesABadRegex) {
   const ScratchDir scratch("lcm-tools");
   const std::string log = scratch.path() + "/run.lcmlog";
-  Process record({kRecord, "--lcm-url", testing::FreeMulticastUrl(), "--channels", "(", "--out",
-                  log},
-                 scratch.path() + "/record");
+  Process record(
+      {kRecord, "--lcm-url", testing::FreeMulticastUrl(), "--channels", "(", "--out", log},
+      scratch.path() + "/record");
   EXPECT_EQ(record.Wait(30), 2);
   EXPECT_EQ(record.Stderr(),
             "tools/record: error: --channels '(' is not a regular expression (missing closing "

@@ -442,8 +442,8 @@ TEST(StatsMainTest, LcmLogReadsLikeCoco) {
   ASSERT_TRUE(IsLcmLog(dir + "/a.log"));
 
   // compared with each other: nothing differs
-  const Result both =
-      RunStats({dir + "/a.log", dir + "/a.json", "--out", dir + "/plots", "--open-bus"}, dir + "/r");
+  const Result both = RunStats(
+      {dir + "/a.log", dir + "/a.json", "--out", dir + "/plots", "--open-bus"}, dir + "/r");
   ASSERT_EQ(both.code, 0) << both.err;
   const std::vector<std::string> lines = Lines(both.out);
   ASSERT_GE(lines.size(), kIdenticalLines.size());
@@ -461,9 +461,8 @@ TEST(StatsMainTest, LcmLogReadsLikeCoco) {
   for (size_t k = 0; k < 5; ++k) EXPECT_EQ(log_lines[k], coco_lines[k]);
 
   // the hidden instances too
-  const Result all =
-      RunStats({dir + "/a.log", "--out", dir + "/plots", "--all-instances", "--open-bus"},
-               dir + "/r");
+  const Result all = RunStats(
+      {dir + "/a.log", "--out", dir + "/plots", "--all-instances", "--open-bus"}, dir + "/r");
   ASSERT_EQ(all.code, 0) << all.err;
   EXPECT_EQ(Lines(all.out)[0].rfind("alpha: n=60 ", 0), 0u) << all.out;
 }

@@ -392,10 +392,10 @@ TEST(ViewTest, BadInputIsOneLine) {
   EXPECT_EQ(RunToEnd({"--lcm-url", log_url, "--out", scratch.path() + "/s.png"},
                      scratch.path() + "/unsigned", &out, &err),
             1);
-  EXPECT_EQ(err.rfind("stackgen-view: error: the messages on STACKGEN_SCENE, STACKGEN_CONFIG of " +
-                          log_url,
-                      0),
-            0u)
+  EXPECT_EQ(
+      err.rfind(
+          "stackgen-view: error: the messages on STACKGEN_SCENE, STACKGEN_CONFIG of " + log_url, 0),
+      0u)
       << err;
   EXPECT_NE(err.find("are not signed"), std::string::npos) << err;
   EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << err;

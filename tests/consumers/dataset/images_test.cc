@@ -18,8 +18,8 @@ cv::Mat Colours() {
   cv::Mat pixels(16, 24, CV_8UC3);
   for (int y = 0; y < pixels.rows; ++y) {
     for (int x = 0; x < pixels.cols; ++x) {
-      pixels.at<cv::Vec3b>(y, x) = cv::Vec3b(static_cast<uint8_t>(10 * x), static_cast<uint8_t>(7 * y),
-                                             200);
+      pixels.at<cv::Vec3b>(y, x) =
+          cv::Vec3b(static_cast<uint8_t>(10 * x), static_cast<uint8_t>(7 * y), 200);
     }
   }
   return pixels;
@@ -42,12 +42,12 @@ image Message(const std::vector<uint8_t>& png, const cv::Mat& pixels) {
 std::vector<uint8_t> WithTextChunk(const std::vector<uint8_t>& png, uint32_t crc_error) {
   const std::string body = std::string("tEXt") + "Comment" + '\0' + "made by a test";
   const uint32_t length = static_cast<uint32_t>(body.size() - 4);
-  const uint32_t crc =
-      static_cast<uint32_t>(crc32(0, reinterpret_cast<const Bytef*>(body.data()),
-                                  static_cast<uInt>(body.size()))) +
-      crc_error;
+  const uint32_t crc = static_cast<uint32_t>(crc32(0, reinterpret_cast<const Bytef*>(body.data()),
+                                                   static_cast<uInt>(body.size()))) +
+                       crc_error;
   std::vector<uint8_t> chunk;
-  for (int shift = 24; shift >= 0; shift -= 8) chunk.push_back(static_cast<uint8_t>(length >> shift));
+  for (int shift = 24; shift >= 0; shift -= 8)
+    chunk.push_back(static_cast<uint8_t>(length >> shift));
   chunk.insert(chunk.end(), body.begin(), body.end());
   for (int shift = 24; shift >= 0; shift -= 8) chunk.push_back(static_cast<uint8_t>(crc >> shift));
   std::vector<uint8_t> out = png;
@@ -95,9 +95,10 @@ TEST(DecodeImageTest, EveryChunkIsCheckedWithoutAPrint) {
   flipped[png.size() / 2] ^= 0x04;
 
   ::testing::internal::CaptureStderr();
-  for (const auto& [bytes, expected] :
-       std::vector<std::pair<std::vector<uint8_t>, std::string>>{
-           {bad_crc, "CRC"}, {trailing, "bytes follow its IEND"}, {cut, "ends too early"},
+  for (const auto& [bytes, expected] : std::vector<std::pair<std::vector<uint8_t>, std::string>>{
+           {bad_crc, "CRC"},
+           {trailing, "bytes follow its IEND"},
+           {cut, "ends too early"},
            {flipped, ""}}) {
     why.clear();
     EXPECT_TRUE(DecodeImage(Message(bytes, pixels), &why).empty());

@@ -534,9 +534,12 @@ bool MessageAuth::Live(uint64_t sender) const {
 void MessageAuth::Proven(uint64_t sender, uint64_t counter) {
   const std::lock_guard<std::mutex> lock(impl_->mutex);
   SenderState& state = impl_->StateOf(sender);
-  if (!state.answered) ++impl_->answered;
-  if (!state.answered || counter > state.answer_counter) state.answer_counter = counter;
+  // the first answer sets the floor: a later one (to a challenge still in flight) must not drop
+  // what the sender signed in between
+  if (state.answered) return;
   state.answered = true;
+  state.answer_counter = counter;
+  ++impl_->answered;
 }
 
 int64_t MessageAuth::answered() const {

@@ -353,6 +353,8 @@ struct SceneStream::Impl {
     std::map<std::tuple<int32_t, int64_t, int64_t>, int64_t> seen;
     int64_t scene_events = 0;
     KeyEvidence key_evidence;
+    std::string first_refusal;
+    bool refusal_reported = false;
     LogSummary summary;
     try {
       summary = ReadLog(log_path, [&](const LogEvent& event) {
@@ -374,9 +376,14 @@ struct SceneStream::Impl {
             counters.refused_forged = counted.forged;
             counters.refused_replayed = counted.replayed;
           }
-          // the first says why; the rest are counted (all refused fails the stream at the end)
-          if (counted.total() == 1) Report(refused);
+          // the first says why, once a scene of the log passed (all refused fails the stream at
+          // the end, in one line); the rest are counted
+          if (first_refusal.empty()) first_refusal = refused;
           return;
+        }
+        if (!first_refusal.empty() && !refusal_reported) {
+          Report(first_refusal);
+          refusal_reported = true;
         }
         const size_t size = static_cast<size_t>(body);
         // another shard's scene is skipped before it is decoded: the header's seq and
@@ -440,6 +447,7 @@ struct SceneStream::Impl {
     const std::string mismatch =
         key_evidence.Mismatch(*log_auth, "the scenes of " + log_path + " on " + options.channel);
     if (!mismatch.empty()) throw FeedError(mismatch);
+    if (!first_refusal.empty() && !refusal_reported) Report(first_refusal);
     if (summary.truncated_bytes > 0) {
       std::fprintf(stderr, "stackgen-feed: %s ends with a torn event of %lld bytes (skipped)\n",
                    log_path.c_str(), static_cast<long long>(summary.truncated_bytes));

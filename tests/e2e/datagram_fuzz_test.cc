@@ -98,16 +98,19 @@ class DatagramFuzzTest : public ::testing::Test {
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
     ASSERT_TRUE(bop.WaitForOutput("listening", 30)) << bop.Stderr();
     ASSERT_TRUE(stream.WaitForOutput("listening", 60)) << stream.Stderr();
-    std::unique_ptr<Process> forger;
-    if (!forger_flags.empty()) {
-      std::vector<std::string> argv = {kForger, "--lcm-url", url, "--no-attacks"};
-      argv.insert(argv.end(), forger_flags.begin(), forger_flags.end());
-      forger = std::make_unique<Process>(argv, base + "-forger");
-    }
     Process generator(
         {kBin + "/stackgen", "--count", std::to_string(kScenes), "--seed", "3", "--lcm-url", url,
          "--cache-dir", scratch_.path() + "/cache", "--consumer-timeout", "20"},
         base + "-gen");
+    // the forger once all four listen (the generator says so when its bus and renderer are
+    // up, then listens 0.5 s before its first scene): every datagram reaches every process
+    std::unique_ptr<Process> forger;
+    if (!forger_flags.empty()) {
+      ASSERT_TRUE(generator.WaitForOutput("stackgen: generator", 60)) << generator.Stderr();
+      std::vector<std::string> argv = {kForger, "--lcm-url", url, "--no-attacks"};
+      argv.insert(argv.end(), forger_flags.begin(), forger_flags.end());
+      forger = std::make_unique<Process>(argv, base + "-forger");
+    }
     // the peak memory of each while the generator runs, then the others' to their end
     std::vector<std::pair<std::string, Process*>> all = {{"stackgen", &generator},
                                                          {"stackgen-coco", &coco},
@@ -186,8 +189,9 @@ TEST_F(DatagramFuzzTest, TwoDatagramsOfLcm628OnEveryChannel) {
 // seed, spread over the run: every process finishes as in the clean run, memory bounded.
 TEST_F(DatagramFuzzTest, FiftyThousandMutatedDatagrams) {
   RunOutputs fuzzed;
-  // spread over 2 s: the generator runs longer, so every datagram reaches every process
-  RunAll("fuzzed", {"--seconds", "2", "--datagrams", "50000", "--samples", kFixtureLog}, false,
+  // spread over 1 s of the generator's run (its first scene comes 0.5 s after it listens, and
+  // 8 scenes take seconds more), so every datagram reaches every process
+  RunAll("fuzzed", {"--seconds", "1", "--datagrams", "50000", "--samples", kFixtureLog}, false,
          &fuzzed);
   ExpectAsClean(fuzzed);
   const std::string& forger = fuzzed.stdout_of["stackgen-forger"];

@@ -210,7 +210,9 @@ TEST_F(TrustTest, ARecordingIsTakenOnlyAsAReplay) {
     const std::string url = testing::FreeMulticastUrl();
     Process coco(Coco(refused, url), refused + "-coco");
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
-    Process player({player_, "--lcm-url", url, recording_}, refused + "-player");
+    // at half speed: a run of a few seconds sends for longer than the 2 s after which a sender
+    // that does not answer is taken for a recording
+    Process player({player_, "--lcm-url", url, "-s", "0.5", recording_}, refused + "-player");
     ASSERT_EQ(player.Wait(120), 0) << player.Stderr();
     coco.Signal(SIGINT);
     ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();

@@ -171,6 +171,8 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
     range("color_b", part.color_b(), 0, 1);
     range("specular", part.specular(), 0, 2);
     range("shininess", part.shininess(), 1, 1000);
+    range("metallic", part.metallic(), 0, 1);
+    if (part.has_roughness()) range("roughness", part.roughness(), 0, 1);
     if (part.role() == config::PartConfig::ROLE_UNSPECIFIED) {
       throw ConfigError(n.Where("part", "role", i) +
                         ": must be PART, DISTRACTOR or LABELLED_DISTRACTOR");
@@ -195,6 +197,8 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "bin", "color_b", bin.color_b(), 0, 1);
   CheckRange(n, "bin", "specular", bin.specular(), 0, 2);
   CheckRange(n, "bin", "shininess", bin.shininess(), 1, 1000);
+  CheckRange(n, "bin", "metallic", bin.metallic(), 0, 1);
+  if (bin.has_roughness()) CheckRange(n, "bin", "roughness", bin.roughness(), 0, 1);
   CheckRange(n, "bin", "mesh_scale_to_mm", bin.mesh_scale_to_mm(), 0, kHuge, true);
   CheckRange(n, "bin", "friction", bin.friction(), 0, 2);
   CheckRange(n, "bin", "restitution", bin.restitution(), 0, 1);
@@ -260,6 +264,11 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "appearance", "specular_gain_max", look.specular_gain_max(), 0, 10);
   CheckOrdered(n, "appearance", "specular_gain_min", look.specular_gain_min(), "specular_gain_max",
                look.specular_gain_max());
+  CheckRange(n, "appearance", "roughness_gain_min", look.roughness_gain_min(), 0, 10);
+  CheckRange(n, "appearance", "roughness_gain_max", look.roughness_gain_max(), 0, 10);
+  CheckOrdered(n, "appearance", "roughness_gain_min", look.roughness_gain_min(),
+               "roughness_gain_max", look.roughness_gain_max());
+  CheckRange(n, "appearance", "metallic_jitter", look.metallic_jitter(), 0, 1);
   CheckRange(n, "appearance", "shininess_gain_min", look.shininess_gain_min(), 0, 10, true);
   CheckRange(n, "appearance", "shininess_gain_max", look.shininess_gain_max(), 0, 10, true);
   CheckOrdered(n, "appearance", "shininess_gain_min", look.shininess_gain_min(),
@@ -289,6 +298,35 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "sensor", "brightness_max", sensor.brightness_max(), 0, 1);
   CheckRange(n, "sensor", "contrast_max", sensor.contrast_max(), 0, 0.9);
   CheckRange(n, "sensor", "gamma_max", sensor.gamma_max(), 0, 2);
+  CheckRange(n, "sensor", "exposure_ev_min", sensor.exposure_ev_min(), -4, 4);
+  CheckRange(n, "sensor", "exposure_ev_max", sensor.exposure_ev_max(), -4, 4);
+  CheckOrdered(n, "sensor", "exposure_ev_min", sensor.exposure_ev_min(), "exposure_ev_max",
+               sensor.exposure_ev_max());
+  CheckRange(n, "sensor", "shot_noise_max", sensor.shot_noise_max(), 0, 0.1);
+  CheckRange(n, "sensor", "read_noise_max", sensor.read_noise_max(), 0, 0.1);
+
+  // rendering
+  const config::RenderingConfig& rendering = c.rendering();
+  if (rendering.shading() == config::RenderingConfig::SHADING_UNSPECIFIED) {
+    throw ConfigError(n.Where("rendering", "shading") + ": must be PBR or PHONG");
+  }
+  const int samples = rendering.msaa_samples();
+  if (samples != 1 && samples != 2 && samples != 4) {
+    throw ConfigError(n.Where("rendering", "msaa_samples") + ": " + Number(samples) +
+                      " must be 1, 2 or 4");
+  }
+  CheckRange(n, "rendering", "procedural_halls", rendering.procedural_halls(), 0, 64);
+  if (rendering.shading() == config::RenderingConfig::PBR && rendering.procedural_halls() == 0 &&
+      rendering.environment_dir().empty()) {
+    throw ConfigError(n.Where("rendering", "procedural_halls") +
+                      ": 0 needs rendering.environment_dir, or PBR has no environment");
+  }
+  CheckRange(n, "rendering", "environment_intensity_min", rendering.environment_intensity_min(), 0,
+             100);
+  CheckRange(n, "rendering", "environment_intensity_max", rendering.environment_intensity_max(), 0,
+             100);
+  CheckOrdered(n, "rendering", "environment_intensity_min", rendering.environment_intensity_min(),
+               "environment_intensity_max", rendering.environment_intensity_max());
 
   // physics
   const config::PhysicsConfig& physics = c.physics();

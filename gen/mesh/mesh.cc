@@ -186,6 +186,13 @@ MeshMaterial ReadMaterial(const std::string& model_path, const aiMaterial& mater
   if (material.Get(AI_MATKEY_SHININESS, shininess) == aiReturn_SUCCESS) {
     out.shininess = ClampOr(shininess, 1, 1000, out.shininess);
   }
+  float factor = 0;
+  if (material.Get(AI_MATKEY_METALLIC_FACTOR, factor) == aiReturn_SUCCESS) {
+    out.metallic = ClampOr(factor, 0, 1, out.metallic);
+  }
+  if (material.Get(AI_MATKEY_ROUGHNESS_FACTOR, factor) == aiReturn_SUCCESS) {
+    out.roughness = ClampOr(factor, 0, 1, out.roughness);
+  }
 
   // the diffuse texture (glTF: the base colour texture)
   aiString texture;

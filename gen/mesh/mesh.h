@@ -15,8 +15,12 @@ namespace stackgen {
 struct MeshMaterial {
   std::string name;
   Eigen::Vector3f color{0.7f, 0.7f, 0.7f};  // diffuse colour (OBJ/MTL Kd; glTF base colour)
-  float specular = 0.5f;     // highlight strength: mean of Ks (OBJ), clamped to [0, 2]
-  float shininess = 32.f;    // Blinn-Phong exponent (MTL Ns), clamped to [1, 1000]
+  float specular = 0.5f;   // highlight strength: mean of Ks (OBJ), clamped to [0, 2]
+  float shininess = 32.f;  // Blinn-Phong exponent (MTL Ns), clamped to [1, 1000]
+  /// Physically based factors where the file states them (glTF metallicFactor and
+  /// roughnessFactor, MTL Pm and Pr), each in [0, 1]; -1 where it does not.
+  float metallic = -1.f;
+  float roughness = -1.f;
   std::string texture_path;  // the diffuse texture file (map_Kd), resolved; empty = none
   cv::Mat texture;  // CV_8UC3 RGB (not BGR), row 0 = top row of the image file; empty = none
 };

@@ -67,15 +67,20 @@ std::vector<Light> SampleLights(const config::LightingConfig& config, std::mt199
 }
 
 MaterialGain SampleMaterialGain(const config::AppearanceConfig& config, std::mt19937_64& engine) {
-  // six draws whatever the settings
+  // eight draws whatever the settings
   const double value = Uniform(engine, config.value_gain_min(), config.value_gain_max());
   double tint[3];
   for (double& t : tint) t = Uniform(engine, -config.tint_max(), config.tint_max());
   const double specular = Uniform(engine, config.specular_gain_min(), config.specular_gain_max());
   const double log_shininess =
       Uniform(engine, std::log(config.shininess_gain_min()), std::log(config.shininess_gain_max()));
+  const double roughness =
+      Uniform(engine, config.roughness_gain_min(), config.roughness_gain_max());
+  const double metallic = Uniform(engine, -config.metallic_jitter(), config.metallic_jitter());
   MaterialGain gain;
   if (!config.randomize()) return gain;
+  gain.roughness = static_cast<float>(roughness);
+  gain.metallic = static_cast<float>(metallic);
   for (int c = 0; c < 3; ++c) gain.color[c] = static_cast<float>(value * (1 + tint[c]));
   gain.specular = static_cast<float>(specular);
   gain.shininess = static_cast<float>(std::exp(log_shininess));

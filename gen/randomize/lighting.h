@@ -19,8 +19,9 @@ std::vector<Light> SampleLights(const config::LightingConfig& config, std::mt199
 
 /// Draws the material gains of one part type for one scene: a value gain in
 /// [value_gain_min, value_gain_max] times a per-channel tint 1 +- tint_max, and highlight and
-/// shininess gains in their ranges (shininess log-uniform). With randomize false: no change. Always
-/// takes the same number of values from `engine`.
+/// shininess gains in their ranges (shininess log-uniform), then a roughness gain in
+/// [roughness_gain_min, roughness_gain_max] and a metallic shift in +-metallic_jitter. With
+/// randomize false: no change. Always takes the same number of values (eight) from `engine`.
 MaterialGain SampleMaterialGain(const config::AppearanceConfig& config, std::mt19937_64& engine);
 
 }  // namespace stackgen

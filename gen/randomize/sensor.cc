@@ -130,7 +130,7 @@ void AddSaltAndPepper(double fraction, uint64_t seed, cv::Mat* image) {
 }  // namespace
 
 SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt19937_64& engine) {
-  // always seven draws, in a fixed order, enabled or not.
+  // always ten draws, in a fixed order, enabled or not.
   SensorEffects drawn;
   drawn.gaussian_sigma = Uniform(engine, 0.0, config.gaussian_sigma_max());
   drawn.salt_pepper_fraction = Uniform(engine, 0.0, config.salt_pepper_max());
@@ -140,6 +140,9 @@ SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt199
   const double log_gamma_max = std::log1p(config.gamma_max());
   drawn.gamma = std::exp(Uniform(engine, -log_gamma_max, log_gamma_max));
   drawn.noise_seed = engine();
+  drawn.exposure_ev = Uniform(engine, config.exposure_ev_min(), config.exposure_ev_max());
+  drawn.shot_noise = Uniform(engine, 0.0, config.shot_noise_max());
+  drawn.read_noise = Uniform(engine, 0.0, config.read_noise_max());
   return config.enabled() ? drawn : SensorEffects{};
 }
 
@@ -174,6 +177,105 @@ void ApplySensorEffects(const SensorEffects& effects, cv::Mat* image) {
   if (effects.salt_pepper_fraction > 0) {
     AddSaltAndPepper(effects.salt_pepper_fraction, effects.noise_seed, image);
   }
+}
+
+double AcesFilmic(double x) {
+  x = std::max(x, 0.0);
+  return std::clamp(x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
+}
+
+void AddLinearNoise(const SensorEffects& effects, cv::Mat* linear) {
+  if (linear == nullptr || linear->empty() ||
+      (linear->type() != CV_32FC1 && linear->type() != CV_32FC3) || !linear->isContinuous()) {
+    throw std::runtime_error("AddLinearNoise: need a non-empty continuous CV_32FC1 or CV_32FC3");
+  }
+  const float shot = static_cast<float>(effects.shot_noise);
+  const float read_variance = static_cast<float>(effects.read_noise * effects.read_noise);
+  if (shot == 0 && read_variance == 0) return;
+  const std::array<float, kNormalTableSize>& normal = NormalTable();
+  const int values_per_row = linear->cols * linear->channels();
+  const int streams = (linear->rows + kNoiseRowsPerStream - 1) / kNoiseRowsPerStream;
+  cv::parallel_for_(cv::Range(0, streams), [&](const cv::Range& range) {
+    for (int stream = range.start; stream < range.end; ++stream) {
+      // one stream per block of rows, apart from the display-space noise's streams
+      SplitMix64 rng(Mix64(effects.noise_seed ^ (0x1f83d9abfb41bd6bULL * (stream + 1))));
+      const int row_end = std::min(linear->rows, (stream + 1) * kNoiseRowsPerStream);
+      for (int y = stream * kNoiseRowsPerStream; y < row_end; ++y) {
+        float* row = linear->ptr<float>(y);
+        for (int i = 0; i < values_per_row;) {
+          uint64_t bits = rng.Next();
+          for (int k = 0; k < 64 / kNormalTableBits && i < values_per_row; ++k, ++i) {
+            const float sigma = std::sqrt(shot * std::max(row[i], 0.f) + read_variance);
+            row[i] += sigma * normal[bits & (kNormalTableSize - 1)];
+            bits >>= kNormalTableBits;
+          }
+        }
+      }
+    }
+  });
+}
+
+cv::Mat DevelopLinearImage(const SensorEffects& effects, const cv::Mat& linear_rgb, bool gray) {
+  if (linear_rgb.empty() || linear_rgb.type() != CV_32FC3) {
+    throw std::runtime_error("DevelopLinearImage: the image must be a non-empty CV_32FC3 image");
+  }
+  if (!std::isfinite(effects.exposure_ev) || !(effects.shot_noise >= 0) ||
+      !(effects.read_noise >= 0) || !std::isfinite(effects.shot_noise) ||
+      !std::isfinite(effects.read_noise)) {
+    throw std::runtime_error(
+        "DevelopLinearImage: exposure_ev " + std::to_string(effects.exposure_ev) + ", shot_noise " +
+        std::to_string(effects.shot_noise) + ", read_noise " + std::to_string(effects.read_noise) +
+        " out of range; need finite values, noise >= 0");
+  }
+  // optics, then gray, in linear light
+  cv::Mat signal;
+  if (effects.blur_sigma_px >= kMinBlurSigmaPx) {
+    cv::GaussianBlur(linear_rgb, signal, cv::Size(), effects.blur_sigma_px, effects.blur_sigma_px,
+                     cv::BORDER_REFLECT_101);
+  } else {
+    signal = linear_rgb.clone();
+  }
+  if (gray) {
+    cv::Mat luminance;
+    cv::transform(signal, luminance, cv::Matx13f(0.2126f, 0.7152f, 0.0722f));
+    signal = luminance;
+  }
+  // exposure and the sensor's noise
+  signal *= std::exp2(effects.exposure_ev);
+  AddLinearNoise(effects, &signal);
+
+  // tone curve and sRGB encoding through one table over sqrt(signal) in [0, 4]
+  constexpr int kSteps = 4096;  // table entries per unit of sqrt(signal)
+  constexpr int kEntries = 4 * kSteps + 1;
+  static const std::array<uint8_t, kEntries> table = [] {
+    std::array<uint8_t, kEntries> out;
+    for (int i = 0; i < kEntries; ++i) {
+      const double t = static_cast<double>(i) / kSteps;
+      const double y = AcesFilmic(t * t);
+      const double display = y <= 0.0031308 ? 12.92 * y : 1.055 * std::pow(y, 1 / 2.4) - 0.055;
+      out[i] = static_cast<uint8_t>(std::lround(255 * std::clamp(display, 0.0, 1.0)));
+    }
+    return out;
+  }();
+  cv::Mat image(signal.rows, signal.cols, gray ? CV_8UC1 : CV_8UC3);
+  const int values_per_row = signal.cols * signal.channels();
+  cv::parallel_for_(cv::Range(0, signal.rows), [&](const cv::Range& range) {
+    for (int y = range.start; y < range.end; ++y) {
+      const float* in = signal.ptr<float>(y);
+      uint8_t* out = image.ptr<uint8_t>(y);
+      for (int i = 0; i < values_per_row; ++i) {
+        const float t = std::sqrt(std::max(in[i], 0.f)) * kSteps + 0.5f;
+        out[i] = t < kEntries - 1 ? table[static_cast<int>(t)] : table[kEntries - 1];  // NaN: white
+      }
+    }
+  });
+
+  // the camera's response settings and dead pixels, as in display space
+  SensorEffects display = effects;
+  display.gaussian_sigma = 0;
+  display.blur_sigma_px = 0;
+  ApplySensorEffects(display, &image);
+  return image;
 }
 
 }  // namespace stackgen

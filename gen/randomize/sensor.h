@@ -19,13 +19,19 @@ struct SensorEffects {
   double contrast = 1;              // gain about mid-gray (127.5), > 0
   double gamma = 1;                 // out = in^gamma on [0, 1]: > 1 darkens, < 1 brightens
   uint64_t noise_seed = 0;          // seeds the per-pixel noise
+  // physically based frames only (DevelopLinearImage):
+  double exposure_ev = 0;  // radiance x 2^exposure_ev before the tone curve
+  double shot_noise = 0;   // photon noise: variance shot_noise x signal (exposed linear units)
+  double read_noise = 0;   // read-out noise: std in exposed linear units (1 = white)
 };
 
-/// Draws every parameter from `engine`, always exactly seven values in this order: gaussian_sigma
+/// Draws every parameter from `engine`, always exactly ten values in this order: gaussian_sigma
 /// uniform in [0, gaussian_sigma_max], salt_pepper_fraction in [0, salt_pepper_max],
 /// blur_sigma_px in [0, blur_sigma_max_px], brightness in [-brightness_max, brightness_max],
 /// contrast in [1 - contrast_max, 1 + contrast_max], gamma log-uniform in
-/// [1 / (1 + gamma_max), 1 + gamma_max], then noise_seed (one raw engine value). With
+/// [1 / (1 + gamma_max), 1 + gamma_max], noise_seed (one raw engine value), then exposure_ev
+/// uniform in [exposure_ev_min, exposure_ev_max], shot_noise in [0, shot_noise_max] and
+/// read_noise in [0, read_noise_max] (the first seven draws are what they always were). With
 /// config.enabled() false it returns the identity effects (SensorEffects{}) after still making
 /// the same draws.
 SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt19937_64& engine);
@@ -45,5 +51,29 @@ SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt199
 /// type, or an effect is out of range (negative sigma, fraction outside [0, 1], contrast or
 /// gamma not positive).
 void ApplySensorEffects(const SensorEffects& effects, cv::Mat* image);
+
+/// A physically based frame through the camera: linear RGB radiance (CV_32FC3, 1 = white) to an
+/// 8-bit image, CV_8UC3 RGB or, when `gray`, CV_8UC1, in camera order:
+///  1. blur (optics) in linear light, as in ApplySensorEffects;
+///  2. gray: luminance Y = 0.2126 R + 0.7152 G + 0.0722 B (Rec. 709 primaries), when `gray`;
+///  3. exposure: x 2^exposure_ev;
+///  4. AddLinearNoise: shot and read noise where the sensor makes them, before the tone curve;
+///  5. the filmic tone curve (ACES, Narkowicz's 2015 fit) and sRGB encoding, rounded to 8 bits
+///     (through a table indexed by the square root of the signal, within half a level);
+///  6. the response table (gamma, contrast, brightness) and salt and pepper, as
+///     ApplySensorEffects; gaussian_sigma is not used (read_noise takes its place).
+/// Deterministic as ApplySensorEffects. Throws std::runtime_error for an empty image or another
+/// type, or effects out of range (as ApplySensorEffects, or a negative or non-finite exposure,
+/// shot or read noise).
+cv::Mat DevelopLinearImage(const SensorEffects& effects, const cv::Mat& linear_rgb, bool gray);
+
+/// Step 4 of DevelopLinearImage on a linear image (CV_32FC1 or CV_32FC3) in place: adds to each
+/// value s an independent Gaussian draw of variance shot_noise x max(s, 0) + read_noise^2
+/// (Poisson photon noise in its Gaussian limit, plus read noise), from SplitMix64 streams seeded
+/// from noise_seed (one per block of rows).
+void AddLinearNoise(const SensorEffects& effects, cv::Mat* linear);
+
+/// The ACES filmic tone curve (Narkowicz 2015), linear scene value to display-linear 0..1.
+double AcesFilmic(double x);
 
 }  // namespace stackgen

@@ -14,181 +14,30 @@
 #define GL_GLEXT_PROTOTYPES
 #include <GL/glcorearb.h>
 
+#include <opencv2/imgproc.hpp>
+
 #include "gen/render/egl_context.h"
+#include "shaders.h"
 
 namespace stackgen {
 namespace {
 
-// both programs compute gl_Position with the same code and `invariant`, so a silhouette covers
-// exactly the pixels the object covers in the scene pass. The projection is the exact pinhole
-// model with image row v in framebuffer row v (row 0 first in memory, at the top of the image):
-//   x_clip = 2 fx / w x + ((2 cx + 1) / w - 1) z,  y_clip = 2 fy / h y + ((2 cy + 1) / h - 1) z,
-//   z_clip = a z + b (near -> -1, far -> 1),      w_clip = z.
-constexpr char kProjectionGlsl[] = R"glsl(
-uniform mat4 camera_from_object;  // mm
-uniform vec4 projection;          // (2 fx / w, (2 cx + 1) / w - 1, 2 fy / h, (2 cy + 1) / h - 1)
-uniform vec2 depth_coefficients;  // (a, b): z_clip = a z + b
-invariant gl_Position;
-
-vec4 ClipFromCamera(vec3 p) {
-  return vec4(projection.x * p.x + projection.y * p.z, projection.z * p.y + projection.w * p.z,
-              depth_coefficients.x * p.z + depth_coefficients.y, p.z);
-}
-)glsl";
-
-// LIGHT_COUNT, SHADOWS and TEXTURED are defined per program: a loop with a constant count
-// unrolls (a uniform count makes llvmpipe about twice as slow), and scenes without shadows or
-// textures pay nothing for them. A light is a vec4: (unit direction towards the light, 0) for a
-// directional light, (position, 1) for a point light, both in the camera frame, mm.
-constexpr char kSceneVertexGlsl[] = R"glsl(
-layout(location = 0) in vec3 position_object;
-layout(location = 1) in vec3 normal_object;
-layout(location = 2) in vec2 uv_object;  // v = 0 at the bottom of the texture image
-out vec3 position_camera;
-out vec3 normal_camera;
-#if TEXTURED
-out vec2 texture_coordinates;  // t = 0 at row 0 of the uploaded image, its top: t = 1 - v
-#endif
-#if SHADOWS
-uniform vec4 light_vector_camera[LIGHT_COUNT];
-uniform mat4 shadow_from_camera[LIGHT_COUNT];      // to (s, t, depth) of each map, homogeneous
-uniform float shadow_normal_offset_mm[LIGHT_COUNT];
-out vec4 shadow_coordinates[LIGHT_COUNT];
-#endif
-
-void main() {
-  vec4 p = camera_from_object * vec4(position_object, 1.0);
-  position_camera = p.xyz;
-  normal_camera = mat3(camera_from_object) * normal_object;
-#if TEXTURED
-  texture_coordinates = vec2(uv_object.x, 1.0 - uv_object.y);
-#endif
-#if SHADOWS
-  // look the surface up in each map a little off it, along the normal on the light's side and
-  // more at grazing light, so it does not shadow itself
-  vec3 n = normalize(normal_camera);
-  for (int i = 0; i < LIGHT_COUNT; ++i) {
-    vec3 l = normalize(light_vector_camera[i].xyz - p.xyz * light_vector_camera[i].w);
-    float n_dot_l = dot(n, l);
-    float sine = sqrt(max(1.0 - n_dot_l * n_dot_l, 0.0));
-    vec3 offset = (n_dot_l >= 0.0 ? n : -n) * (shadow_normal_offset_mm[i] * sine);
-    shadow_coordinates[i] = shadow_from_camera[i] * vec4(p.xyz + offset, 1.0);
-  }
-#endif
-  gl_Position = ClipFromCamera(p.xyz);
-}
-)glsl";
-
-constexpr char kSceneFragmentGlsl[] = R"glsl(
-in vec3 position_camera;
-in vec3 normal_camera;
-layout(location = 0) out vec4 color_out;
-layout(location = 1) out uint instance_out;
-layout(location = 2) out float depth_out;
-uniform uint instance_id;
-uniform vec3 material_color_linear;
-uniform float material_specular;
-uniform float material_shininess;
-#if LIGHT_COUNT > 0
-uniform vec4 light_vector_camera[LIGHT_COUNT];
-uniform vec3 light_terms[LIGHT_COUNT];  // (ambient, diffuse, specular)
-#endif
-#if TEXTURED
-in vec2 texture_coordinates;
-uniform sampler2D material_texture;
-#endif
-#if SHADOWS
-in vec4 shadow_coordinates[LIGHT_COUNT];
-uniform sampler2DArrayShadow shadow_maps;  // layer i: light i
-uniform float shadow_texel;                // 1 / map size
-uniform float shadow_depth_bias[LIGHT_COUNT];
-
-// fraction of the 3 x 3 texels around the surface's point in map i that see light i, tent
-// weighted: four 2 x 2 filtered taps half a texel off the point
-float LitFraction(int i) {
-  vec4 c = shadow_coordinates[i];
-  vec3 p = c.xyz / c.w;
-  // outside the map (behind a point light, beyond its cone): lit
-  if (c.w <= 0.0 || any(lessThan(p, vec3(0.0))) || any(greaterThan(p, vec3(1.0)))) return 1.0;
-  float reference = p.z - shadow_depth_bias[i];
-  float layer = float(i);
-  float h = 0.5 * shadow_texel;
-  return 0.25 * (texture(shadow_maps, vec4(p.x - h, p.y - h, layer, reference)) +
-                 texture(shadow_maps, vec4(p.x + h, p.y - h, layer, reference)) +
-                 texture(shadow_maps, vec4(p.x - h, p.y + h, layer, reference)) +
-                 texture(shadow_maps, vec4(p.x + h, p.y + h, layer, reference)));
-}
-#endif
-
-void main() {
-  // shade both sides: the back of a two-sided (open) mesh uses the flipped normal
-  vec3 n = normalize(gl_FrontFacing ? normal_camera : -normal_camera);
-  vec3 v = normalize(-position_camera);
-  vec3 albedo_linear = material_color_linear;
-#if TEXTURED
-  vec3 texel = texture(material_texture, texture_coordinates).rgb;
-  albedo_linear *= texel * texel;
-#endif
-
-  // blinn-phong per light, in linear colour; a shadowed light keeps its ambient term only
-  vec3 linear = vec3(0.0);
-#if LIGHT_COUNT > 0
-  for (int i = 0; i < LIGHT_COUNT; ++i) {
-    vec3 l = normalize(light_vector_camera[i].xyz - position_camera * light_vector_camera[i].w);
-#if SHADOWS
-    float lit = LitFraction(i);
-#else
-    const float lit = 1.0;
-#endif
-    float n_dot_l = max(dot(n, l), 0.0);
-    float highlight = 0.0;
-    if (n_dot_l > 0.0) highlight = pow(max(dot(n, normalize(l + v)), 0.0), material_shininess);
-    linear += (light_terms[i].x + light_terms[i].y * (n_dot_l * lit)) * albedo_linear +
-              vec3(light_terms[i].z * material_specular * (highlight * lit));
-  }
-#endif
-
-  // gamma 2 to display values (sqrt is far cheaper than pow on llvmpipe); id and camera z of
-  // the same surface
-  color_out = vec4(sqrt(clamp(linear, 0.0, 1.0)), 1.0);
-  instance_out = instance_id;
-  depth_out = position_camera.z;
-}
-)glsl";
-
-// depth only, from a light: the fragment shader does nothing
-constexpr char kShadowVertexGlsl[] = R"glsl(#version 330 core
-layout(location = 0) in vec3 position_object;
-uniform mat4 light_clip_from_object;
-
-void main() { gl_Position = light_clip_from_object * vec4(position_object, 1.0); }
-)glsl";
-
-constexpr char kShadowFragmentGlsl[] = R"glsl(#version 330 core
-void main() {}
-)glsl";
-
-constexpr char kSilhouetteVertexGlsl[] = R"glsl(
-layout(location = 0) in vec3 position_object;
-
-void main() {
-  vec4 p = camera_from_object * vec4(position_object, 1.0);
-  gl_Position = ClipFromCamera(p.xyz);
-}
-)glsl";
-
-constexpr char kSilhouetteFragmentGlsl[] = R"glsl(#version 330 core
-layout(location = 0) out uint bits_out;
-uniform uint object_bit;  // ORed into the target by glLogicOp(GL_OR)
-
-void main() { bits_out = object_bit; }
-)glsl";
+// The shaders (gen/render/shaders/). Both the scene and the silhouette programs compute
+// gl_Position with projection.glsl and `invariant`, so a silhouette covers exactly the pixels the
+// object covers in the scene pass.
+using namespace shaders;
 
 constexpr int kObjectsPerSilhouettePass = 32;  // one bit each in an R32UI target
 
-// texture units: a material's texture, the shadow maps
+// texture units: a material's texture, the shadow maps, the DFG table, the environment, the
+// background image (also used to set up textures)
 constexpr int kMaterialTextureUnit = 0;
 constexpr int kShadowMapUnit = 1;
+constexpr int kDfgUnit = 2;
+constexpr int kEnvironmentUnit = 3;
+constexpr int kBackgroundUnit = 4;
+constexpr int kResolveCoverageUnit = 5;  // the coverage pass's samples
+constexpr int kDfgSize = 32;             // texels per side of the DFG table
 
 // shadow bias against acne, small enough for no visible gap between a shadow and its caster
 // (tests: a 1 mm plate 1 mm above a floor): the depth pass pushes each triangle back by
@@ -449,6 +298,77 @@ ShadowView MakeShadowView(const Light& light, const Eigen::AlignedBox3d& box, in
   return view;
 }
 
+// an sRGB display value (0..1) in linear light
+float SrgbToLinear(float c) {
+  return c <= 0.04045f ? c / 12.92f : std::pow((c + 0.055f) / 1.055f, 2.4f);
+}
+
+// the GGX roughness whose lobe is as wide as a Blinn-Phong lobe of this exponent: Beckmann's
+// alpha^2 = 2 / (n + 2), roughness = sqrt(alpha)
+float RoughnessOfShininess(float shininess) {
+  return std::pow(2.f / (std::max(shininess, 0.f) + 2.f), 0.25f);
+}
+
+// Anti-aliasing by subpixel reconstruction (Chajdas, McGuire and Luebke, "Subpixel
+// Reconstruction Antialiasing", I3D 2011): colour is shaded once per pixel, at its centre
+// (`colors`, the surface there in `surfaces`, item index + 1, 0 = nothing), and a multisampled
+// pass says which surface each of `samples` samples sees (`sample_surfaces`, four per pixel,
+// at `positions` within the pixel, x and y in 0..1 along the image's columns and rows). A sample
+// on the pixel's own surface takes the pixel's colour; one on another surface takes the colour
+// of the nearest pixel whose centre shows that surface, the neighbours on the sample's side
+// first; the pixel is the mean of its samples, as a multisample resolve would make it. Pixels
+// whose samples all see their own surface (nearly all) keep their colour exactly. `colors` is
+// resolved in place (edge pixels found first, written after, so every pixel reads centres);
+// `edges` is working memory.
+void ResolveEdges(const cv::Mat& surfaces, const cv::Mat& sample_surfaces, int samples,
+                  const GLfloat* positions, cv::Mat* colors_in_out,
+                  std::vector<std::vector<std::pair<int, cv::Vec3f>>>* edges) {
+  const cv::Mat& colors = *colors_in_out;
+  const int rows = colors.rows;
+  const int cols = colors.cols;
+  edges->resize(rows);
+  cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+    for (int v = range.start; v < range.end; ++v) {
+      std::vector<std::pair<int, cv::Vec3f>>& row_edges = (*edges)[v];
+      row_edges.clear();
+      const uint16_t* own_row = surfaces.ptr<uint16_t>(v);
+      const cv::Vec<uint16_t, 4>* sample_row = sample_surfaces.ptr<cv::Vec<uint16_t, 4>>(v);
+      for (int u = 0; u < cols; ++u) {
+        const uint16_t own = own_row[u];
+        const cv::Vec<uint16_t, 4>& ids = sample_row[u];
+        bool edge = false;
+        for (int k = 0; k < samples; ++k) edge = edge || ids[k] != own;
+        if (!edge) continue;
+        const cv::Vec3f own_color = colors.at<cv::Vec3f>(v, u);
+        cv::Vec3f sum(0, 0, 0);
+        for (int k = 0; k < samples; ++k) {
+          cv::Vec3f color = own_color;
+          if (ids[k] != own) {
+            const int dx = positions[2 * k] < 0.5f ? -1 : 1;
+            const int dy = positions[2 * k + 1] < 0.5f ? -1 : 1;
+            const int offsets[8][2] = {{dx, 0},  {0, dy},   {dx, dy},  {-dx, 0},
+                                       {0, -dy}, {-dx, dy}, {dx, -dy}, {-dx, -dy}};
+            for (const auto& offset : offsets) {
+              const int qu = std::clamp(u + offset[0], 0, cols - 1);
+              const int qv = std::clamp(v + offset[1], 0, rows - 1);
+              if (surfaces.at<uint16_t>(qv, qu) == ids[k]) {
+                color = colors.at<cv::Vec3f>(qv, qu);
+                break;
+              }
+            }
+          }
+          sum += color;
+        }
+        row_edges.emplace_back(u, sum * (1.f / static_cast<float>(samples)));
+      }
+    }
+  });
+  for (int v = 0; v < rows; ++v) {
+    cv::Vec3f* row = colors_in_out->ptr<cv::Vec3f>(v);
+    for (const auto& [u, color] : (*edges)[v]) row[u] = color;
+  }
+}
+
 }  // namespace
 
 // one uploaded mesh
@@ -499,11 +419,47 @@ struct ShadingProgram {
   const DrawItem* item = nullptr;  // the item its per-item uniforms were set for, this frame
 };
 
+// the physically based colour program for one number of lights, with or without shadows,
+// texture and environment
+struct PbrProgram {
+  GLuint program = 0;  // 0 until first used
+  ProjectionUniforms projection;
+  GLint base_color_linear = -1;
+  GLint metallic = -1;
+  GLint roughness = -1;
+  GLint dielectric_f0 = -1;
+  GLint light_vector_camera = -1;
+  GLint light_irradiance = -1;
+  GLint shadow_from_camera = -1;
+  GLint shadow_normal_offset_mm = -1;
+  GLint shadow_depth_bias = -1;
+  GLint shadow_texel = -1;
+  GLint environment_from_camera = -1;
+  GLint environment_max_lod = -1;
+  GLint irradiance_sh = -1;
+  GLint environment_intensity = -1;
+  GLint instance_id = -1;
+  GLint surface_id = -1;
+  uint64_t frame = 0;              // the Render call its per-frame uniforms were set for
+  const DrawItem* item = nullptr;  // the item its pose was set for, this frame
+};
+
+// one uploaded environment
+struct EnvironmentTexture {
+  GLuint texture = 0;  // RGB16F equirectangular, level k prefiltered for roughness k / (n - 1)
+  std::array<Eigen::Vector3f, 9> irradiance_sh;
+};
+
 // what every scene program of one Render gets
 struct FrameUniforms {
   int light_count = 0;
   bool shadows = false;
-  float light_vectors[Renderer::kMaxLights][4] = {};  // see kSceneVertexGlsl
+  bool pbr = false;                                 // physically based colour pass
+  const EnvironmentTexture* environment = nullptr;  // none: no environment light
+  float environment_from_camera[9] = {};            // column-major rotation
+  float environment_intensity = 0;
+  float light_irradiance[Renderer::kMaxLights][3] = {};  // physically based: pi x diffuse
+  float light_vectors[Renderer::kMaxLights][4] = {};     // see scene.vert.glsl
   float light_terms[Renderer::kMaxLights][3] = {};
   float shadow_from_camera[Renderer::kMaxLights][16] = {};  // column-major
   float shadow_normal_offset_mm[Renderer::kMaxLights] = {};
@@ -542,6 +498,37 @@ struct Renderer::Impl {
   int shadow_map_size = 0;
   int shadow_map_layers = 0;
 
+  // physically based frames: the programs, the background, the DFG table, the environments;
+  // a single-sampled framebuffer shading each pixel once (colour, id, camera z, surface), and
+  // when anti-aliased a multisampled coverage pass and its resolve (resolve.frag.glsl)
+  std::array<PbrProgram, (kMaxLights + 1) * 8> pbr;
+  GLuint background_program = 0;  // 0 until the first physically based frame
+  GLint background_scale = -1;
+  GLuint background_texture = 0;
+  GLuint empty_vertex_array = 0;
+  GLuint dfg_texture = 0;
+  std::vector<EnvironmentTexture> environments;
+  GLuint shaded_framebuffer = 0;  // colour, instance, camera z, surface; the scene depth buffer
+  GLuint shaded_texture = 0;      // RGBA16F linear colour
+  GLuint surface_texture = 0;     // R16UI item index + 1
+  GLuint coverage_program = 0;
+  ProjectionUniforms coverage_projection;
+  GLint coverage_surface_id = -1;
+  GLuint coverage_framebuffer = 0;
+  GLuint coverage_texture = 0;                  // multisampled R16UI surface per sample
+  GLuint coverage_depth_buffer = 0;             // multisampled depth
+  std::array<GLuint, 5> resolve_programs = {};  // by sample count, built when first used
+  GLuint resolve_framebuffer = 0;
+  GLuint resolve_buffer = 0;  // RGBA16UI: the surfaces of a pixel's samples
+  int pbr_width = 0;          // size of the textures above
+  int pbr_height = 0;
+  int coverage_samples = 0;  // samples of the coverage targets
+  cv::Mat sample_surfaces;   // read-back of the resolve pass, CV_16UC4
+  cv::Mat centre_surfaces;   // CV_16UC1
+  std::vector<std::vector<std::pair<int, cv::Vec3f>>> edge_colors;  // ResolveEdges, by row
+  cv::Mat half_colors;   // read-back of linear colour, CV_16FC4
+  cv::Mat float_colors;  // CV_32FC4
+
   // per Render call
   uint64_t frame = 0;
   const CameraModel* frame_camera = nullptr;
@@ -561,6 +548,17 @@ struct Renderer::Impl {
   }
   ShadingProgram& Shading(int light_count, bool shadows, bool textured);
   ShadingProgram& UseShading(bool textured);
+  PbrProgram& Pbr(int light_count, bool shadows, bool textured, bool environment);
+  PbrProgram& UsePbr(bool textured);
+  void EnsurePbrResources();
+  void EnsurePbrTargets(int samples);
+  GLuint ResolveProgram(int samples);
+  void DrawPbrSurface(const DrawItem& item, size_t index,
+                      const Eigen::Isometry3d& camera_from_world, const MeshBuffers& mesh,
+                      const Material& material, GLsizei first, GLsizei count);
+  void ReadLinearColor(cv::Mat* color);
+  void RenderPbr(const CameraModel& camera, const RenderOptions& options,
+                 const std::vector<DrawItem>& items, RenderResult* result);
   void Resize(int new_width, int new_height);
   void Validate(const CameraModel& camera, const std::vector<DrawItem>& items) const;
   void ValidateMaterial(const Material& material, const MeshBuffers& mesh,
@@ -585,8 +583,8 @@ Renderer::Impl::Impl(int width, int height) {
   }
   // the silhouette program; scene and shadow programs are built when first used
   silhouette_program =
-      LinkProgram(std::string("#version 330 core\n") + kProjectionGlsl + kSilhouetteVertexGlsl,
-                  kSilhouetteFragmentGlsl, "silhouette program");
+      LinkProgram(std::string("#version 330 core\n") + projection_glsl + silhouette_vert_glsl,
+                  silhouette_frag_glsl, "silhouette program");
   silhouette_projection.Find(silhouette_program);
   object_bit = glGetUniformLocation(silhouette_program, "object_bit");
 
@@ -634,14 +632,14 @@ Renderer::Impl::Impl(int width, int height) {
 ShadingProgram& Renderer::Impl::Shading(int light_count, bool shadows, bool textured) {
   ShadingProgram& shading_program = shading[ProgramIndex(light_count, shadows, textured)];
   if (shading_program.program != 0) return shading_program;
-  const std::string header = "#version 330 core\n#define LIGHT_COUNT " +
-                             std::to_string(light_count) + "\n#define SHADOWS " +
-                             (shadows ? "1" : "0") + "\n#define TEXTURED " +
-                             (textured ? "1" : "0") + "\n";
+  const std::string header =
+      "#version 330 core\n#define LIGHT_COUNT " + std::to_string(light_count) +
+      "\n#define SHADOWS " + (shadows ? "1" : "0") + "\n#define TEXTURED " +
+      (textured ? "1" : "0") + "\n#define ENVIRONMENT 0\n#define SHADOW_TAPS 4\n";
   const std::string name = "scene program, " + std::to_string(light_count) + " lights" +
                            (shadows ? ", shadows" : "") + (textured ? ", texture" : "");
-  const GLuint program = LinkProgram(header + kProjectionGlsl + kSceneVertexGlsl,
-                                     header + kSceneFragmentGlsl, name.c_str());
+  const GLuint program = LinkProgram(header + projection_glsl + scene_vert_glsl,
+                                     header + shadow_lookup_glsl + phong_frag_glsl, name.c_str());
   shading_program.projection.Find(program);
   shading_program.instance_id = glGetUniformLocation(program, "instance_id");
   shading_program.material_color_linear = glGetUniformLocation(program, "material_color_linear");
@@ -685,6 +683,369 @@ ShadingProgram& Renderer::Impl::UseShading(bool textured) {
     glUniform1f(s.shadow_texel, f.shadow_texel);
   }
   return s;
+}
+
+PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bool environment) {
+  PbrProgram& p =
+      pbr[light_count * 8 + (shadows ? 4 : 0) + (textured ? 2 : 0) + (environment ? 1 : 0)];
+  if (p.program != 0) return p;
+  const std::string header = "#version 330 core\n#define LIGHT_COUNT " +
+                             std::to_string(light_count) + "\n#define SHADOWS " +
+                             (shadows ? "1" : "0") + "\n#define TEXTURED " +
+                             (textured ? "1" : "0") + "\n#define ENVIRONMENT " +
+                             (environment ? "1" : "0") + "\n#define SHADOW_TAPS 1\n";
+  const std::string name = "physically based program, " + std::to_string(light_count) + " lights" +
+                           (shadows ? ", shadows" : "") + (textured ? ", texture" : "") +
+                           (environment ? ", environment" : "");
+  const GLuint program = LinkProgram(
+      header + projection_glsl + scene_vert_glsl,
+      header + color_glsl + brdf_glsl + shadow_lookup_glsl + pbr_frag_glsl, name.c_str());
+  p.projection.Find(program);
+  const auto find = [program](const char* uniform) {
+    return glGetUniformLocation(program, uniform);
+  };
+  p.base_color_linear = find("base_color_linear");
+  p.metallic = find("metallic");
+  p.roughness = find("roughness");
+  p.dielectric_f0 = find("dielectric_f0");
+  p.light_vector_camera = find("light_vector_camera");
+  p.light_irradiance = find("light_irradiance");
+  p.shadow_from_camera = find("shadow_from_camera");
+  p.shadow_normal_offset_mm = find("shadow_normal_offset_mm");
+  p.shadow_depth_bias = find("shadow_depth_bias");
+  p.shadow_texel = find("shadow_texel");
+  p.environment_from_camera = find("environment_from_camera");
+  p.environment_max_lod = find("environment_max_lod");
+  p.irradiance_sh = find("irradiance_sh");
+  p.environment_intensity = find("environment_intensity");
+  p.instance_id = find("instance_id");
+  p.surface_id = find("surface_id");
+  // samplers on their fixed units
+  glUseProgram(program);
+  glUniform1i(find("material_texture"), kMaterialTextureUnit);
+  glUniform1i(find("shadow_maps"), kShadowMapUnit);
+  glUniform1i(find("dfg_lut"), kDfgUnit);
+  glUniform1i(find("environment_radiance"), kEnvironmentUnit);
+  CheckGlError(name.c_str());
+  p.program = program;
+  return p;
+}
+
+PbrProgram& Renderer::Impl::UsePbr(bool textured) {
+  const FrameUniforms& f = frame_uniforms;
+  PbrProgram& p = Pbr(f.light_count, f.shadows, textured, f.environment != nullptr);
+  glUseProgram(p.program);
+  if (p.frame == frame) return p;
+
+  // first use this frame: camera, lights, shadow maps and environment
+  p.frame = frame;
+  p.item = nullptr;
+  SetProjection(p.projection, *frame_camera);
+  const GLsizei n = f.light_count;
+  if (n > 0) {
+    glUniform4fv(p.light_vector_camera, n, &f.light_vectors[0][0]);
+    glUniform3fv(p.light_irradiance, n, &f.light_irradiance[0][0]);
+  }
+  if (f.shadows) {
+    glUniformMatrix4fv(p.shadow_from_camera, n, GL_FALSE, &f.shadow_from_camera[0][0]);
+    glUniform1fv(p.shadow_normal_offset_mm, n, f.shadow_normal_offset_mm);
+    glUniform1fv(p.shadow_depth_bias, n, f.shadow_depth_bias);
+    glUniform1f(p.shadow_texel, f.shadow_texel);
+  }
+  if (f.environment != nullptr) {
+    glUniformMatrix3fv(p.environment_from_camera, 1, GL_FALSE, f.environment_from_camera);
+    glUniform1f(p.environment_max_lod, PrefilteredEnvironment::kLevels - 1);
+    glUniform3fv(p.irradiance_sh, 9, f.environment->irradiance_sh[0].data());
+    glUniform1f(p.environment_intensity, f.environment_intensity);
+  }
+  return p;
+}
+
+void Renderer::Impl::EnsurePbrResources() {
+  if (background_program != 0) return;
+  // the background: one triangle, no vertex data
+  background_program =
+      LinkProgram(background_vert_glsl, std::string("#version 330 core\n") + background_frag_glsl,
+                  "background program");
+  background_scale = glGetUniformLocation(background_program, "background_scale");
+  glUseProgram(background_program);
+  glUniform1i(glGetUniformLocation(background_program, "background_image"), kBackgroundUnit);
+  glGenVertexArrays(1, &empty_vertex_array);
+  glGenTextures(1, &background_texture);
+  glActiveTexture(GL_TEXTURE0 + kBackgroundUnit);
+  glBindTexture(GL_TEXTURE_2D, background_texture);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+
+  // the coverage pass: the surface each sample sees
+  const std::string header =
+      "#version 330 core\n#define LIGHT_COUNT 0\n#define SHADOWS 0\n#define TEXTURED 0\n"
+      "#define ENVIRONMENT 0\n";
+  coverage_program = LinkProgram(header + projection_glsl + scene_vert_glsl,
+                                 header + coverage_frag_glsl, "coverage program");
+  coverage_projection.Find(coverage_program);
+  coverage_surface_id = glGetUniformLocation(coverage_program, "surface_id");
+
+  // the DFG table, (n.v, roughness) -> (Fresnel peak part, albedo for f0 = 1)
+  const cv::Mat dfg = ComputeDfgLut(kDfgSize, 512);
+  glGenTextures(1, &dfg_texture);
+  glActiveTexture(GL_TEXTURE0 + kDfgUnit);
+  glBindTexture(GL_TEXTURE_2D, dfg_texture);
+  glTexImage2D(GL_TEXTURE_2D, 0, GL_RG32F, kDfgSize, kDfgSize, 0, GL_RG, GL_FLOAT, dfg.data);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+  glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+  bound_texture = 0;
+
+  glGenFramebuffers(1, &shaded_framebuffer);
+  glGenFramebuffers(1, &coverage_framebuffer);
+  glGenFramebuffers(1, &resolve_framebuffer);
+  glGenTextures(1, &shaded_texture);
+  glGenTextures(1, &surface_texture);
+  glGenTextures(1, &coverage_texture);
+  glGenRenderbuffers(1, &coverage_depth_buffer);
+  glGenRenderbuffers(1, &resolve_buffer);
+  CheckGlError("Renderer: physically based set-up");
+}
+
+void Renderer::Impl::EnsurePbrTargets(int samples) {
+  const GLenum draw_buffers[] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1, GL_COLOR_ATTACHMENT2,
+                                 GL_COLOR_ATTACHMENT3};
+  const auto plain_texture = [](GLuint texture, GLenum format, int w, int h) {
+    glBindTexture(GL_TEXTURE_2D, texture);
+    glTexImage2D(GL_TEXTURE_2D, 0, format, w, h, 0, format == GL_R16UI ? GL_RED_INTEGER : GL_RGBA,
+                 format == GL_R16UI ? GL_UNSIGNED_SHORT : GL_FLOAT, nullptr);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAX_LEVEL, 0);
+  };
+  if (width != pbr_width || height != pbr_height) {
+    // shaded once per pixel: colour and surface of its own, id, camera z and depth shared with
+    // the Phong framebuffer
+    glActiveTexture(GL_TEXTURE0 + kBackgroundUnit);
+    plain_texture(shaded_texture, GL_RGBA16F, width, height);
+    plain_texture(surface_texture, GL_R16UI, width, height);
+    glBindTexture(GL_TEXTURE_2D, background_texture);
+    glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+    glBindRenderbuffer(GL_RENDERBUFFER, resolve_buffer);
+    glRenderbufferStorage(GL_RENDERBUFFER, GL_RGBA16UI, width, height);
+    CheckGlError("Renderer: physically based framebuffer storage");
+    glBindFramebuffer(GL_FRAMEBUFFER, shaded_framebuffer);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D, shaded_texture, 0);
+    glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT1, GL_RENDERBUFFER,
+                              instance_buffer);
+    glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT2, GL_RENDERBUFFER,
+                              camera_z_buffer);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT3, GL_TEXTURE_2D, surface_texture, 0);
+    glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth_buffer);
+    glDrawBuffers(4, draw_buffers);
+    CheckFramebuffer("physically based framebuffer");
+    glBindFramebuffer(GL_FRAMEBUFFER, resolve_framebuffer);
+    glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_RENDERBUFFER,
+                              resolve_buffer);
+    glDrawBuffers(1, draw_buffers);
+    glReadBuffer(GL_COLOR_ATTACHMENT0);
+    CheckFramebuffer("resolve framebuffer");
+    pbr_width = width;
+    pbr_height = height;
+    coverage_samples = 0;
+  }
+  if (samples <= 1 || samples == coverage_samples) return;
+
+  // the coverage targets: the surface of each sample, and the samples' depth
+  glBindTexture(GL_TEXTURE_2D_MULTISAMPLE, coverage_texture);
+  glTexImage2DMultisample(GL_TEXTURE_2D_MULTISAMPLE, samples, GL_R16UI, width, height, GL_TRUE);
+  glBindRenderbuffer(GL_RENDERBUFFER, coverage_depth_buffer);
+  glRenderbufferStorageMultisample(GL_RENDERBUFFER, samples, GL_DEPTH_COMPONENT32F, width, height);
+  CheckGlError("Renderer: coverage framebuffer storage");
+  glBindFramebuffer(GL_FRAMEBUFFER, coverage_framebuffer);
+  glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT0, GL_TEXTURE_2D_MULTISAMPLE,
+                         coverage_texture, 0);
+  glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER,
+                            coverage_depth_buffer);
+  glDrawBuffers(1, draw_buffers);
+  CheckFramebuffer("coverage framebuffer");
+  coverage_samples = samples;
+}
+
+GLuint Renderer::Impl::ResolveProgram(int samples) {
+  if (resolve_programs[samples] != 0) return resolve_programs[samples];
+  const std::string name = "resolve program, " + std::to_string(samples) + " samples";
+  const GLuint program = LinkProgram(
+      background_vert_glsl,
+      "#version 330 core\n#define SAMPLES " + std::to_string(samples) + "\n" + resolve_frag_glsl,
+      name.c_str());
+  glUseProgram(program);
+  glUniform1i(glGetUniformLocation(program, "coverage"), kResolveCoverageUnit);
+  CheckGlError(name.c_str());
+  resolve_programs[samples] = program;
+  return program;
+}
+
+void Renderer::Impl::DrawPbrSurface(const DrawItem& item, size_t index,
+                                    const Eigen::Isometry3d& camera_from_world,
+                                    const MeshBuffers& mesh, const Material& material,
+                                    GLsizei first, GLsizei count) {
+  const bool textured = material.texture_id >= 0;
+  PbrProgram& p = UsePbr(textured);
+  if (p.item != &item) {
+    SetCameraFromObject(p.projection, camera_from_world, item);
+    glUniform1ui(p.instance_id, item.instance_id);
+    glUniform1ui(p.surface_id, static_cast<GLuint>(index + 1));
+    p.item = &item;
+  }
+
+  // the material with the item's gain: what a mesh material leaves open, the item's gives
+  const Eigen::Vector3f color =
+      material.color.cwiseProduct(item.gain.color).cwiseMax(0.f).cwiseMin(1.f);
+  Eigen::Vector3f base;
+  for (int c = 0; c < 3; ++c) base[c] = SrgbToLinear(color[c]);
+  const float metallic = material.metallic >= 0 ? material.metallic : item.material.metallic;
+  const float roughness = material.roughness >= 0        ? material.roughness
+                          : item.material.roughness >= 0 ? item.material.roughness
+                                                         : RoughnessOfShininess(material.shininess);
+  glUniform3fv(p.base_color_linear, 1, base.data());
+  glUniform1f(p.metallic, std::clamp(metallic + item.gain.metallic, 0.f, 1.f));
+  glUniform1f(p.roughness, std::clamp(roughness * item.gain.roughness, 0.f, 1.f));
+  glUniform1f(p.dielectric_f0,
+              std::clamp(0.08f * material.specular * item.gain.specular, 0.f, 1.f));
+  if (textured && textures[material.texture_id] != bound_texture) {
+    bound_texture = textures[material.texture_id];
+    glBindTexture(GL_TEXTURE_2D, bound_texture);
+  }
+  Draw(mesh, first, count);
+}
+
+void Renderer::Impl::ReadLinearColor(cv::Mat* color) {
+  // half floats as they are stored (a plain copy), widened here: far faster than asking the GL
+  // for RGB floats
+  EnsureImage(&half_colors, height, width, CV_16FC4);
+  glReadPixels(0, 0, width, height, GL_RGBA, GL_HALF_FLOAT, half_colors.data);
+  half_colors.convertTo(float_colors, CV_32F);
+  EnsureImage(color, height, width, CV_32FC3);
+  cv::cvtColor(float_colors, *color, cv::COLOR_RGBA2RGB);
+}
+
+void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& options,
+                               const std::vector<DrawItem>& items, RenderResult* result) {
+  EnsurePbrResources();
+  const Eigen::Isometry3d camera_from_world = camera.world_from_camera.inverse();
+  Resize(camera.width, camera.height);
+  const int samples = options.msaa_samples;
+  EnsurePbrTargets(samples);
+  glDisable(GL_COLOR_LOGIC_OP);
+  glEnable(GL_DEPTH_TEST);
+
+  // each pixel shaded at its centre: clear, the items near first, the background image; ids and
+  // camera z of the same surface as its colour
+  glBindFramebuffer(GL_FRAMEBUFFER, shaded_framebuffer);
+  glViewport(0, 0, width, height);
+  GLfloat background[4] = {0, 0, 0, 1};
+  for (int c = 0; c < 3; ++c) {
+    background[c] = options.background_scale * SrgbToLinear(options.background_rgb[c]);
+  }
+  const GLuint zero_id[4] = {0, 0, 0, 0};
+  const GLfloat zero_z[4] = {0, 0, 0, 0};
+  const GLfloat far_depth = 1;
+  glClearBufferfv(GL_COLOR, 0, background);
+  glClearBufferuiv(GL_COLOR, 1, zero_id);
+  glClearBufferfv(GL_COLOR, 2, zero_z);
+  glClearBufferuiv(GL_COLOR, 3, zero_id);
+  glClearBufferfv(GL_DEPTH, 0, &far_depth);
+  for (const auto& [z, index] : draw_order) {
+    const DrawItem& item = items[index];
+    const MeshBuffers& mesh = meshes[item.mesh_id];
+    if (!item.use_mesh_materials || mesh.materials.empty()) {
+      DrawPbrSurface(item, index, camera_from_world, mesh, item.material, 0, mesh.index_count);
+      continue;
+    }
+    for (size_t k = 0; k < mesh.range_firsts.size(); ++k) {
+      DrawPbrSurface(item, index, camera_from_world, mesh, mesh.materials[mesh.range_materials[k]],
+                     mesh.range_firsts[k], mesh.range_counts[k]);
+    }
+  }
+  // the background image last, at the far plane: shaded only where nothing else is
+  if (!options.background_image.empty()) {
+    const cv::Mat& image = options.background_image;
+    glActiveTexture(GL_TEXTURE0 + kBackgroundUnit);
+    glBindTexture(GL_TEXTURE_2D, background_texture);
+    glPixelStorei(GL_UNPACK_ROW_LENGTH, static_cast<GLint>(image.step[0] / image.elemSize()));
+    glTexImage2D(GL_TEXTURE_2D, 0, GL_SRGB8, image.cols, image.rows, 0, GL_RGB, GL_UNSIGNED_BYTE,
+                 image.data);
+    glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
+    glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+    glDepthFunc(GL_LEQUAL);
+    glDepthMask(GL_FALSE);
+    if (culling) {
+      glDisable(GL_CULL_FACE);
+      culling = false;
+    }
+    glUseProgram(background_program);
+    glUniform1f(background_scale, options.background_scale);
+    glBindVertexArray(empty_vertex_array);
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+    glDepthFunc(GL_LESS);
+    glDepthMask(GL_TRUE);
+  }
+  EnsureImage(&result->instance, height, width, CV_16UC1);
+  EnsureImage(&result->depth_mm, height, width, CV_32FC1);
+  EnsureImage(&result->color_linear, height, width, CV_32FC3);
+  glReadBuffer(GL_COLOR_ATTACHMENT1);
+  glReadPixels(0, 0, width, height, GL_RED_INTEGER, GL_UNSIGNED_SHORT, result->instance.data);
+  glReadBuffer(GL_COLOR_ATTACHMENT2);
+  glReadPixels(0, 0, width, height, GL_RED, GL_FLOAT, result->depth_mm.data);
+  if (samples <= 1) {
+    glReadBuffer(GL_COLOR_ATTACHMENT0);
+    ReadLinearColor(&result->color_linear);
+  } else {
+    // the surface each sample sees: a cheap multisampled pass
+    glBindFramebuffer(GL_FRAMEBUFFER, coverage_framebuffer);
+    glClearBufferuiv(GL_COLOR, 0, zero_id);
+    glClearBufferfv(GL_DEPTH, 0, &far_depth);
+    glUseProgram(coverage_program);
+    SetProjection(coverage_projection, camera);
+    for (const auto& [z, index] : draw_order) {
+      const DrawItem& item = items[index];
+      SetCameraFromObject(coverage_projection, camera_from_world, item);
+      glUniform1ui(coverage_surface_id, static_cast<GLuint>(index + 1));
+      Draw(meshes[item.mesh_id]);
+    }
+
+    // the samples' surfaces, four to a texel, read back with the centres' colours and surfaces
+    GLfloat positions[2 * 4] = {};
+    for (int k = 0; k < samples; ++k) glGetMultisamplefv(GL_SAMPLE_POSITION, k, positions + 2 * k);
+    glBindFramebuffer(GL_FRAMEBUFFER, resolve_framebuffer);
+    glDisable(GL_DEPTH_TEST);
+    if (culling) {
+      glDisable(GL_CULL_FACE);
+      culling = false;
+    }
+    glUseProgram(ResolveProgram(samples));
+    glActiveTexture(GL_TEXTURE0 + kResolveCoverageUnit);
+    glBindTexture(GL_TEXTURE_2D_MULTISAMPLE, coverage_texture);
+    glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+    glBindVertexArray(empty_vertex_array);
+    glDrawArrays(GL_TRIANGLES, 0, 3);
+    glEnable(GL_DEPTH_TEST);
+    EnsureImage(&sample_surfaces, height, width, CV_16UC4);
+    EnsureImage(&centre_surfaces, height, width, CV_16UC1);
+    glReadBuffer(GL_COLOR_ATTACHMENT0);
+    glReadPixels(0, 0, width, height, GL_RGBA_INTEGER, GL_UNSIGNED_SHORT, sample_surfaces.data);
+    glBindFramebuffer(GL_FRAMEBUFFER, shaded_framebuffer);
+    glReadBuffer(GL_COLOR_ATTACHMENT3);
+    glReadPixels(0, 0, width, height, GL_RED_INTEGER, GL_UNSIGNED_SHORT, centre_surfaces.data);
+    glReadBuffer(GL_COLOR_ATTACHMENT0);
+    ReadLinearColor(&result->color_linear);
+    ResolveEdges(centre_surfaces, sample_surfaces, samples, positions, &result->color_linear,
+                 &edge_colors);
+  }
+  glBindVertexArray(0);
+  result->color.release();
+  CheckGlError("Renderer::Render (physically based)");
 }
 
 void Renderer::Impl::Resize(int new_width, int new_height) {
@@ -811,7 +1172,7 @@ Eigen::AlignedBox3d Renderer::Impl::WorldBounds(const std::vector<DrawItem>& ite
 
 void Renderer::Impl::EnsureShadowMaps(int size, int layers) {
   if (shadow_program == 0) {
-    shadow_program = LinkProgram(kShadowVertexGlsl, kShadowFragmentGlsl, "shadow program");
+    shadow_program = LinkProgram(shadow_vert_glsl, shadow_frag_glsl, "shadow program");
     light_clip_from_object = glGetUniformLocation(shadow_program, "light_clip_from_object");
     glGenFramebuffers(1, &shadow_framebuffer);
     glGenTextures(1, &shadow_maps);
@@ -915,6 +1276,52 @@ int Renderer::AddTexture(const cv::Mat& rgb) {
   return static_cast<int>(impl_->textures.size()) - 1;
 }
 
+int Renderer::AddEnvironment(const PrefilteredEnvironment& environment) {
+  // check the levels: 2:1, each half the one before, linear RGB floats
+  constexpr int kLevels = PrefilteredEnvironment::kLevels;
+  const std::string what = "Renderer::AddEnvironment: '" + environment.name + "'";
+  if (environment.levels.size() != static_cast<size_t>(kLevels)) {
+    throw std::runtime_error(what + " has " + std::to_string(environment.levels.size()) +
+                             " levels, not " + std::to_string(kLevels));
+  }
+  for (int k = 0; k < kLevels; ++k) {
+    const cv::Mat& level = environment.levels[k];
+    const cv::Mat& base = environment.levels[0];
+    if (level.type() != CV_32FC3 || level.cols != 2 * level.rows || level.rows == 0 ||
+        level.cols != (base.cols >> k) || level.rows != (base.rows >> k) || !level.isContinuous()) {
+      throw std::runtime_error(what + ": level " + std::to_string(k) + " is " +
+                               std::to_string(level.cols) + "x" + std::to_string(level.rows) +
+                               " of OpenCV type " + std::to_string(level.type()) +
+                               ", not a continuous 2:1 CV_32FC3 image half the level before");
+    }
+  }
+
+  // one texture, the levels as the mip chain of an octahedral map as wide as the equirectangular
+  // one (more texels than it has), clamped at its edges
+  impl_->context.MakeCurrent();
+  EnvironmentTexture uploaded;
+  uploaded.irradiance_sh = environment.irradiance_sh;
+  glGenTextures(1, &uploaded.texture);
+  glActiveTexture(GL_TEXTURE0 + kEnvironmentUnit);
+  glBindTexture(GL_TEXTURE_2D, uploaded.texture);
+  for (int k = 0; k < kLevels; ++k) {
+    const cv::Mat& level = environment.levels[k];
+    const cv::Mat octahedral = OctahedralOf(level, level.cols);
+    glTexImage2D(GL_TEXTURE_2D, k, GL_RGB16F, octahedral.cols, octahedral.rows, 0, GL_RGB, GL_FLOAT,
+                 octahedral.data);
+  }
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_BASE_LEVEL, 0);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAX_LEVEL, kLevels - 1);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_LINEAR_MIPMAP_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_LINEAR);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+  glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+  CheckGlError("Renderer::AddEnvironment");
+  impl_->environments.push_back(uploaded);
+  return static_cast<int>(impl_->environments.size()) - 1;
+}
+
 int Renderer::AddMesh(const TriangleMesh& mesh) {
   static_assert(sizeof(std::array<uint32_t, 3>) == 3 * sizeof(uint32_t), "packed triangles");
   // check the mesh
@@ -1004,6 +1411,8 @@ int Renderer::AddMesh(const TriangleMesh& mesh) {
     material.color = source.color;
     material.specular = source.specular;
     material.shininess = source.shininess;
+    material.metallic = source.metallic;
+    material.roughness = source.roughness;
     if (!source.texture.empty()) {
       const auto found = texture_ids.find(source.texture.data);
       material.texture_id = found != texture_ids.end() ? found->second : AddTexture(source.texture);
@@ -1075,6 +1484,32 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
                              std::to_string(kMinShadowMapSize) + ".." +
                              std::to_string(kMaxShadowMapSize));
   }
+  const bool pbr = options.shading == Shading::kPbr;
+  if (pbr) {
+    const int samples = options.msaa_samples;
+    const int max_samples = MaxMsaaSamples();
+    if ((samples != 1 && samples != 2 && samples != 4) || samples > max_samples) {
+      throw std::runtime_error("Renderer::Render: msaa_samples " + std::to_string(samples) +
+                               " is not 1, 2 or 4 up to " + std::to_string(max_samples) +
+                               ", the most this GL takes (" + Description() + ")");
+    }
+    if (options.environment_id < -1 ||
+        options.environment_id >= static_cast<int>(impl.environments.size())) {
+      throw std::runtime_error("Renderer::Render: unknown environment_id " +
+                               std::to_string(options.environment_id) + " (" +
+                               std::to_string(impl.environments.size()) + " environments added)");
+    }
+    if (!(options.environment_intensity >= 0) || !std::isfinite(options.environment_intensity) ||
+        !(options.background_scale >= 0) || !std::isfinite(options.background_scale) ||
+        !std::isfinite(options.environment_yaw_deg)) {
+      throw std::runtime_error("Renderer::Render: environment_intensity " +
+                               std::to_string(options.environment_intensity) +
+                               " and background_scale " + std::to_string(options.background_scale) +
+                               " must be finite and >= 0, environment_yaw_deg finite");
+    }
+  } else if (options.shading != Shading::kPhong) {
+    throw std::runtime_error("Renderer::Render: unknown shading");
+  }
   for (size_t i = 0; i < items.size(); ++i) {
     const MeshBuffers& mesh = impl.meshes[items[i].mesh_id];
     if (!items[i].use_mesh_materials || mesh.materials.empty()) {
@@ -1114,6 +1549,8 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
     frame.light_terms[i][0] = light.ambient;
     frame.light_terms[i][1] = light.diffuse;
     frame.light_terms[i][2] = light.specular;
+    for (int c = 0; c < 3; ++c)
+      frame.light_irradiance[i][c] = static_cast<float>(M_PI) * light.diffuse;
   }
 
   // shadow maps, from each light over the box of all items
@@ -1139,6 +1576,35 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
     glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
   }
 
+  // draw near items first so the depth test rejects hidden fragments before shading
+  impl.draw_order.clear();
+  for (size_t i = 0; i < items.size(); ++i) {
+    const double z = (camera_from_world * items[i].world_from_object.translation()).z();
+    impl.draw_order.emplace_back(z, i);
+  }
+  std::sort(impl.draw_order.begin(), impl.draw_order.end());
+
+  // a new frame: each scene program gets its per-frame uniforms on first use
+  ++impl.frame;
+  impl.frame_camera = &camera;
+  impl.bound_texture = 0;
+  frame.pbr = pbr;
+  if (pbr) {
+    // the environment turned about world z, seen from the camera
+    frame.environment =
+        options.environment_id >= 0 ? &impl.environments[options.environment_id] : nullptr;
+    frame.environment_intensity = options.environment_intensity;
+    const Eigen::Matrix3f environment_from_camera =
+        (Eigen::AngleAxisd(-options.environment_yaw_deg * M_PI / 180, Eigen::Vector3d::UnitZ())
+             .toRotationMatrix() *
+         camera.world_from_camera.linear())
+            .cast<float>();
+    std::memcpy(frame.environment_from_camera, environment_from_camera.data(),
+                sizeof(frame.environment_from_camera));
+    impl.RenderPbr(camera, options, items, result);
+    return;
+  }
+
   // clear: background colour, id 0, camera z 0, far depth
   impl.Resize(camera.width, camera.height);
   glBindFramebuffer(GL_FRAMEBUFFER, impl.scene_framebuffer);
@@ -1155,19 +1621,7 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   glClearBufferfv(GL_COLOR, 2, zero_z);
   glClearBufferfv(GL_DEPTH, 0, &far_depth);
 
-  // a new frame: each scene program gets its per-frame uniforms on first use
-  ++impl.frame;
-  impl.frame_camera = &camera;
-  impl.bound_texture = 0;
-
-  // draw near items first so the depth test rejects hidden fragments before shading; each
-  // material of a mesh (or the item's material) in one draw
-  impl.draw_order.clear();
-  for (size_t i = 0; i < items.size(); ++i) {
-    const double z = (camera_from_world * items[i].world_from_object.translation()).z();
-    impl.draw_order.emplace_back(z, i);
-  }
-  std::sort(impl.draw_order.begin(), impl.draw_order.end());
+  // each material of a mesh (or the item's material) in one draw, near items first
   for (const auto& [z, index] : impl.draw_order) {
     const DrawItem& item = items[index];
     const MeshBuffers& mesh = impl.meshes[item.mesh_id];
@@ -1182,7 +1636,7 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   }
   glBindVertexArray(0);
 
-  // read back; framebuffer row 0 is image row 0 already (see kProjectionGlsl)
+  // read back; framebuffer row 0 is image row 0 already (see projection.glsl)
   EnsureImage(&result->color, impl.height, impl.width, CV_8UC3);
   EnsureImage(&result->depth_mm, impl.height, impl.width, CV_32FC1);
   EnsureImage(&result->instance, impl.height, impl.width, CV_16UC1);
@@ -1193,6 +1647,7 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
                result->instance.data);
   glReadBuffer(GL_COLOR_ATTACHMENT2);
   glReadPixels(0, 0, impl.width, impl.height, GL_RED, GL_FLOAT, result->depth_mm.data);
+  result->color_linear.release();
   CheckGlError("Renderer::Render");
 
   // the background image where nothing was drawn (camera z 0), copied exactly
@@ -1273,5 +1728,14 @@ void Renderer::RenderSilhouettes(const CameraModel& camera, const std::vector<Dr
 }
 
 std::string Renderer::Description() const { return impl_->context.Description(); }
+
+int Renderer::MaxMsaaSamples() const {
+  impl_->context.MakeCurrent();
+  GLint samples = 0;
+  GLint integer_samples = 0;
+  glGetIntegerv(GL_MAX_SAMPLES, &samples);
+  glGetIntegerv(GL_MAX_INTEGER_SAMPLES, &integer_samples);
+  return std::min(samples, integer_samples);
+}
 
 }  // namespace stackgen

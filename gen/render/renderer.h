@@ -10,6 +10,7 @@
 #include <opencv2/core.hpp>
 
 #include "gen/mesh/mesh.h"
+#include "gen/render/environment.h"
 
 namespace stackgen {
 
@@ -25,15 +26,27 @@ struct CameraModel {
   double far_mm = 10000;  // surfaces farther than this (camera z) are clipped
 };
 
-/// Surface appearance. Colours are display values in [0, 1]; shading runs in linear colour with
-/// gamma 2 (linear = display^2), so a surface lit at full strength shows `color` itself.
+/// Surface appearance. Colours are display values in [0, 1]. Phong shading runs in linear colour
+/// with gamma 2 (linear = display^2), so a surface lit at full strength shows `color` itself;
+/// physically based shading decodes them as sRGB into the base colour.
 struct Material {
   Eigen::Vector3f color{0.7f, 0.7f, 0.7f};
-  float specular = 0.5f;   // strength of the white highlight, >= 0 (configs allow 0..2)
+  /// Phong: strength of the white highlight, >= 0 (configs allow 0..2). Physically based: the
+  /// reflectance of a non-metal at normal incidence is 0.08 x specular (Blender's "specular";
+  /// 0.5 gives 4 %, most plastics and paints).
+  float specular = 0.5f;
   float shininess = 32.f;  // Blinn-Phong exponent
   /// A texture from Renderer::AddTexture, or -1 for none. Its texel colour (display values)
   /// multiplies `color`; the mesh needs texture coordinates (TriangleMesh::uvs).
   int texture_id = -1;
+  /// Physically based shading only. Metallic 0..1 (0 a dielectric, 1 a bare metal whose
+  /// reflectance is its colour); a negative value in a mesh's own material means "not stated
+  /// by the file": the DrawItem's material gives it.
+  float metallic = 0.f;
+  /// Perceptual roughness 0..1 (alpha = roughness^2), clamped below at 0.03; negative: derived
+  /// from shininess as (2 / (shininess + 2))^(1/4), the GGX lobe as wide as the Blinn-Phong one
+  /// (40 -> 0.47). In a mesh's own material, negative means the DrawItem's material gives it.
+  float roughness = -1.f;
 };
 
 /// Per-draw randomisation applied on top of whichever material a surface uses.
@@ -42,10 +55,15 @@ struct MaterialGain {
   Eigen::Vector3f color{1, 1, 1};
   float specular = 1.f;   // multiplies the highlight strength
   float shininess = 1.f;  // multiplies the exponent
+  float roughness = 1.f;  // physically based: multiplies the roughness (result clamped to 0..1)
+  float metallic = 0.f;   // physically based: added to metallic (result clamped to 0..1)
 };
 
 /// A light with the paper's three OpenGL terms (ambient, diffuse, specular). Ambient terms of all
-/// lights add up; no light falls off with distance.
+/// lights add up; no light falls off with distance. Physically based shading uses `diffuse` as
+/// the light's strength (a white matte surface facing it shows `diffuse` in linear light: an
+/// irradiance of pi x diffuse) and ignores ambient and specular: the environment is the ambient
+/// light, and highlights follow from the material.
 struct Light {
   enum class Type { kDirectional, kPoint };
   Type type = Type::kDirectional;
@@ -66,8 +84,18 @@ struct DrawItem {
   MaterialGain gain;  // applied to the material used (the mesh's or `material`)
 };
 
+/// How colour is computed.
+enum class Shading {
+  /// The paper's: Blinn-Phong per light, display values with gamma 2 in RenderResult::color.
+  kPhong,
+  /// Metallic-roughness GGX microfacets lit by the lights and an environment, anti-aliased,
+  /// linear radiance in RenderResult::color_linear (the camera response comes later).
+  kPbr,
+};
+
 /// How a frame is drawn beyond the camera, lights and items.
 struct RenderOptions {
+  Shading shading = Shading::kPhong;
   /// Display RGB in [0, 1] where nothing is drawn (unless background_image is set).
   Eigen::Vector3f background_rgb{0, 0, 0};
   /// Empty, or CV_8UC3 RGB of exactly camera width x height: shown unchanged (no shading) where
@@ -82,20 +110,41 @@ struct RenderOptions {
   bool shadows = false;
   /// Texels per side of each shadow map, 256..8192 (default 2048).
   int shadow_map_size = 2048;
+
+  // physically based shading only:
+  /// An environment from Renderer::AddEnvironment lighting every surface, or -1 for none.
+  int environment_id = -1;
+  /// The environment turned about the world's z axis (counter-clockwise seen from above), deg.
+  double environment_yaw_deg = 0;
+  /// Multiplies the environment's radiance, >= 0.
+  float environment_intensity = 1.f;
+  /// Samples per pixel of the colour image's edges: 1 (off), 2 or 4, at most
+  /// MaxMsaaSamples(). Each pixel is shaded once at its centre and a multisampled coverage pass
+  /// blends edge pixels (subpixel reconstruction, Chajdas et al. 2011; see renderer.cc). Depth, ids
+  /// and silhouettes never depend on it: they come from the single-sampled pass, exact at centres.
+  int msaa_samples = 4;
+  /// Linear radiance of a background pixel whose display value is 1 (background_rgb and
+  /// background_image are decoded as sRGB and scaled by this), >= 0.
+  float background_scale = 1.f;
 };
 
 /// The images of one render, all camera.width x camera.height, row 0 at the top.
 struct RenderResult {
-  cv::Mat color;     // CV_8UC3, RGB order (not BGR)
+  cv::Mat color;  // CV_8UC3, RGB order (not BGR); Phong shading only (empty otherwise)
+  /// CV_32FC3 linear RGB radiance (1 = what a white matte surface under a light of strength 1
+  /// reflects); physically based shading only (empty otherwise).
+  cv::Mat color_linear;
   cv::Mat depth_mm;  // CV_32FC1, z of the surface in the camera frame, mm; 0 where nothing drawn
   cv::Mat instance;  // CV_16UC1, instance_id of the nearest surface, 0 = background or non-object
 };
 
 /// Renders scenes of meshes headless with OpenGL 3.3 core through EGL (see EglContext): colour,
-/// depth and instance id in one pass, plus per-object silhouettes. No multisampling, so ids are
-/// exact and every pixel's colour, depth and id come from the same surface. Surfaces take the
-/// materials and textures of their model file or of their DrawItem; shadows (optional) come
-/// from one depth-only pass per light into its own map before the scene pass.
+/// depth and instance id, plus per-object silhouettes, all three in one single-sampled pass, so
+/// every pixel's colour, depth and id come from the same surface; physically based frames then
+/// smooth the colour of edge pixels with a multisampled coverage pass (anti-aliased edges, exact
+/// labels). Surfaces take the materials and
+/// textures of their model file or of their DrawItem; shadows (optional) come from one
+/// depth-only pass per light into its own map before the scene pass.
 ///
 /// Owns its own GL context; use a Renderer from one thread at a time (each call makes its
 /// context current on the calling thread). Not copyable.
@@ -126,17 +175,26 @@ class Renderer {
   /// that the mesh has no texture coordinates for.
   int AddMesh(const TriangleMesh& mesh);
 
-  /// Renders the items with Blinn-Phong shading (per light: ambient + diffuse + specular; a
-  /// point light's direction is taken per fragment) over the background of `options`, with
-  /// shadows when options.shadows. A triangle's material is its mesh material when
+  /// Uploads a prefiltered environment (its levels as the mip chain of one equirectangular
+  /// texture, its irradiance harmonics) once; returns its environment_id (0, 1, 2, ...). Throws
+  /// std::runtime_error when it does not have PrefilteredEnvironment::kLevels levels, each half
+  /// the previous one, 2:1 and CV_32FC3, or for a GL error.
+  int AddEnvironment(const PrefilteredEnvironment& environment);
+
+  /// Renders the items over the background of `options`, with shadows when options.shadows:
+  /// Blinn-Phong (per light: ambient + diffuse + specular; a point light's direction is taken
+  /// per fragment) into `color`, or physically based (options.shading kPbr; see pbr.frag.glsl)
+  /// into `color_linear`. A triangle's material is its mesh material when
   /// item.use_mesh_materials and the mesh has materials, item.material otherwise, with item.gain
-  /// applied; materials and shadows change colours only, never which pixels are covered, their
-  /// depth or ids. The framebuffer follows camera.width and camera.height (re-allocated only when
-  /// they change). At most kMaxLights lights; the shader for each number of lights, with or
-  /// without shadows and texture, is compiled on its first use. Throws std::runtime_error for an
-  /// unknown mesh_id or texture_id, a texture on a mesh without texture coordinates, a bad camera
-  /// (size, focal length, near/far), too many or invalid lights, a background image of the wrong
-  /// size or type, a shadow_map_size out of range, or a GL error (by name).
+  /// applied; materials, lights, shadows, the environment and multisampling change colours only,
+  /// never which pixels are covered, their depth or ids. The framebuffers follow camera.width and
+  /// camera.height (re-allocated only when they change). At most kMaxLights lights; the shader
+  /// for each number of lights, with or without shadows, texture and environment, is compiled
+  /// on its first use. Throws std::runtime_error for an unknown mesh_id, texture_id or
+  /// environment_id, a texture on a mesh without texture coordinates, a bad camera (size, focal
+  /// length, near/far), too many or invalid lights, a background image of the wrong size or
+  /// type, a shadow_map_size, msaa_samples, environment_intensity or background_scale out of
+  /// range, or a GL error (by name).
   RenderResult Render(const CameraModel& camera, const std::vector<Light>& lights,
                       const RenderOptions& options, const std::vector<DrawItem>& items);
 
@@ -160,6 +218,9 @@ class Renderer {
 
   /// The platform, GL_RENDERER and GL_VERSION of the context (see EglContext::Description).
   std::string Description() const;
+
+  /// The most RenderOptions::msaa_samples this GL takes (llvmpipe: 4).
+  int MaxMsaaSamples() const;
 
   /// Most lights one Render takes.
   static constexpr int kMaxLights = 8;

@@ -20,6 +20,7 @@
 #include "gen/randomize/camera_pose.h"
 #include "gen/randomize/lighting.h"
 #include "gen/randomize/sensor.h"
+#include "gen/randomize/uniform.h"
 #include "gen/render/renderer.h"
 
 namespace stackgen {
@@ -36,7 +37,14 @@ constexpr uint64_t kPickSalt = 0x7069636b5069636bULL;
 
 // Each randomisation lever draws from an engine of its own, seeded from the scene seed and the
 // lever, so switching one lever on or off never shifts another's draws.
-enum class Lever : uint64_t { kCamera = 1, kLighting, kAppearance, kBackground, kSensor };
+enum class Lever : uint64_t {
+  kCamera = 1,
+  kLighting,
+  kAppearance,
+  kBackground,
+  kSensor,
+  kEnvironment,
+};
 
 std::mt19937_64 LeverEngine(uint64_t scene_seed, Lever lever) {
   return std::mt19937_64(SplitMixHash(SplitMixHash(scene_seed) ^ static_cast<uint64_t>(lever)));
@@ -147,6 +155,8 @@ struct SceneGenerator::Impl {
   std::vector<TypeInScene> types;
   int bin_mesh_id = 0;
   Material bin_material;
+  // physically based shading: the environments a scene draws from (renderer environment ids)
+  std::vector<int> environment_ids;
   std::string description;
   // the model of each labelled class, index class_id - 1
   std::vector<model> models;
@@ -308,6 +318,8 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
         Eigen::Vector3d(part.color_r(), part.color_g(), part.color_b()).cast<float>();
     type.material.specular = static_cast<float>(part.specular());
     type.material.shininess = static_cast<float>(part.shininess());
+    type.material.metallic = static_cast<float>(part.metallic());
+    type.material.roughness = part.has_roughness() ? static_cast<float>(part.roughness()) : -1.f;
     type.use_file_materials = part.use_file_materials();
     if (part.role() != config::PartConfig::DISTRACTOR) {
       auto it = std::find(class_names.begin(), class_names.end(), part.class_name());
@@ -339,6 +351,48 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
       Eigen::Vector3d(bin.color_r(), bin.color_g(), bin.color_b()).cast<float>();
   impl_->bin_material.specular = static_cast<float>(bin.specular());
   impl_->bin_material.shininess = static_cast<float>(bin.shininess());
+  impl_->bin_material.metallic = static_cast<float>(bin.metallic());
+  impl_->bin_material.roughness = bin.has_roughness() ? static_cast<float>(bin.roughness()) : -1.f;
+
+  // physically based shading: the procedural halls and the user's environment files, each
+  // prefiltered once here
+  const config::RenderingConfig& rendering = config.config.rendering();
+  if (rendering.shading() == config::RenderingConfig::PBR) {
+    const int max_samples = impl_->renderer->MaxMsaaSamples();
+    if (rendering.msaa_samples() > max_samples) {
+      throw ConfigError(config.path +
+                        ": rendering.msaa_samples: " + std::to_string(rendering.msaa_samples()) +
+                        " is more than the " + std::to_string(max_samples) +
+                        " this renderer takes (" + impl_->renderer->Description() + ")");
+    }
+    const Clock::time_point start = Clock::now();
+    for (int k = 0; k < rendering.procedural_halls(); ++k) {
+      impl_->environment_ids.push_back(
+          impl_->renderer->AddEnvironment(Prefilter(MakeHallEnvironment(k, 128))));
+    }
+    std::vector<std::string> files;
+    if (!rendering.environment_dir().empty()) {
+      try {
+        files = ListEnvironmentFiles(config.Resolve(rendering.environment_dir()));
+        for (const std::string& file : files) {
+          impl_->environment_ids.push_back(
+              impl_->renderer->AddEnvironment(Prefilter(LoadEnvironment(file))));
+        }
+      } catch (const std::runtime_error& error) {
+        throw ConfigError(config.path + ": rendering.environment_dir: " + error.what());
+      }
+    }
+    description << "shading: physically based, " << rendering.msaa_samples()
+                << " samples per pixel; environments: " << rendering.procedural_halls()
+                << " procedural halls";
+    if (!files.empty()) {
+      description << ", " << files.size() << " files in "
+                  << config.Resolve(rendering.environment_dir());
+    }
+    description << " (prepared in " << static_cast<int>(MillisecondsSince(start)) << " ms)\n";
+  } else {
+    description << "shading: Blinn-Phong (the paper's), no anti-aliasing\n";
+  }
 
   // camera ranges that would lose the bin too often are refused now, not mid-run
   try {
@@ -539,9 +593,10 @@ void SceneGenerator::Impl::Pick(SettledPile* state, int views) const {
 }
 
 struct RenderedImages {
-  cv::Mat color;     // RGB8
-  cv::Mat depth_mm;  // float
-  cv::Mat instance;  // uint16 ids
+  cv::Mat color;         // RGB8 (Phong)
+  cv::Mat color_linear;  // linear RGB float (physically based)
+  cv::Mat depth_mm;      // float
+  cv::Mat instance;      // uint16 ids
   SensorEffects sensor;
 };
 
@@ -575,6 +630,7 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   std::mt19937_64 appearance_engine = LeverEngine(seed, Lever::kAppearance);
   std::mt19937_64 background_engine = LeverEngine(seed, Lever::kBackground);
   std::mt19937_64 sensor_engine = LeverEngine(seed, Lever::kSensor);
+  std::mt19937_64 environment_engine = LeverEngine(seed, Lever::kEnvironment);
   start = Clock::now();
   const CameraModel camera = impl_->Camera(camera_engine);
   const std::vector<Light> lights = SampleLights(config.lighting(), lighting_engine);
@@ -583,6 +639,24 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
       impl_->backgrounds->Draw(camera.width, camera.height, background_engine);
   options.shadows = config.lighting().shadows();
   options.shadow_map_size = config.lighting().shadow_map_size();
+  // physically based: an environment, its turn and strength (three draws whatever the settings)
+  const config::RenderingConfig& rendering = config.rendering();
+  const double environment_draw = Uniform(environment_engine, 0, 1);
+  const double yaw_deg = Uniform(environment_engine, 0, 360);
+  const double log_intensity =
+      Uniform(environment_engine, std::log(std::max(rendering.environment_intensity_min(), 1e-9)),
+              std::log(std::max(rendering.environment_intensity_max(), 1e-9)));
+  if (rendering.shading() == config::RenderingConfig::PBR) {
+    options.shading = Shading::kPbr;
+    options.msaa_samples = rendering.msaa_samples();
+    const size_t count = impl_->environment_ids.size();
+    options.environment_id = impl_->environment_ids[std::min(
+        count - 1, static_cast<size_t>(environment_draw * static_cast<double>(count)))];
+    options.environment_yaw_deg = rendering.environment_random_yaw() ? yaw_deg : 0;
+    options.environment_intensity = rendering.environment_intensity_max() > 0
+                                        ? static_cast<float>(std::exp(log_intensity))
+                                        : 0.f;
+  }
   // one gain per part type: the copies of a type look alike, like one batch of parts
   std::vector<MaterialGain> gains;
   for (int t = 0; t < config.part_size(); ++t) {
@@ -650,6 +724,7 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   // what the encoding stage needs: the images and this scene's sensor draw
   auto images = std::make_shared<RenderedImages>();
   images->color = rendered.color;
+  images->color_linear = rendered.color_linear;
   images->depth_mm = rendered.depth_mm;
   images->instance = rendered.instance;
   images->sensor = SampleSensorEffects(config.sensor(), sensor_engine);
@@ -668,9 +743,16 @@ scene SceneGenerator::Encode(RenderedScene rendered_scene, StageTimes* times) co
   const Clock::time_point start = Clock::now();
   const config::OutputConfig::Encoding encoding = config.output().image_encoding();
   // (the sensor works on the rendered colour image itself: nothing else reads it)
-  cv::Mat picture = rendered.color;
-  if (config.camera().grayscale()) cv::cvtColor(rendered.color, picture, cv::COLOR_RGB2GRAY);
-  ApplySensorEffects(rendered.sensor, &picture);
+  cv::Mat picture;
+  if (!rendered.color_linear.empty()) {
+    // physically based: exposure, noise and the tone curve in the camera's order
+    picture =
+        DevelopLinearImage(rendered.sensor, rendered.color_linear, config.camera().grayscale());
+  } else {
+    picture = rendered.color;
+    if (config.camera().grayscale()) cv::cvtColor(rendered.color, picture, cv::COLOR_RGB2GRAY);
+    ApplySensorEffects(rendered.sensor, &picture);
+  }
   out.color = EncodeImage(
       picture, config.camera().grayscale() ? image::PIXEL_GRAY8 : image::PIXEL_RGB8, encoding);
   cv::Mat depth;

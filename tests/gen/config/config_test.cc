@@ -19,8 +19,9 @@ std::string ErrorOf(const std::string& text) {
 
 // the shipped configs parse and validate.
 TEST(ConfigTest, ShippedConfigsAreValid) {
-  for (const char* name : {"default.pbtxt", "tote.pbtxt", "mixed.pbtxt", "tapered_tote.pbtxt",
-                           "basler.pbtxt", "ignore_occluded.pbtxt"}) {
+  for (const char* name :
+       {"default.pbtxt", "tote.pbtxt", "mixed.pbtxt", "tapered_tote.pbtxt", "basler.pbtxt",
+        "ignore_occluded.pbtxt", "phong.pbtxt", "studio_hdri.pbtxt"}) {
     const LoadedConfig loaded = LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/" + name);
     EXPECT_GT(loaded.config.part(0).count(), 0) << name;
   }
@@ -34,6 +35,29 @@ TEST(ConfigTest, DefaultsAndPaths) {
   EXPECT_DOUBLE_EQ(loaded.config.annotation().min_visib_fract(), 0.3);
   EXPECT_EQ(loaded.Resolve("models/a.obj"), "/configs/models/a.obj");
   EXPECT_EQ(loaded.Resolve("/abs/a.obj"), "/abs/a.obj");
+}
+
+// the rendering settings are checked before anything runs, naming the field
+TEST(ConfigTest, RenderingFieldsAreChecked) {
+  const auto error = [](const std::string& text) {
+    try {
+      ParseConfig(text, "test.pbtxt", "/configs");
+    } catch (const std::exception& e) {
+      return std::string(e.what());
+    }
+    return std::string();
+  };
+  EXPECT_EQ(ParseConfig("", "test.pbtxt", "/configs").config.rendering().shading(),
+            config::RenderingConfig::PBR);
+  EXPECT_NE(error("rendering { msaa_samples: 3 }").find("rendering.msaa_samples"),
+            std::string::npos);
+  EXPECT_NE(error("rendering { procedural_halls: 0 }").find("rendering.procedural_halls"),
+            std::string::npos);
+  EXPECT_EQ(error("rendering { shading: PHONG procedural_halls: 0 }"), "");
+  EXPECT_NE(error("part { roughness: 1.5 }").find("part[0].roughness"), std::string::npos);
+  EXPECT_NE(
+      error("sensor { exposure_ev_min: 1 exposure_ev_max: 0 }").find("sensor.exposure_ev_max"),
+      std::string::npos);
 }
 
 // an unknown field is refused with the file, line and field name.

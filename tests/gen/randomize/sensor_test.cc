@@ -216,8 +216,8 @@ TEST(SensorTest, WorksOnViews) {
   EXPECT_EQ(cv::norm(outside, original, cv::NORM_INF), 0);
 }
 
-// draws lie in the configured ranges, spread over them, and always take seven values; with
-// enabled false the result is the identity after the same seven draws.
+// draws lie in the configured ranges, spread over them, and always take ten values; with
+// enabled false the result is the identity after the same ten draws.
 TEST(SensorTest, SamplingRangesAndDisabled) {
   config::SensorConfig config;
   std::mt19937_64 engine(10);
@@ -232,6 +232,11 @@ TEST(SensorTest, SamplingRangesAndDisabled) {
     ASSERT_LE(std::abs(drawn.contrast - 1), 0.15);
     ASSERT_GE(drawn.gamma, 1 / 1.2 - 1e-12);
     ASSERT_LE(drawn.gamma, 1.2 + 1e-12);
+    ASSERT_LE(std::abs(drawn.exposure_ev), 0.5);
+    ASSERT_GE(drawn.shot_noise, 0);
+    ASSERT_LE(drawn.shot_noise, 0.0005);
+    ASSERT_GE(drawn.read_noise, 0);
+    ASSERT_LE(drawn.read_noise, 0.003);
     gamma_lo = std::min(gamma_lo, drawn.gamma);
     gamma_hi = std::max(gamma_hi, drawn.gamma);
   }
@@ -246,7 +251,7 @@ TEST(SensorTest, SamplingRangesAndDisabled) {
   const SensorEffects drawn = SampleSensorEffects(config, b);
   EXPECT_EQ(a, b);
   std::mt19937_64 reference(11);
-  reference.discard(7);
+  reference.discard(10);
   EXPECT_EQ(a, reference);
   EXPECT_GT(drawn.gaussian_sigma, 0);
   EXPECT_EQ(identity.gaussian_sigma, 0);
@@ -255,10 +260,69 @@ TEST(SensorTest, SamplingRangesAndDisabled) {
   EXPECT_EQ(identity.brightness, 0);
   EXPECT_EQ(identity.contrast, 1);
   EXPECT_EQ(identity.gamma, 1);
+  EXPECT_EQ(identity.exposure_ev, 0);
+  EXPECT_EQ(identity.read_noise, 0);
   const cv::Mat original = RandomImage(CV_8UC3, 12);
   cv::Mat image = original.clone();
   ApplySensorEffects(identity, &image);
   EXPECT_EQ(cv::norm(image, original, cv::NORM_INF), 0);
+}
+
+// the linear path: black stays black, white saturates, mid grey follows the ACES curve and sRGB;
+// exposure is a factor of two per stop; gray is the Rec. 709 luminance
+TEST(SensorTest, DevelopsLinearLightThroughTheToneCurve) {
+  cv::Mat linear(4, 4, CV_32FC3, cv::Scalar(0.18f, 0.18f, 0.18f));
+  linear.at<cv::Vec3f>(0, 0) = cv::Vec3f(0, 0, 0);
+  linear.at<cv::Vec3f>(0, 1) = cv::Vec3f(50, 50, 50);
+  linear.at<cv::Vec3f>(0, 2) = cv::Vec3f(1, 0, 0);
+  const SensorEffects identity;
+  const cv::Mat rgb = DevelopLinearImage(identity, linear, false);
+  ASSERT_EQ(rgb.type(), CV_8UC3);
+  EXPECT_EQ(rgb.at<cv::Vec3b>(0, 0), cv::Vec3b(0, 0, 0));
+  EXPECT_EQ(rgb.at<cv::Vec3b>(0, 1), cv::Vec3b(255, 255, 255));
+  const auto expected = [](double x) {
+    const double y = AcesFilmic(x);
+    return static_cast<int>(std::lround(255 * (1.055 * std::pow(y, 1 / 2.4) - 0.055)));
+  };
+  EXPECT_NEAR(rgb.at<cv::Vec3b>(2, 2)[1], expected(0.18), 0.51);
+  SensorEffects brighter;
+  brighter.exposure_ev = 1;
+  EXPECT_NEAR(DevelopLinearImage(brighter, linear, false).at<cv::Vec3b>(2, 2)[1], expected(0.36),
+              0.51);
+  const cv::Mat gray = DevelopLinearImage(identity, linear, true);
+  ASSERT_EQ(gray.type(), CV_8UC1);
+  EXPECT_NEAR(gray.at<uint8_t>(0, 2), expected(0.2126), 0.51);
+  EXPECT_THROW(DevelopLinearImage(identity, cv::Mat(4, 4, CV_8UC3), false), std::runtime_error);
+  SensorEffects bad;
+  bad.read_noise = -1;
+  EXPECT_THROW(DevelopLinearImage(bad, linear, false), std::runtime_error);
+}
+
+// noise in linear light has the variance of shot noise (growing with the signal) plus read
+// noise, the same bytes for the same seed, and other bytes for another
+TEST(SensorTest, LinearNoiseFollowsTheSignal) {
+  SensorEffects effects;
+  effects.shot_noise = 0.01;
+  effects.read_noise = 0.02;
+  effects.noise_seed = 5;
+  for (const float signal : {0.f, 0.25f, 1.f}) {
+    cv::Mat image(200, 300, CV_32FC1, cv::Scalar(signal));
+    AddLinearNoise(effects, &image);
+    cv::Scalar mean, std;
+    cv::meanStdDev(image, mean, std);
+    const double expected = std::sqrt(0.01 * signal + 0.02 * 0.02);
+    EXPECT_NEAR(std[0], expected, 0.02 * expected) << "signal " << signal;
+    EXPECT_NEAR(mean[0], signal, 0.05 * expected);
+  }
+  cv::Mat a(64, 64, CV_32FC3, cv::Scalar(0.5, 0.5, 0.5));
+  cv::Mat b = a.clone();
+  cv::Mat c = a.clone();
+  AddLinearNoise(effects, &a);
+  AddLinearNoise(effects, &b);
+  effects.noise_seed = 6;
+  AddLinearNoise(effects, &c);
+  EXPECT_EQ(cv::norm(a, b, cv::NORM_INF), 0);
+  EXPECT_GT(cv::norm(a, c, cv::NORM_INF), 0);
 }
 
 }  // namespace

@@ -24,6 +24,7 @@ struct Levers {
   bool appearance = false;
   bool background = false;
   bool sensor = false;
+  bool environment = false;
 };
 
 // five connectors in the default bin, raw images, with only the given levers on.
@@ -40,6 +41,11 @@ LoadedConfig ConfigWith(const Levers& on) {
   text += std::string("appearance { randomize: ") + (on.appearance ? "true" : "false") + " }\n";
   if (!on.background) text += "background { kind: PLAIN min: 0.5 max: 0.5 }\n";
   text += std::string("sensor { enabled: ") + (on.sensor ? "true" : "false") + " }\n";
+  if (!on.environment) {
+    text +=
+        "rendering { procedural_halls: 1 environment_random_yaw: false "
+        "environment_intensity_min: 0.8 environment_intensity_max: 0.8 }\n";
+  }
   return ParseConfig(text, "levers.pbtxt", std::string(STACKGEN_SOURCE_DIR) + "/config");
 }
 
@@ -91,13 +97,26 @@ bool Same(const cv::Mat& a, const cv::Mat& b) {
   return cv::countNonZero(differs.reshape(1)) == 0;
 }
 
-// regions of the fixed frame: background, bin (drawn, not an object), objects
+// regions of the fixed frame: background, bin (drawn, not an object), objects; and their
+// interiors, without the pixels on an edge between them, where anti-aliasing blends the colours
+// of both sides
 struct Regions {
   cv::Mat background, bin, objects;
+  cv::Mat background_inside, bin_inside, objects_inside;
   explicit Regions(const Frame& f) {
     background = f.depth == 0;
     objects = f.ids > 0;
     bin = (f.depth > 0) & (f.ids == 0);
+    // an object's interior also leaves out its edges with other objects
+    cv::Mat object_edges;
+    cv::Mat ids_max, ids_min;
+    cv::dilate(f.ids, ids_max, cv::Mat());
+    cv::erode(f.ids, ids_min, cv::Mat());
+    object_edges = ids_max != ids_min;
+    cv::erode(background, background_inside, cv::Mat());
+    cv::erode(bin, bin_inside, cv::Mat());
+    cv::erode(objects, objects_inside, cv::Mat());
+    objects_inside &= ~object_edges;
   }
 };
 
@@ -144,8 +163,8 @@ TEST_F(LeversTest, BackgroundChangesOnlyBackground) {
   const Regions r(fixed());
   const cv::Mat changed = ColourChanged(fixed(), f);
   EXPECT_GT(Count(changed, r.background), cv::countNonZero(r.background) / 2);
-  EXPECT_EQ(Count(changed, r.bin), 0);
-  EXPECT_EQ(Count(changed, r.objects), 0);
+  EXPECT_EQ(Count(changed, r.bin_inside), 0);
+  EXPECT_EQ(Count(changed, r.objects_inside), 0);
 }
 
 // the lighting lever changes the lit surfaces (bin and objects), not the background
@@ -156,7 +175,21 @@ TEST_F(LeversTest, LightingChangesOnlySurfaces) {
   ExpectSameGeometry(f);
   const Regions r(fixed());
   const cv::Mat changed = ColourChanged(fixed(), f);
-  EXPECT_EQ(Count(changed, r.background), 0);
+  EXPECT_EQ(Count(changed, r.background_inside), 0);
+  EXPECT_GT(Count(changed, r.bin), cv::countNonZero(r.bin) / 2);
+  EXPECT_GT(Count(changed, r.objects), cv::countNonZero(r.objects) / 2);
+}
+
+// the environment lever (which environment, its turn and strength) changes the lit surfaces,
+// not the background
+TEST_F(LeversTest, EnvironmentChangesOnlySurfaces) {
+  Levers on;
+  on.environment = true;
+  const Frame f = Generate(on);
+  ExpectSameGeometry(f);
+  const Regions r(fixed());
+  const cv::Mat changed = ColourChanged(fixed(), f);
+  EXPECT_EQ(Count(changed, r.background_inside), 0);
   EXPECT_GT(Count(changed, r.bin), cv::countNonZero(r.bin) / 2);
   EXPECT_GT(Count(changed, r.objects), cv::countNonZero(r.objects) / 2);
 }
@@ -177,7 +210,7 @@ TEST_F(LeversTest, ShadowsOnlyDarken) {
   const Regions r(fixed());
   const cv::Mat darker = b_gray < a_gray;
   const cv::Mat brighter = b_gray > a_gray;
-  EXPECT_EQ(Count(darker | brighter, r.background), 0);
+  EXPECT_EQ(Count(darker | brighter, r.background_inside), 0);
   EXPECT_EQ(cv::countNonZero(brighter), 0);
   const int surface = cv::countNonZero(r.bin | r.objects);
   EXPECT_GT(cv::countNonZero(darker), surface / 100) << "no visible shadow";
@@ -191,8 +224,8 @@ TEST_F(LeversTest, AppearanceChangesOnlyParts) {
   ExpectSameGeometry(f);
   const Regions r(fixed());
   const cv::Mat changed = ColourChanged(fixed(), f);
-  EXPECT_EQ(Count(changed, r.background), 0);
-  EXPECT_EQ(Count(changed, r.bin), 0);
+  EXPECT_EQ(Count(changed, r.background_inside), 0);
+  EXPECT_EQ(Count(changed, r.bin_inside), 0);
   EXPECT_GT(Count(changed, r.objects), cv::countNonZero(r.objects) / 2);
 }
 

@@ -1,0 +1,98 @@
+// Physically based colour: the metallic-roughness model (brdf.glsl) lit by point and directional
+// lights with shadow maps (shadow_lookup.glsl) and by an environment as the split sum (Karis
+// 2013; bevyengine/bevy environment_map.wgsl): radiance prefiltered by roughness, irradiance as
+// spherical harmonics (evaluated per vertex, scene.vert.glsl), the DFG lookup table, with Filament's multiple-scattering energy
+// compensation (docs/Filament.md 4.7.2). The diffuse lobe gets what the specular albedo leaves,
+// so a white surface in a uniform environment reflects exactly that environment (the furnace
+// test). Writes linear radiance (the tone curve comes later), the instance id, camera z and the
+// surface (item index + 1, for resolve.frag.glsl) of the same fragment.
+in vec3 position_camera;
+in vec3 normal_camera;
+layout(location = 0) out vec4 color_out;
+layout(location = 1) out uint instance_out;
+layout(location = 2) out float depth_out;
+layout(location = 3) out uint surface_out;
+uniform uint instance_id;
+uniform uint surface_id;
+uniform vec3 base_color_linear;
+uniform float metallic;
+uniform float roughness;      // perceptual, clamped to [0.03, 1]
+uniform float dielectric_f0;  // reflectance at normal incidence of a non-metal
+uniform sampler2D dfg_lut;    // (n.v, roughness) -> (Fresnel peak part, albedo for f0 = 1)
+#if LIGHT_COUNT > 0
+uniform vec4 light_vector_camera[LIGHT_COUNT];
+uniform vec3 light_irradiance[LIGHT_COUNT];  // at normal incidence, linear RGB
+#endif
+#if TEXTURED
+in vec2 texture_coordinates;
+uniform sampler2D material_texture;
+#endif
+#if ENVIRONMENT
+uniform mat3 environment_from_camera;
+uniform sampler2D environment_radiance;  // octahedral, level k: roughness k / max_lod
+uniform float environment_max_lod;
+uniform float environment_intensity;
+in vec3 irradiance;  // from the vertex shader, irradiance_sh at the normal (and its opposite)
+in vec3 irradiance_back;
+
+// the octahedral map's texture coordinates of a direction (environment.h, OctahedralOf)
+vec2 OctahedralUv(vec3 d) {
+  d /= abs(d.x) + abs(d.y) + abs(d.z);
+  vec2 p = d.xy;
+  if (d.z < 0.0) p = (1.0 - abs(d.yx)) * vec2(d.x >= 0.0 ? 1.0 : -1.0, d.y >= 0.0 ? 1.0 : -1.0);
+  return p * 0.5 + 0.5;
+}
+#endif
+
+void main() {
+  // shade both sides: the back of a two-sided (open) mesh uses the flipped normal
+  vec3 n = normalize(gl_FrontFacing ? normal_camera : -normal_camera);
+  vec3 v = normalize(-position_camera);
+  vec3 base = base_color_linear;
+#if TEXTURED
+  base *= SrgbToLinear(texture(material_texture, texture_coordinates).rgb);
+#endif
+  float r = clamp(roughness, 0.03, 1.0);
+  float alpha = r * r;
+  vec3 f0 = mix(vec3(dielectric_f0), base, metallic);
+  vec3 diffuse_color = base * (1.0 - metallic);
+  float n_dot_v = max(dot(n, v), 1e-4);
+
+  // specular albedo from the lookup table; multiple scattering lifts it to the full albedo of
+  // f0 = 1, and the diffuse lobe takes the rest
+  vec2 dfg = texture(dfg_lut, vec2(n_dot_v, r)).xy;
+  vec3 energy_compensation = vec3(1.0) + f0 * (1.0 / dfg.y - 1.0);
+  vec3 specular_albedo = mix(dfg.xxx, dfg.yyy, f0) * energy_compensation;
+  vec3 diffuse_weight = diffuse_color * (vec3(1.0) - specular_albedo);
+
+  vec3 linear = vec3(0.0);
+#if LIGHT_COUNT > 0
+  for (int i = 0; i < LIGHT_COUNT; ++i) {
+    vec3 l = normalize(light_vector_camera[i].xyz - position_camera * light_vector_camera[i].w);
+    float n_dot_l = dot(n, l);
+    if (n_dot_l <= 0.0) continue;
+#if SHADOWS
+    float lit = LitFraction(i);
+#else
+    const float lit = 1.0;
+#endif
+    vec3 h = normalize(l + v);
+    float n_dot_h = max(dot(n, h), 0.0);
+    float v_dot_h = max(dot(v, h), 0.0);
+    vec3 specular = D_GGX(n_dot_h, alpha) * V_SmithGGXCorrelated(n_dot_v, n_dot_l, alpha) *
+                    F_Schlick(f0, v_dot_h) * energy_compensation;
+    linear += (diffuse_weight * (1.0 / kPi) + specular) * (light_irradiance[i] * (n_dot_l * lit));
+  }
+#endif
+#if ENVIRONMENT
+  vec3 reflected = environment_from_camera * reflect(-v, n);
+  vec3 prefiltered = textureLod(environment_radiance, OctahedralUv(reflected),
+                                r * environment_max_lod).rgb;
+  linear += environment_intensity * (diffuse_weight * (gl_FrontFacing ? irradiance : irradiance_back) +
+                                     specular_albedo * prefiltered);
+#endif
+  color_out = vec4(linear, 1.0);
+  instance_out = instance_id;
+  depth_out = position_camera.z;
+  surface_out = surface_id;
+}

@@ -1,0 +1,307 @@
+// Physically based frames of gen/render/renderer.cc: energy, reflection, anti-aliasing and the
+// labels that must not depend on them.
+#include <algorithm>
+#include <cmath>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "gen/render/environment.h"
+#include "gen/render/renderer.h"
+#include "tests/support/golden.h"
+
+namespace stackgen {
+namespace {
+
+// a UV sphere of `radius_mm` centred at the origin, smooth normals, wound outwards
+TriangleMesh MakeSphere(float radius_mm, int rings = 64, int segments = 128) {
+  TriangleMesh mesh;
+  for (int i = 0; i <= rings; ++i) {
+    const double theta = M_PI * i / rings;
+    for (int j = 0; j <= segments; ++j) {
+      const double phi = 2 * M_PI * j / segments;
+      const Eigen::Vector3f n(static_cast<float>(std::sin(theta) * std::cos(phi)),
+                              static_cast<float>(std::sin(theta) * std::sin(phi)),
+                              static_cast<float>(std::cos(theta)));
+      mesh.positions_mm.push_back(radius_mm * n);
+      mesh.normals.push_back(n);
+    }
+  }
+  const auto index = [segments](int i, int j) {
+    return static_cast<uint32_t>(i * (segments + 1) + j);
+  };
+  for (int i = 0; i < rings; ++i) {
+    for (int j = 0; j < segments; ++j) {
+      // no triangles with two corners on a pole
+      if (i + 1 < rings)
+        mesh.triangles.push_back({index(i, j), index(i + 1, j), index(i + 1, j + 1)});
+      if (i > 0) mesh.triangles.push_back({index(i, j), index(i + 1, j + 1), index(i, j + 1)});
+    }
+  }
+  return mesh;
+}
+
+// a square in the object's z = 0 plane, normal +z
+TriangleMesh MakeSquare(float size_mm) {
+  TriangleMesh mesh;
+  const float h = size_mm / 2;
+  mesh.positions_mm = {{-h, -h, 0}, {h, -h, 0}, {h, h, 0}, {-h, h, 0}};
+  mesh.normals.assign(4, Eigen::Vector3f::UnitZ());
+  mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
+  return mesh;
+}
+
+// a camera at world (0, 0, height) looking straight down at the z = 0 plane, image x along
+// world x
+CameraModel CameraLookingDown(double height_mm, int width = 320, int height = 240) {
+  CameraModel camera;
+  camera.width = width;
+  camera.height = height;
+  camera.fx = camera.fy = 400;
+  camera.cx = (width - 1) / 2.0;
+  camera.cy = (height - 1) / 2.0;
+  camera.world_from_camera = Eigen::Translation3d(0, 0, height_mm) * Eigen::Isometry3d::Identity();
+  camera.world_from_camera.linear() = Eigen::Vector3d(1, -1, -1).asDiagonal();
+  return camera;
+}
+
+// an environment whose radiance is `f` of the direction, prefiltered
+template <typename F>
+PrefilteredEnvironment EnvironmentOf(F f, int height = 128) {
+  EnvironmentMap map;
+  map.name = "test";
+  map.radiance.create(height, 2 * height, CV_32FC3);
+  for (int v = 0; v < height; ++v) {
+    for (int u = 0; u < 2 * height; ++u) {
+      const Eigen::Vector3f c = f(DirectionOfPixel(u, v, 2 * height, height));
+      map.radiance.at<cv::Vec3f>(v, u) = cv::Vec3f(c.x(), c.y(), c.z());
+    }
+  }
+  return Prefilter(map, 2 * height);
+}
+
+// a white item of the given metallic and roughness
+DrawItem WhiteItem(int mesh_id, float metallic, float roughness, uint16_t id = 1) {
+  DrawItem item;
+  item.mesh_id = mesh_id;
+  item.instance_id = id;
+  item.material.color = Eigen::Vector3f::Ones();
+  item.material.metallic = metallic;
+  item.material.roughness = roughness;
+  return item;
+}
+
+RenderOptions PbrOptions(int environment_id, int msaa_samples = 1) {
+  RenderOptions options;
+  options.shading = Shading::kPbr;
+  options.environment_id = environment_id;
+  options.msaa_samples = msaa_samples;
+  return options;
+}
+
+bool Identical(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != b.type()) return false;
+  cv::Mat difference;
+  cv::compare(a.reshape(1), b.reshape(1), difference, cv::CMP_NE);
+  return cv::countNonZero(difference) == 0;
+}
+
+// the furnace test: in a uniform environment a white sphere, metal or not, smooth or rough,
+// reflects exactly the environment's radiance: no energy gained, little lost (the energy
+// compensation puts back what single scattering loses on rough metal)
+TEST(RendererPbrTest, WhiteFurnaceGainsNoEnergyAndLosesLittle) {
+  Renderer renderer(320, 240);
+  const int sphere = renderer.AddMesh(MakeSphere(60));
+  const float radiance = 0.5f;
+  const int furnace = renderer.AddEnvironment(
+      EnvironmentOf([&](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(radiance); }));
+  const CameraModel camera = CameraLookingDown(300);
+  for (const float metallic : {0.f, 1.f}) {
+    for (const float roughness : {0.05f, 0.25f, 0.5f, 0.75f, 1.f}) {
+      const RenderResult result = renderer.Render(camera, {}, PbrOptions(furnace),
+                                                  {WhiteItem(sphere, metallic, roughness)});
+      double lowest = 1e9;
+      double highest = 0;
+      int pixels = 0;
+      for (int v = 0; v < camera.height; ++v) {
+        for (int u = 0; u < camera.width; ++u) {
+          if (result.instance.at<uint16_t>(v, u) != 1) continue;
+          const cv::Vec3f c = result.color_linear.at<cv::Vec3f>(v, u);
+          for (int k = 0; k < 3; ++k) {
+            lowest = std::min<double>(lowest, c[k]);
+            highest = std::max<double>(highest, c[k]);
+          }
+          ++pixels;
+        }
+      }
+      SCOPED_TRACE("metallic " + std::to_string(metallic) + ", roughness " +
+                   std::to_string(roughness));
+      EXPECT_GT(pixels, 20000);
+      EXPECT_LE(highest, radiance * 1.01);
+      EXPECT_GE(lowest, radiance * 0.97);
+    }
+  }
+}
+
+// a mirror-like metal sphere shows the environment in the reflected direction, turned by the
+// environment's yaw
+TEST(RendererPbrTest, MirrorSphereReflectsTheEnvironment) {
+  Renderer renderer(320, 240);
+  const int sphere = renderer.AddMesh(MakeSphere(60));
+  const auto gradient = [](const Eigen::Vector3d& d) {
+    return Eigen::Vector3f(static_cast<float>(0.5 + 0.5 * d.x()),
+                           static_cast<float>(0.5 + 0.5 * d.y()),
+                           static_cast<float>(0.5 + 0.5 * d.z()));
+  };
+  const int environment = renderer.AddEnvironment(EnvironmentOf(gradient, 256));
+  const CameraModel camera = CameraLookingDown(300);
+  for (const double yaw_deg : {0.0, 90.0}) {
+    RenderOptions options = PbrOptions(environment);
+    options.environment_yaw_deg = yaw_deg;
+    const RenderResult result = renderer.Render(camera, {}, options, {WhiteItem(sphere, 1.f, 0.f)});
+    const Eigen::Matrix3d environment_from_world =
+        Eigen::AngleAxisd(-yaw_deg * M_PI / 180, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+    double worst = 0;
+    int checked = 0;
+    const Eigen::Vector3d eye = camera.world_from_camera.translation();
+    for (int v = 0; v < camera.height; v += 3) {
+      for (int u = 0; u < camera.width; u += 3) {
+        // the ray through the pixel centre, where it meets the sphere, and the reflection
+        const Eigen::Vector3d ray =
+            (camera.world_from_camera.linear() *
+             Eigen::Vector3d((u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1))
+                .normalized();
+        const double b = eye.dot(ray);
+        const double disc = b * b - (eye.squaredNorm() - 60.0 * 60.0);
+        if (disc <= 0) continue;
+        const Eigen::Vector3d n = (eye + (-b - std::sqrt(disc)) * ray).normalized();
+        if (n.dot(-ray) < 0.5) continue;  // the rim: normals interpolated over facets
+        const Eigen::Vector3d reflected = ray - 2 * ray.dot(n) * n;
+        const Eigen::Vector3f expected = gradient(environment_from_world * reflected);
+        const cv::Vec3f c = result.color_linear.at<cv::Vec3f>(v, u);
+        for (int k = 0; k < 3; ++k) worst = std::max<double>(worst, std::abs(c[k] - expected[k]));
+        ++checked;
+      }
+    }
+    SCOPED_TRACE("yaw " + std::to_string(yaw_deg));
+    EXPECT_GT(checked, 1000);
+    EXPECT_LT(worst, 0.03);
+  }
+}
+
+// multisampling smooths edges in colour only: ids and depth are byte-identical with it on or
+// off, and the same as a Phong frame's
+TEST(RendererPbrTest, AntiAliasedEdgesLeaveLabelsExact) {
+  Renderer renderer(320, 240);
+  const int square = renderer.AddMesh(MakeSquare(100));
+  const int furnace = renderer.AddEnvironment(
+      EnvironmentOf([](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(0.8f); }, 32));
+  const CameraModel camera = CameraLookingDown(300);
+  DrawItem item = WhiteItem(square, 0.f, 1.f);
+  // turned by 20 degrees, so its edges cross pixels at every phase
+  item.world_from_object = Eigen::AngleAxisd(0.35, Eigen::Vector3d::UnitZ());
+  const RenderResult sharp = renderer.Render(camera, {}, PbrOptions(furnace, 1), {item});
+  const RenderResult smooth = renderer.Render(camera, {}, PbrOptions(furnace, 4), {item});
+  const RenderResult phong = renderer.Render(camera, {}, RenderOptions(), {item});
+  EXPECT_TRUE(Identical(sharp.instance, smooth.instance));
+  EXPECT_TRUE(Identical(sharp.depth_mm, smooth.depth_mm));
+  EXPECT_TRUE(Identical(sharp.instance, phong.instance));
+  EXPECT_TRUE(Identical(sharp.depth_mm, phong.depth_mm));
+
+  // without multisampling each pixel is the square's colour or black; with it, edge pixels
+  // take values between, and the interior is unchanged
+  const auto between = [](const cv::Mat& linear, float inside) {
+    int count = 0;
+    for (int v = 0; v < linear.rows; ++v) {
+      for (int u = 0; u < linear.cols; ++u) {
+        const float g = linear.at<cv::Vec3f>(v, u)[1];
+        if (g > 0.05f * inside && g < 0.95f * inside) ++count;
+      }
+    }
+    return count;
+  };
+  const float inside = sharp.color_linear.at<cv::Vec3f>(120, 160)[1];
+  EXPECT_NEAR(inside, 0.8f, 0.01f);
+  EXPECT_NEAR(smooth.color_linear.at<cv::Vec3f>(120, 160)[1], inside, 1e-3f);
+  EXPECT_EQ(between(sharp.color_linear, inside), 0);
+  EXPECT_GT(between(smooth.color_linear, inside), 300);  // about the square's perimeter in px
+}
+
+// a directional light of strength d shows a white matte surface facing it at about d, and the
+// background image comes out as its decoded display values times background_scale
+TEST(RendererPbrTest, LightsAndBackgroundInLinearLight) {
+  Renderer renderer(320, 240);
+  const int square = renderer.AddMesh(MakeSquare(100));
+  const CameraModel camera = CameraLookingDown(300);
+  Light light;
+  light.direction_world = Eigen::Vector3f(0, 0, -1);
+  light.diffuse = 0.6f;
+  RenderOptions options = PbrOptions(-1);
+  options.background_image = cv::Mat(240, 320, CV_8UC3, cv::Scalar(188, 188, 188));
+  options.background_scale = 2.f;
+  const RenderResult result =
+      renderer.Render(camera, {light}, options, {WhiteItem(square, 0.f, 1.f)});
+  EXPECT_NEAR(result.color_linear.at<cv::Vec3f>(120, 160)[1], 0.6f, 0.06f);
+  // display 188 / 255 is 0.5029 in linear light
+  EXPECT_NEAR(result.color_linear.at<cv::Vec3f>(5, 5)[0], 2 * 0.5029f, 0.005f);
+}
+
+TEST(RendererPbrTest, BadOptionsThrow) {
+  Renderer renderer(64, 48);
+  const int square = renderer.AddMesh(MakeSquare(100));
+  CameraModel camera = CameraLookingDown(300, 64, 48);
+  const std::vector<DrawItem> items = {WhiteItem(square, 0.f, 0.5f)};
+  EXPECT_THROW(renderer.Render(camera, {}, PbrOptions(-1, 3), items), std::runtime_error);
+  EXPECT_THROW(renderer.Render(camera, {}, PbrOptions(0), items), std::runtime_error);
+  RenderOptions negative = PbrOptions(-1);
+  negative.environment_intensity = -1;
+  EXPECT_THROW(renderer.Render(camera, {}, negative, items), std::runtime_error);
+  PrefilteredEnvironment broken;
+  broken.name = "broken";
+  EXPECT_THROW(renderer.AddEnvironment(broken), std::runtime_error);
+}
+
+// a fixed physically based scene (a procedural hall, two lights, shadows, metal and plastic)
+// matches the golden image, shown with a plain clamp and sRGB encoding
+TEST(RendererPbrTest, MatchesGoldenImage) {
+  Renderer renderer(320, 240);
+  const int sphere = renderer.AddMesh(MakeSphere(40, 32, 64));
+  const int floor = renderer.AddMesh(MakeSquare(400));
+  const int hall = renderer.AddEnvironment(Prefilter(MakeHallEnvironment(3, 128)));
+  CameraModel camera = CameraLookingDown(400);
+  camera.world_from_camera =
+      Eigen::Translation3d(0, -200, 350) * Eigen::AngleAxisd(M_PI + 0.5, Eigen::Vector3d::UnitX());
+  Light key;
+  key.direction_world = Eigen::Vector3f(0.4f, 0.3f, -1.f).normalized();
+  key.diffuse = 0.8f;
+  RenderOptions options = PbrOptions(hall, 4);
+  options.shadows = true;
+  options.environment_intensity = 0.7f;
+  DrawItem ground = WhiteItem(floor, 0.f, 0.8f, 0);
+  ground.material.color = Eigen::Vector3f(0.25f, 0.35f, 0.6f);
+  DrawItem metal = WhiteItem(sphere, 1.f, 0.3f, 1);
+  metal.material.color = Eigen::Vector3f(0.9f, 0.9f, 0.92f);
+  metal.world_from_object = Eigen::Translation3d(-50, 0, 40) * Eigen::Isometry3d::Identity();
+  DrawItem plastic = WhiteItem(sphere, 0.f, 0.4f, 2);
+  plastic.material.color = Eigen::Vector3f(0.8f, 0.3f, 0.1f);
+  plastic.world_from_object = Eigen::Translation3d(60, 30, 40) * Eigen::Isometry3d::Identity();
+  const RenderResult result = renderer.Render(camera, {key}, options, {ground, metal, plastic});
+  cv::Mat display(result.color_linear.size(), CV_8UC3);
+  for (int v = 0; v < display.rows; ++v) {
+    for (int u = 0; u < display.cols; ++u) {
+      const cv::Vec3f c = result.color_linear.at<cv::Vec3f>(v, u);
+      for (int k = 0; k < 3; ++k) {
+        const double x = std::clamp<double>(c[k], 0, 1);
+        const double s = x <= 0.0031308 ? 12.92 * x : 1.055 * std::pow(x, 1 / 2.4) - 0.055;
+        display.at<cv::Vec3b>(v, u)[2 - k] = static_cast<uint8_t>(std::lround(255 * s));
+      }
+    }
+  }
+  testing::ExpectMatchesGolden(display, "render/pbr_golden.png", "render_pbr");
+}
+
+}  // namespace
+}  // namespace stackgen

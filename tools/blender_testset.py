@@ -2,7 +2,9 @@
 
 Run by tools/make-blender-testset (blender --background --factory-startup --python this file --
 ARGS). Nothing of stackgen's is used but the part's mesh files: Blender's own rigid-body world
-(its Bullet) drops the connectors into a box bin, Cycles path-traces the pile (physically based
+(its Bullet) drops the connectors into a box bin (walls that only the physics sees continue 300
+mm above the rim while the pile forms; a pile resting above the real rim is refused), Cycles
+path-traces the pile (physically based
 materials, an HDR environment from Debian's blender-data, an optional ceiling panel, Filmic view
 transform), and the labels come from Cycles' object-index pass rendered with one sample at each
 pixel's centre (a box filter 0.01 px wide), each part also alone for its unoccluded area. It
@@ -111,9 +113,11 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
     world_rb.substeps_per_frame = 30
     world_rb.solver_iterations = 30
     scene.frame_start = 1
-    scene.frame_end = 300
+    # 12.5 s: the fall and the settling
+    frames = 300
+    scene.frame_end = frames
     world_rb.point_cache.frame_start = 1
-    world_rb.point_cache.frame_end = 300
+    world_rb.point_cache.frame_end = frames
 
     # the bin: 200 x 150 x 100 mm inside, 8 mm walls, on a table
     length, width, height, wall = 200 * MM, 150 * MM, 100 * MM, 8 * MM
@@ -130,6 +134,15 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
     ]
     for o in parts_of_bin:
         o.data.materials.append(bin_material)
+    # walls seen by the physics only, up to 400 mm, so no part bounces out while the pile forms
+    # (a drop whose parts rest above the real rim is refused)
+    for name, size, location in [
+            ("fence_x0", (wall, width + 2 * wall, 0.3), (-(length + wall) / 2, 0, height + 0.15)),
+            ("fence_x1", (wall, width + 2 * wall, 0.3), ((length + wall) / 2, 0, height + 0.15)),
+            ("fence_y0", (length, wall, 0.3), (0, -(width + wall) / 2, height + 0.15)),
+            ("fence_y1", (length, wall, 0.3), (0, (width + wall) / 2, height + 0.15))]:
+        fence = box(name, size, location)
+        fence.hide_render = True
     table = box("table", (2.0, 2.0, 0.02), (0, 0, -wall - 0.01))
     grey = rng.uniform(0.05, 0.5)
     table.data.materials.append(principled("table", (grey, grey * 0.95, grey * 0.9), 0.0,
@@ -145,9 +158,6 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
         part.data.materials.clear()
         part.data.materials.append(aluminium)
         part.pass_index = i + 1
-        part.matrix_world = mathutils.Matrix.Translation(
-            (rng.uniform(-60, 60) * MM, rng.uniform(-40, 40) * MM, (150 + 70 * i) * MM)) @ \
-            random_rotation(rng)
         bpy.context.view_layer.objects.active = part
         part.select_set(True)
         bpy.ops.rigidbody.object_add(type="ACTIVE")
@@ -157,7 +167,17 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
         part.rigid_body.restitution = 0.1
         part.rigid_body.use_margin = True
         part.rigid_body.collision_margin = 0.0005
+        # damped a little, and asleep once slow, so a pile comes to rest instead of creeping
+        part.rigid_body.linear_damping = 0.2
+        part.rigid_body.angular_damping = 0.2
+        part.rigid_body.use_deactivation = True
+        part.rigid_body.deactivate_linear_velocity = 0.005
+        part.rigid_body.deactivate_angular_velocity = 0.05
         part.select_set(False)
+        # released above the bin, one above another, all at once
+        part.matrix_world = mathutils.Matrix.Translation(
+            (rng.uniform(-50, 50) * MM, rng.uniform(-30, 30) * MM, (140 + 60 * i) * MM)) @ \
+            random_rotation(rng)
         for k, mesh in enumerate(piece_meshes):
             piece = bpy.data.objects.new(f"part_{i + 1}_piece_{k}", mesh)
             scene.collection.objects.link(piece)
@@ -210,15 +230,15 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
     world.node_tree.links.new(coordinates.outputs["Generated"], mapping.inputs["Vector"])
     world.node_tree.links.new(mapping.outputs["Vector"], environment.inputs["Vector"])
     background = nodes["Background"]
-    background.inputs["Strength"].default_value = rng.uniform(1.0, 2.5)
+    background.inputs["Strength"].default_value = rng.uniform(0.3, 1.0)
     world.node_tree.links.new(environment.outputs["Color"], background.inputs["Color"])
     panel = None
-    if rng.random() < 0.7:
+    if rng.random() < 0.5:
         light = bpy.data.lights.new("panel", "AREA")
         light.shape = "RECTANGLE"
         light.size = rng.uniform(0.3, 1.2)
         light.size_y = rng.uniform(0.1, 0.4)
-        light.energy = rng.uniform(100, 500)
+        light.energy = rng.uniform(20, 100)
         panel = bpy.data.objects.new("panel", light)
         scene.collection.objects.link(panel)
         panel.location = (rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(1.0, 2.0))
@@ -238,7 +258,8 @@ def simulate(scene, parts):
     for a, b in zip(poses[scene.frame_end - 24], poses[scene.frame_end]):
         moved_mm = max(moved_mm, (a.translation - b.translation).length / MM)
         difference = a.to_quaternion().rotation_difference(b.to_quaternion())
-        turned_deg = max(turned_deg, math.degrees(abs(difference.angle)))
+        angle = math.degrees(abs(difference.angle)) % 360
+        turned_deg = max(turned_deg, min(angle, 360 - angle))
     return poses[scene.frame_end], moved_mm, turned_deg
 
 
@@ -300,6 +321,7 @@ def main():
     notes = []
     scene_index = 0
     attempt = 0
+    failures = 0
     while scene_index < args.count:
         attempt += 1
         start = time.time()
@@ -317,13 +339,19 @@ def main():
         scene = bpy.context.scene
         poses, moved_mm, turned_deg = simulate(scene, parts)
 
-        # a pile at rest, all of it in the bin, or another drop
+        # a pile at rest (every part moved less than 2 mm and 2 degrees over the last second), all
+        # of it in the bin (a part may lean on the rim), or another drop
         inside = all(abs(p.translation.x) < 0.1 and abs(p.translation.y) < 0.075 and
-                     p.translation.z < 0.1 for p in poses)
-        if moved_mm > 1.0 or turned_deg > 1.0 or not inside:
+                     p.translation.z < 0.09 for p in poses)
+        if moved_mm > 2.0 or turned_deg > 2.0 or not inside:
+            failures += 1
+            if failures == 30:
+                sys.exit("make-blender-testset: error: 30 drops in a row did not come to rest in "
+                         "the bin")
             print(f"make-blender-testset: drop {attempt}: moved {moved_mm:.2f} mm, "
                   f"{turned_deg:.2f} deg, inside {inside}; dropped again", flush=True)
             continue
+        failures = 0
         bpy.ops.rigidbody.world_remove()
         for part, pose in zip(parts, poses):
             part.matrix_world = pose

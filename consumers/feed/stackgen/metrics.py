@@ -1,0 +1,175 @@
+"""Detection scores for instance masks: the seed paper's MIoU and COCO mask AP (stackgen.metrics).
+
+- The paper's score (Zhang et al. 2021, Table 1): predictions above a score threshold are matched
+  greedily, highest score first, to ground-truth masks with mask IoU > 0.6. A match is a true
+  positive, an unmatched prediction a false positive, an unmatched ground truth a false negative;
+  the score ("MIoU") is TP / (TP + FP + FN). Ignore regions (COCO iscrowd 1: objects too hidden
+  to label) are neither: a prediction that covers one (intersection over the prediction's own
+  area above the threshold) is dropped, and they are never missed.
+- COCO mask AP as cocodataset/cocoapi's COCOeval computes it for one category (segm, all areas,
+  100 detections per image): per IoU threshold 0.50, 0.55, ..., 0.95 the same greedy matching,
+  crowd regions matched by intersection over the detection's area and their detections ignored,
+  precision made monotone and read at 101 recall points; AP is the mean over thresholds, AP50 and
+  AP75 single thresholds.
+
+Masks are boolean or 0/1 arrays (numpy, or anything np.asarray takes, such as CPU tensors).
+"""
+
+import numpy as np
+
+__all__ = ["mask_iou", "DetectionScores", "PAPER_IOU", "COCO_IOUS"]
+
+PAPER_IOU = 0.6
+COCO_IOUS = np.linspace(0.5, 0.95, 10)
+
+
+def mask_iou(predicted, truth, crowd=None):
+    """(N, M) IoU of N predicted and M ground-truth masks, each (K, H, W). For a ground truth
+    marked in `crowd` (M booleans) the value is the intersection over the prediction's area, as
+    cocoapi does for iscrowd regions."""
+    predicted = np.asarray(predicted).astype(bool)
+    truth = np.asarray(truth).astype(bool)
+    n, m = len(predicted), len(truth)
+    if n == 0 or m == 0:
+        return np.zeros((n, m))
+    if predicted.shape[1:] != truth.shape[1:]:
+        raise ValueError("predicted masks are %s, ground truth %s: not the same image size" %
+                         (predicted.shape[1:], truth.shape[1:]))
+    p = predicted.reshape(n, -1).astype(np.float32)
+    t = truth.reshape(m, -1).astype(np.float32)
+    intersection = p @ t.T
+    p_area = p.sum(axis=1)[:, None]
+    union = p_area + t.sum(axis=1)[None, :] - intersection
+    iou = np.divide(intersection, union, out=np.zeros_like(intersection), where=union > 0)
+    if crowd is not None:
+        crowd = np.asarray(crowd, dtype=bool)
+        covered = np.divide(intersection, p_area, out=np.zeros_like(intersection),
+                            where=p_area > 0)
+        iou[:, crowd] = covered[:, crowd]
+    return iou.astype(np.float64)
+
+
+def _match(iou, crowd, threshold, strict):
+    """cocoapi's greedy matching of detections (rows, best score first) to ground truths (columns,
+    crowd last): for each detection the best still-free ground truth at or above (strictly above
+    with `strict`) the threshold, a crowd region reusable and taken only when no real one
+    matches. Returns per detection: matched a real ground truth, matched a crowd region; and per
+    real ground truth whether it was matched."""
+    n, m = iou.shape
+    order = np.argsort(crowd, kind="stable")  # real ground truths first, as cocoapi sorts them
+    iou = iou[:, order]
+    crowd = crowd[order]
+    taken = np.zeros(m, dtype=bool)
+    matched = np.zeros(n, dtype=bool)
+    to_crowd = np.zeros(n, dtype=bool)
+    for d in range(n):
+        best = -1
+        best_iou = threshold
+        for g in range(m):
+            if taken[g] and not crowd[g]:
+                continue
+            if best >= 0 and not crowd[best] and crowd[g]:
+                break  # a real match beats any crowd region
+            value = iou[d, g]
+            if value < best_iou or (strict and value <= threshold):
+                continue
+            best, best_iou = g, value
+        if best < 0:
+            continue
+        taken[best] = True
+        if crowd[best]:
+            to_crowd[d] = True
+        else:
+            matched[d] = True
+    real_taken = np.zeros(m, dtype=bool)
+    real_taken[order] = taken & ~crowd
+    return matched, to_crowd, real_taken
+
+
+class DetectionScores:
+    """Accumulates predictions and ground truth image by image; result() gives the paper's MIoU
+    (with its TP, FP, FN) and COCO mask AP, AP50, AP75.
+
+    score_threshold: predictions below it do not count for the paper's score (they do for AP,
+    as in COCO). max_detections: the highest-scoring ones kept per image (COCO's 100)."""
+
+    def __init__(self, paper_iou=PAPER_IOU, score_threshold=0.5, max_detections=100):
+        if not 0 < paper_iou < 1:
+            raise ValueError("paper_iou wants a number in (0, 1), got %r" % paper_iou)
+        self.paper_iou = paper_iou
+        self.score_threshold = score_threshold
+        self.max_detections = max_detections
+        self.tp = self.fp = self.fn = 0
+        self.images = 0
+        self._real_truths = 0
+        self._scores = []
+        self._matched = [[] for _ in COCO_IOUS]  # per threshold: per detection, a true positive
+        self._ignored = [[] for _ in COCO_IOUS]  # per threshold: per detection, on a crowd region
+
+    def update(self, scores, masks, truth_masks, truth_crowd=None):
+        """One image: predicted `scores` (N) and `masks` (N, H, W, booleans or probabilities
+        already thresholded), ground-truth `truth_masks` (M, H, W) and `truth_crowd` (M booleans,
+        iscrowd; default none)."""
+        scores = np.asarray(scores, dtype=np.float64).reshape(-1)
+        masks = np.asarray(masks)
+        truth_masks = np.asarray(truth_masks)
+        if len(masks) != len(scores):
+            raise ValueError("%d masks for %d scores" % (len(masks), len(scores)))
+        crowd = (np.zeros(len(truth_masks), dtype=bool) if truth_crowd is None
+                 else np.asarray(truth_crowd, dtype=bool).reshape(-1))
+        if len(crowd) != len(truth_masks):
+            raise ValueError("%d crowd flags for %d ground-truth masks" % (len(crowd),
+                                                                          len(truth_masks)))
+        # the best-scoring detections, best first
+        order = np.argsort(-scores, kind="stable")[: self.max_detections]
+        scores = scores[order]
+        masks = masks[order] if len(order) else masks[:0]
+        iou = mask_iou(masks, truth_masks, crowd) if len(masks) and len(truth_masks) else \
+            np.zeros((len(masks), len(truth_masks)))
+        self.images += 1
+        real = int((~crowd).sum())
+        self._real_truths += real
+
+        # the paper's score: confident predictions, IoU strictly above the threshold
+        confident = scores >= self.score_threshold
+        matched, to_crowd, taken = _match(iou[confident], crowd, self.paper_iou, strict=True)
+        self.tp += int(matched.sum())
+        self.fp += int((~matched & ~to_crowd).sum())
+        self.fn += real - int(taken.sum())
+
+        # COCO: every kept detection, each threshold
+        self._scores.append(scores)
+        for k, threshold in enumerate(COCO_IOUS):
+            matched, to_crowd, _ = _match(iou, crowd, threshold, strict=False)
+            self._matched[k].append(matched)
+            self._ignored[k].append(to_crowd)
+
+    def _average_precision(self, k):
+        if self._real_truths == 0:
+            return float("nan")
+        scores = np.concatenate(self._scores) if self._scores else np.zeros(0)
+        order = np.argsort(-scores, kind="mergesort")
+        matched = np.concatenate(self._matched[k])[order] if self._scores else np.zeros(0, bool)
+        ignored = np.concatenate(self._ignored[k])[order] if self._scores else np.zeros(0, bool)
+        matched = matched[~ignored]
+        tp = np.cumsum(matched)
+        fp = np.cumsum(~matched)
+        recall = tp / self._real_truths
+        precision = tp / np.maximum(tp + fp, np.finfo(np.float64).eps)
+        # monotone precision, read at 101 recall points
+        for i in range(len(precision) - 1, 0, -1):
+            precision[i - 1] = max(precision[i - 1], precision[i])
+        points = np.linspace(0, 1, 101)
+        indices = np.searchsorted(recall, points, side="left")
+        read = np.array([precision[i] if i < len(precision) else 0.0 for i in indices])
+        return float(read.mean())
+
+    def result(self):
+        """A dict: miou (the paper's TP / (TP + FP + FN)), tp, fp, fn, ap, ap50, ap75 (NaN
+        when no image had a real ground truth), images."""
+        counted = self.tp + self.fp + self.fn
+        per_threshold = [self._average_precision(k) for k in range(len(COCO_IOUS))]
+        return {"miou": self.tp / counted if counted else float("nan"),
+                "tp": self.tp, "fp": self.fp, "fn": self.fn,
+                "ap": float(np.mean(per_threshold)), "ap50": per_threshold[0],
+                "ap75": per_threshold[5], "images": self.images}

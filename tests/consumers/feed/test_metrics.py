@@ -1,0 +1,99 @@
+"""stackgen.metrics: the paper's MIoU and COCO mask AP on masks whose answers are known by hand,
+and stackgen.coco reading both RLE forms."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+import stackgen
+from stackgen.coco import CocoDataset, decode_segmentation
+from stackgen.metrics import DetectionScores, mask_iou
+
+
+def square(x, y, size, height=40, width=60):
+    mask = np.zeros((height, width), dtype=bool)
+    mask[y:y + size, x:x + size] = True
+    return mask
+
+
+def test_mask_iou_and_crowd_regions():
+    a = square(0, 0, 10)
+    b = square(5, 0, 10)  # half of a: intersection 50, union 150
+    iou = mask_iou(np.stack([a]), np.stack([a, b]))
+    assert iou[0, 0] == pytest.approx(1.0)
+    assert iou[0, 1] == pytest.approx(50 / 150)
+    # a crowd region: the intersection over the prediction's own area
+    crowd = mask_iou(np.stack([b]), np.stack([a]), crowd=[True])
+    assert crowd[0, 0] == pytest.approx(0.5)
+
+
+# one image: a found exactly, b found at IoU 0.5 (not above 0.6), c missed; one prediction on
+# empty floor; one on an ignore region, which counts neither way
+def test_paper_score_counts_matches_above_point_six():
+    a, b, c = square(0, 0, 10), square(20, 0, 10), square(40, 20, 10)
+    crowd_region = square(20, 25, 12)
+    scores = DetectionScores()
+    predicted = [a, square(25, 0, 10) | square(20, 0, 5), square(0, 25, 8), square(21, 26, 8)]
+    scores.update([0.9, 0.8, 0.7, 0.95], predicted, [a, b, c, crowd_region],
+                  [False, False, False, True])
+    result = scores.result()
+    iou_b = mask_iou(np.stack([predicted[1]]), np.stack([b]))[0, 0]
+    assert iou_b <= 0.6
+    assert (result["tp"], result["fp"], result["fn"]) == (1, 2, 2)
+    assert result["miou"] == pytest.approx(1 / 5)
+    # below the score threshold a prediction does not count for the paper's score
+    low = DetectionScores(score_threshold=0.5)
+    low.update([0.3], [a], [a])
+    assert (low.tp, low.fp, low.fn) == (0, 0, 1)
+
+
+def test_coco_ap_perfect_ranked_and_empty():
+    truths = [square(0, 0, 10), square(20, 0, 10), square(40, 0, 10)]
+    perfect = DetectionScores()
+    perfect.update([0.9, 0.8, 0.7], truths, truths)
+    result = perfect.result()
+    assert result["ap"] == pytest.approx(1.0)
+    assert result["miou"] == pytest.approx(1.0)
+    # a false positive ranked above every true one: precision 1/2, 2/3, 3/4 at recall 1/3, 2/3, 1
+    ranked = DetectionScores()
+    ranked.update([0.99, 0.9, 0.8, 0.7], [square(0, 25, 10)] + truths, truths)
+    expected = np.mean([0.75] * 101)  # interpolated: the best precision at or beyond each recall
+    assert ranked.result()["ap50"] == pytest.approx(expected)
+    # nothing predicted: AP 0, every truth missed
+    empty = DetectionScores()
+    empty.update(np.zeros(0), np.zeros((0, 40, 60), bool), truths)
+    assert empty.result()["ap"] == 0.0
+    assert empty.result()["fn"] == 3
+    with pytest.raises(ValueError):
+        DetectionScores().update([0.5, 0.4], [truths[0]], truths)
+
+
+def test_coco_dataset_reads_compressed_and_plain_rle(tmp_path):
+    mask = np.zeros((4, 5), dtype=np.uint8)
+    mask[1:3, 2:4] = 1
+    # column-major runs starting with zeros: 9 zeros, 2 ones, 2 zeros, 2 ones, 5 zeros
+    counts = [9, 2, 2, 2, 5]
+    assert (decode_segmentation({"counts": counts, "size": [4, 5]}, 4, 5) == mask).all()
+    # cocoapi's compressed string of the same runs (each run as 5-bit groups, from the third
+    # on as the difference to the run two before)
+    compressed = "92203"
+    assert (decode_segmentation({"counts": compressed, "size": [4, 5]}, 4, 5) == mask).all()
+    with pytest.raises(ValueError):
+        decode_segmentation({"counts": [9, 2], "size": [4, 5]}, 4, 5)
+
+    os.makedirs(tmp_path / "images")
+    import cv2
+    cv2.imwrite(str(tmp_path / "images" / "a.png"), np.full((4, 5, 3), 128, np.uint8))
+    json.dump({"images": [{"id": 7, "file_name": "a.png", "width": 5, "height": 4}],
+               "annotations": [{"id": 1, "image_id": 7, "category_id": 1, "iscrowd": 1,
+                                "segmentation": {"counts": counts, "size": [4, 5]}}],
+               "categories": [{"id": 1, "name": "part"}]}, open(tmp_path / "annotations.json", "w"))
+    dataset = CocoDataset(str(tmp_path))
+    assert len(dataset) == 1
+    masks, labels, iscrowd = dataset.target(0)
+    assert (masks[0] == mask).all() and labels.tolist() == [1] and iscrowd.tolist() == [True]
+    assert dataset.image(0).shape == (4, 5, 3)
+    with pytest.raises(ValueError, match="annotations.json"):
+        CocoDataset(str(tmp_path / "images"))

@@ -340,7 +340,13 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "physics", "drop_height_mm", physics.drop_height_mm(), 0, 10000);
   CheckRange(n, "physics", "max_redraws", physics.max_redraws(), 0, 1000);
   if (physics.drop_mode() == config::PhysicsConfig::DROP_MODE_UNSPECIFIED) {
-    throw ConfigError(n.Where("physics", "drop_mode") + ": must be RANDOM_VOLUME or SEQUENTIAL");
+    throw ConfigError(n.Where("physics", "drop_mode") +
+                      ": must be RANDOM_VOLUME, SEQUENTIAL or CUT_AND_PASTE");
+  }
+  if (physics.drop_mode() == config::PhysicsConfig::CUT_AND_PASTE && physics.pick_sequence()) {
+    throw ConfigError(n.Where("physics", "pick_sequence") +
+                      ": a cut-and-paste scene has no pile to pick from (drop_mode "
+                      "CUT_AND_PASTE)");
   }
   CheckRange(n, "physics", "drop_point_x_mm", physics.drop_point_x_mm(), -bin.inner_length_mm() / 2,
              bin.inner_length_mm() / 2);

@@ -177,6 +177,9 @@ struct SceneGenerator::Impl {
   void Pick(SettledPile* state, int views) const;
   // Whether a pile passes every check a published scene must pass; counts a failure in `times`.
   bool Passes(const PileResult& pile, StageTimes* times) const;
+  // physics.drop_mode CUT_AND_PASTE: the parts placed at random, no physics, a pure function
+  // of pile_seed
+  PileResult PastedPile(const std::vector<int>& object_types, uint64_t pile_seed) const;
 
   // the camera's intrinsics from the config (a preset is resolved when the config is parsed).
   Intrinsics CameraIntrinsics() const {
@@ -536,6 +539,10 @@ SettledPile SceneGenerator::Impl::Drop(int64_t pile_index, int64_t first_seq) co
     std::mt19937_64 physics_rng(seed);
     const uint64_t pile_seed = physics_rng();
     object_types = picks ? pick_types : ObjectTypes(physics_rng);
+    if (config().physics().drop_mode() == config::PhysicsConfig::CUT_AND_PASTE) {
+      pile = PastedPile(object_types, pile_seed);
+      break;
+    }
     pile = simulator->Simulate(object_types, pile_seed);
     // every check a published scene must pass
     if (Passes(pile, &local)) break;
@@ -544,6 +551,32 @@ SettledPile SceneGenerator::Impl::Drop(int64_t pile_index, int64_t first_seq) co
   settled.seed = seed;
   settled.world_from_object = std::move(pile.world_from_object);
   return settled;
+}
+
+PileResult SceneGenerator::Impl::PastedPile(const std::vector<int>& object_types,
+                                            uint64_t pile_seed) const {
+  // each part a uniform random orientation (Shoemake) at a random place over the floor, 10..60
+  // mm up: four values per part, whatever the part
+  std::mt19937_64 engine(pile_seed);
+  const config::BinConfig& bin = config().bin();
+  PileResult pile;
+  pile.settled = true;
+  for (size_t i = 0; i < object_types.size(); ++i) {
+    const double u1 = Uniform01(engine);
+    const double u2 = 2 * M_PI * Uniform01(engine);
+    const double u3 = 2 * M_PI * Uniform01(engine);
+    const Eigen::Vector3d place(Uniform(engine, -0.5, 0.5) * bin.inner_length_mm(),
+                                Uniform(engine, -0.5, 0.5) * bin.inner_width_mm(),
+                                Uniform(engine, 10, 60));
+    const Eigen::Quaterniond rotation(
+        std::sqrt(u1) * std::cos(u3), std::sqrt(1 - u1) * std::sin(u2),
+        std::sqrt(1 - u1) * std::cos(u2), std::sqrt(u1) * std::sin(u3));
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    pose.translate(place);
+    pose.rotate(rotation.normalized());
+    pile.world_from_object.push_back(pose);
+  }
+  return pile;
 }
 
 bool SceneGenerator::Impl::Passes(const PileResult& pile, StageTimes* times) const {
@@ -665,11 +698,13 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
 
   // render the bin and the parts (instance ids 1..N), then each part alone.
   std::vector<DrawItem> items;
-  DrawItem bin_item;
-  bin_item.mesh_id = impl_->bin_mesh_id;
-  bin_item.instance_id = 0;
-  bin_item.material = impl_->bin_material;
-  items.push_back(bin_item);
+  if (config.bin().visible()) {
+    DrawItem bin_item;
+    bin_item.mesh_id = impl_->bin_mesh_id;
+    bin_item.instance_id = 0;
+    bin_item.material = impl_->bin_material;
+    items.push_back(bin_item);
+  }
   // labelled objects get instance ids 1, 2, ...; unlabelled distractors draw as 0, like the bin
   std::vector<ObjectTruth> objects;
   for (size_t i = 0; i < settled.world_from_object.size(); ++i) {

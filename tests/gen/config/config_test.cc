@@ -21,7 +21,9 @@ std::string ErrorOf(const std::string& text) {
 TEST(ConfigTest, ShippedConfigsAreValid) {
   for (const char* name :
        {"default.pbtxt", "tote.pbtxt", "mixed.pbtxt", "tapered_tote.pbtxt", "basler.pbtxt",
-        "ignore_occluded.pbtxt", "phong.pbtxt", "studio_hdri.pbtxt"}) {
+        "ignore_occluded.pbtxt", "phong.pbtxt", "studio_hdri.pbtxt", "cut_and_paste.pbtxt",
+        "ablation/none.pbtxt", "ablation/no_background.pbtxt", "ablation/no_lighting.pbtxt",
+        "ablation/no_noise.pbtxt", "ablation/no_occlusion_filter.pbtxt"}) {
     const LoadedConfig loaded = LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/" + name);
     EXPECT_GT(loaded.config.part(0).count(), 0) << name;
   }

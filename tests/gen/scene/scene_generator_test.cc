@@ -230,6 +230,40 @@ TEST(SceneGeneratorTest, PickSequenceEmptiesTheBin) {
   EXPECT_THROW(generator.Finish(state, 9, nullptr), std::invalid_argument);
 }
 
+// config/cut_and_paste.pbtxt: no physics and no bin: 12 parts at random places over the floor,
+// 10..60 mm up, as a pure function of the seed; the floor area shows the background (nothing
+// drawn there), and the parts still get exact labels
+TEST(SceneGeneratorTest, CutAndPastePlacesPartsWithoutPhysicsOrBin) {
+  const std::string cache = testing::MakeTempDir("stackgen-cache");
+  const LoadedConfig config =
+      LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/cut_and_paste.pbtxt");
+  SceneGenerator generator(config, 0, 4, cache);
+  StageTimes times;
+  const scene first = generator.Generate(0, &times);
+  ASSERT_EQ(first.instances.size(), 12u);
+  EXPECT_EQ(times.redraws, 0);
+  for (const instance& object : first.instances) {
+    const double* t = object.world_from_object.translation_mm;
+    EXPECT_LE(std::abs(t[0]), 100.0);
+    EXPECT_LE(std::abs(t[1]), 75.0);
+    EXPECT_GE(t[2], 10.0);
+    EXPECT_LE(t[2], 60.0);
+  }
+  // the middle of the image sees parts or the background, never a bin (depth 0 where no part)
+  const cv::Mat depth = cv::imdecode(first.depth.data, cv::IMREAD_UNCHANGED);
+  const cv::Mat ids = cv::imdecode(first.instance_map.data, cv::IMREAD_UNCHANGED);
+  ASSERT_FALSE(depth.empty());
+  EXPECT_EQ(cv::countNonZero((depth > 0) & (ids == 0)), 0);
+  EXPECT_GT(cv::countNonZero(ids > 0), 1000);
+  EXPECT_TRUE(Encoded(first) == Encoded(generator.Generate(0, nullptr)));
+
+  // no pile to pick from
+  LoadedConfig picking = config;
+  picking.config.mutable_physics()->set_pick_sequence(true);
+  EXPECT_THROW(ParseConfig(picking.config.DebugString(), "picking.pbtxt", config.base_dir),
+               ConfigError);
+}
+
 // a bin too small for the parts is refused before anything runs, naming the config.
 TEST(SceneGeneratorTest, BinTooSmallIsRefused) {
   LoadedConfig config = DefaultConfig();

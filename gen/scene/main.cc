@@ -306,6 +306,17 @@ int Run(int argc, char** argv) {
                                                        std::chrono::duration<double>(seconds));
     while (!g_stop && Clock::now() < until && !done()) serve(20);
   };
+  config_text config_message;
+  config_message.path = config.path;
+  config_message.pbtxt = EffectiveConfigText(config.config);
+  config_message.header.seq = -1;
+  config_message.header.generator_id = generator_id;
+  config_message.header.seed = static_cast<int64_t>(seed);
+  // the config at once, before listening: a consumer hears this generator's key before any
+  // stranger's unsigned flood can make it conclude that the bus uses another key (the first
+  // scene may take seconds: piles, shader compilation)
+  config_message.header.utime = UnixMicros();
+  bus.Publish(kConfigChannel, config_message);
   listen(0.5, [] { return false; });
   int64_t first_seq = 0;
   if (resume) {
@@ -321,12 +332,6 @@ int Run(int argc, char** argv) {
                 static_cast<long long>(first_seq), server.reliable_consumers());
     std::fflush(stdout);
   }
-  config_text config_message;
-  config_message.path = config.path;
-  config_message.pbtxt = EffectiveConfigText(config.config);
-  config_message.header.seq = -1;
-  config_message.header.generator_id = generator_id;
-  config_message.header.seed = static_cast<int64_t>(seed);
 
   StageTimes times;
   double publish_ms = 0;

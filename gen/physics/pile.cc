@@ -13,6 +13,7 @@
 #include "gen/physics/convex_pieces.h"
 #include "gen/physics/mass_properties.h"
 #include "gen/physics/settle_detector.h"
+#include "gen/randomize/uniform.h"
 
 namespace stackgen {
 namespace {
@@ -75,23 +76,6 @@ void CheckRange(const char* object, const char* field, double value, double lo, 
             << "], got " << value;
     throw std::runtime_error(message.str());
   }
-}
-
-// A uniform double in [0, 1) from 53 random bits: the same on every platform, unlike
-// std::uniform_real_distribution, whose algorithm is up to the standard library.
-double Uniform01(std::mt19937_64& engine) {
-  return static_cast<double>(engine() >> 11) * (1.0 / 9007199254740992.0);
-}
-
-// A rotation uniform over SO(3) (Shoemake's method).
-Eigen::Quaterniond UniformRotation(std::mt19937_64& engine) {
-  const double u1 = Uniform01(engine);
-  const double u2 = 2 * M_PI * Uniform01(engine);
-  const double u3 = 2 * M_PI * Uniform01(engine);
-  const double a = std::sqrt(1 - u1);
-  const double b = std::sqrt(u1);
-  return Eigen::Quaterniond(a * std::sin(u2), a * std::cos(u2), b * std::sin(u3), b * std::cos(u3))
-      .normalized();
 }
 
 btScalar ToSim(double mm) { return static_cast<btScalar>(mm * kSimPerMm); }

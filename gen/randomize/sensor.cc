@@ -227,21 +227,22 @@ cv::Mat DevelopLinearImage(const SensorEffects& effects, const cv::Mat& linear_r
         std::to_string(effects.shot_noise) + ", read_noise " + std::to_string(effects.read_noise) +
         " out of range; need finite values, noise >= 0");
   }
-  // optics, then gray, in linear light
-  cv::Mat signal;
+  // optics, then gray and exposure in one pass, in linear light
+  const cv::Mat* source = &linear_rgb;
+  cv::Mat blurred;
   if (effects.blur_sigma_px >= kMinBlurSigmaPx) {
-    cv::GaussianBlur(linear_rgb, signal, cv::Size(), effects.blur_sigma_px, effects.blur_sigma_px,
+    cv::GaussianBlur(linear_rgb, blurred, cv::Size(), effects.blur_sigma_px, effects.blur_sigma_px,
                      cv::BORDER_REFLECT_101);
-  } else {
-    signal = linear_rgb.clone();
+    source = &blurred;
   }
+  const float exposure = static_cast<float>(std::exp2(effects.exposure_ev));
+  cv::Mat signal;
   if (gray) {
-    cv::Mat luminance;
-    cv::transform(signal, luminance, cv::Matx13f(0.2126f, 0.7152f, 0.0722f));
-    signal = luminance;
+    cv::transform(*source, signal, cv::Matx13f(0.2126f, 0.7152f, 0.0722f) * exposure);
+  } else {
+    source->convertTo(signal, CV_32F, exposure);
   }
-  // exposure and the sensor's noise
-  signal *= std::exp2(effects.exposure_ev);
+  // the sensor's noise
   AddLinearNoise(effects, &signal);
 
   // tone curve and sRGB encoding through one table over sqrt(signal) in [0, 4]

@@ -1,7 +1,10 @@
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <random>
+
+#include <Eigen/Geometry>
 
 namespace stackgen {
 
@@ -15,6 +18,17 @@ inline double Uniform01(std::mt19937_64& engine) {
 /// A double uniform in [lo, hi] (exactly lo when lo == hi) from exactly one value of `engine`.
 inline double Uniform(std::mt19937_64& engine, double lo, double hi) {
   return lo + (hi - lo) * Uniform01(engine);
+}
+
+/// A rotation uniform over SO(3) (Shoemake's method) from exactly three values of `engine`.
+inline Eigen::Quaterniond UniformRotation(std::mt19937_64& engine) {
+  const double u1 = Uniform01(engine);
+  const double u2 = 2 * M_PI * Uniform01(engine);
+  const double u3 = 2 * M_PI * Uniform01(engine);
+  const double a = std::sqrt(1 - u1);
+  const double b = std::sqrt(u1);
+  return Eigen::Quaterniond(a * std::sin(u2), a * std::cos(u2), b * std::sin(u3), b * std::cos(u3))
+      .normalized();
 }
 
 /// An index uniform in [0, n) from exactly one value of `engine`; n >= 1.

@@ -18,6 +18,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "bus/splitmix.h"
+
 namespace stackgen {
 namespace {
 
@@ -149,13 +151,6 @@ cv::Mat ReadExr(const std::string& path) {
   return out;
 }
 
-uint64_t SplitMix64(uint64_t x) {
-  x += 0x9e3779b97f4a7c15ull;
-  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
-  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
-  return x ^ (x >> 31);
-}
-
 }  // namespace
 
 Eigen::Vector3d DirectionOfPixel(double u, double v, int width, int height) {
@@ -238,7 +233,7 @@ EnvironmentMap MakeHallEnvironment(uint64_t variant, int height) {
                                 " is below 8");
   }
   // the hall of this variant: the bin stands at the origin on a table 0.9 m above the floor
-  std::mt19937_64 engine(SplitMix64(variant ^ 0x68616c6cull));
+  std::mt19937_64 engine(SplitMixHash(variant ^ 0x68616c6cull));
   // one engine value per draw, the same on every platform (std::uniform_real_distribution's
   // results are left to the library)
   const auto uniform = [&engine](double lo, double hi) {

@@ -401,6 +401,27 @@ struct ProjectionUniforms {
   }
 };
 
+struct FrameUniforms;
+
+// uniform locations of the lights and shadow maps, shared by both kinds of scene program
+struct LightUniforms {
+  GLint light_vector_camera = -1;
+  GLint shadow_from_camera = -1;
+  GLint shadow_normal_offset_mm = -1;
+  GLint shadow_depth_bias = -1;
+  GLint shadow_texel = -1;
+
+  void Find(GLuint program) {
+    light_vector_camera = glGetUniformLocation(program, "light_vector_camera");
+    shadow_from_camera = glGetUniformLocation(program, "shadow_from_camera");
+    shadow_normal_offset_mm = glGetUniformLocation(program, "shadow_normal_offset_mm");
+    shadow_depth_bias = glGetUniformLocation(program, "shadow_depth_bias");
+    shadow_texel = glGetUniformLocation(program, "shadow_texel");
+  }
+  // the frame's light vectors and, with shadows, the maps' transforms and biases
+  void Set(const FrameUniforms& f) const;
+};
+
 // the scene program for one number of lights, with or without shadows and texture
 struct ShadingProgram {
   GLuint program = 0;  // 0 until first used
@@ -409,12 +430,8 @@ struct ShadingProgram {
   GLint material_color_linear = -1;
   GLint material_specular = -1;
   GLint material_shininess = -1;
-  GLint light_vector_camera = -1;
+  LightUniforms lights;
   GLint light_terms = -1;
-  GLint shadow_from_camera = -1;
-  GLint shadow_normal_offset_mm = -1;
-  GLint shadow_depth_bias = -1;
-  GLint shadow_texel = -1;
   uint64_t frame = 0;              // the Render call its per-frame uniforms were set for
   const DrawItem* item = nullptr;  // the item its per-item uniforms were set for, this frame
 };
@@ -428,12 +445,8 @@ struct PbrProgram {
   GLint metallic = -1;
   GLint roughness = -1;
   GLint dielectric_f0 = -1;
-  GLint light_vector_camera = -1;
+  LightUniforms lights;
   GLint light_irradiance = -1;
-  GLint shadow_from_camera = -1;
-  GLint shadow_normal_offset_mm = -1;
-  GLint shadow_depth_bias = -1;
-  GLint shadow_texel = -1;
   GLint environment_from_camera = -1;
   GLint environment_max_lod = -1;
   GLint irradiance_sh = -1;
@@ -446,7 +459,7 @@ struct PbrProgram {
 
 // one uploaded environment
 struct EnvironmentTexture {
-  GLuint texture = 0;  // RGB16F equirectangular, level k prefiltered for roughness k / (n - 1)
+  GLuint texture = 0;  // RGB16F octahedral, level k prefiltered for roughness k / (n - 1)
   std::array<Eigen::Vector3f, 9> irradiance_sh;
 };
 
@@ -454,7 +467,6 @@ struct EnvironmentTexture {
 struct FrameUniforms {
   int light_count = 0;
   bool shadows = false;
-  bool pbr = false;                                 // physically based colour pass
   const EnvironmentTexture* environment = nullptr;  // none: no environment light
   float environment_from_camera[9] = {};            // column-major rotation
   float environment_intensity = 0;
@@ -466,6 +478,17 @@ struct FrameUniforms {
   float shadow_depth_bias[Renderer::kMaxLights] = {};
   float shadow_texel = 0;
 };
+
+void LightUniforms::Set(const FrameUniforms& f) const {
+  const GLsizei n = f.light_count;
+  if (n > 0) glUniform4fv(light_vector_camera, n, &f.light_vectors[0][0]);
+  if (f.shadows) {
+    glUniformMatrix4fv(shadow_from_camera, n, GL_FALSE, &f.shadow_from_camera[0][0]);
+    glUniform1fv(shadow_normal_offset_mm, n, f.shadow_normal_offset_mm);
+    glUniform1fv(shadow_depth_bias, n, f.shadow_depth_bias);
+    glUniform1f(shadow_texel, f.shadow_texel);
+  }
+}
 
 struct Renderer::Impl {
   EglContext context;  // first member: destroyed last, taking every GL object with it
@@ -645,13 +668,8 @@ ShadingProgram& Renderer::Impl::Shading(int light_count, bool shadows, bool text
   shading_program.material_color_linear = glGetUniformLocation(program, "material_color_linear");
   shading_program.material_specular = glGetUniformLocation(program, "material_specular");
   shading_program.material_shininess = glGetUniformLocation(program, "material_shininess");
-  shading_program.light_vector_camera = glGetUniformLocation(program, "light_vector_camera");
+  shading_program.lights.Find(program);
   shading_program.light_terms = glGetUniformLocation(program, "light_terms");
-  shading_program.shadow_from_camera = glGetUniformLocation(program, "shadow_from_camera");
-  shading_program.shadow_normal_offset_mm =
-      glGetUniformLocation(program, "shadow_normal_offset_mm");
-  shading_program.shadow_depth_bias = glGetUniformLocation(program, "shadow_depth_bias");
-  shading_program.shadow_texel = glGetUniformLocation(program, "shadow_texel");
   // samplers on their fixed units
   glUseProgram(program);
   glUniform1i(glGetUniformLocation(program, "material_texture"), kMaterialTextureUnit);
@@ -671,17 +689,8 @@ ShadingProgram& Renderer::Impl::UseShading(bool textured) {
   s.frame = frame;
   s.item = nullptr;
   SetProjection(s.projection, *frame_camera);
-  const GLsizei n = f.light_count;
-  if (n > 0) {
-    glUniform4fv(s.light_vector_camera, n, &f.light_vectors[0][0]);
-    glUniform3fv(s.light_terms, n, &f.light_terms[0][0]);
-  }
-  if (f.shadows) {
-    glUniformMatrix4fv(s.shadow_from_camera, n, GL_FALSE, &f.shadow_from_camera[0][0]);
-    glUniform1fv(s.shadow_normal_offset_mm, n, f.shadow_normal_offset_mm);
-    glUniform1fv(s.shadow_depth_bias, n, f.shadow_depth_bias);
-    glUniform1f(s.shadow_texel, f.shadow_texel);
-  }
+  s.lights.Set(f);
+  if (f.light_count > 0) glUniform3fv(s.light_terms, f.light_count, &f.light_terms[0][0]);
   return s;
 }
 
@@ -708,12 +717,8 @@ PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bo
   p.metallic = find("metallic");
   p.roughness = find("roughness");
   p.dielectric_f0 = find("dielectric_f0");
-  p.light_vector_camera = find("light_vector_camera");
+  p.lights.Find(program);
   p.light_irradiance = find("light_irradiance");
-  p.shadow_from_camera = find("shadow_from_camera");
-  p.shadow_normal_offset_mm = find("shadow_normal_offset_mm");
-  p.shadow_depth_bias = find("shadow_depth_bias");
-  p.shadow_texel = find("shadow_texel");
   p.environment_from_camera = find("environment_from_camera");
   p.environment_max_lod = find("environment_max_lod");
   p.irradiance_sh = find("irradiance_sh");
@@ -741,16 +746,9 @@ PbrProgram& Renderer::Impl::UsePbr(bool textured) {
   p.frame = frame;
   p.item = nullptr;
   SetProjection(p.projection, *frame_camera);
-  const GLsizei n = f.light_count;
-  if (n > 0) {
-    glUniform4fv(p.light_vector_camera, n, &f.light_vectors[0][0]);
-    glUniform3fv(p.light_irradiance, n, &f.light_irradiance[0][0]);
-  }
-  if (f.shadows) {
-    glUniformMatrix4fv(p.shadow_from_camera, n, GL_FALSE, &f.shadow_from_camera[0][0]);
-    glUniform1fv(p.shadow_normal_offset_mm, n, f.shadow_normal_offset_mm);
-    glUniform1fv(p.shadow_depth_bias, n, f.shadow_depth_bias);
-    glUniform1f(p.shadow_texel, f.shadow_texel);
+  p.lights.Set(f);
+  if (f.light_count > 0) {
+    glUniform3fv(p.light_irradiance, f.light_count, &f.light_irradiance[0][0]);
   }
   if (f.environment != nullptr) {
     glUniformMatrix3fv(p.environment_from_camera, 1, GL_FALSE, f.environment_from_camera);
@@ -1588,7 +1586,6 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   ++impl.frame;
   impl.frame_camera = &camera;
   impl.bound_texture = 0;
-  frame.pbr = pbr;
   if (pbr) {
     // the environment turned about world z, seen from the camera
     frame.environment =

@@ -555,25 +555,20 @@ SettledPile SceneGenerator::Impl::Drop(int64_t pile_index, int64_t first_seq) co
 
 PileResult SceneGenerator::Impl::PastedPile(const std::vector<int>& object_types,
                                             uint64_t pile_seed) const {
-  // each part a uniform random orientation (Shoemake) at a random place over the floor, 10..60
-  // mm up: four values per part, whatever the part
+  // each part a uniform random orientation at a random place over the floor, 10..60 mm up: six
+  // values per part, whatever the part
   std::mt19937_64 engine(pile_seed);
   const config::BinConfig& bin = config().bin();
   PileResult pile;
   pile.settled = true;
   for (size_t i = 0; i < object_types.size(); ++i) {
-    const double u1 = Uniform01(engine);
-    const double u2 = 2 * M_PI * Uniform01(engine);
-    const double u3 = 2 * M_PI * Uniform01(engine);
+    const Eigen::Quaterniond rotation = UniformRotation(engine);
     const Eigen::Vector3d place(Uniform(engine, -0.5, 0.5) * bin.inner_length_mm(),
                                 Uniform(engine, -0.5, 0.5) * bin.inner_width_mm(),
                                 Uniform(engine, 10, 60));
-    const Eigen::Quaterniond rotation(
-        std::sqrt(u1) * std::cos(u3), std::sqrt(1 - u1) * std::sin(u2),
-        std::sqrt(1 - u1) * std::cos(u2), std::sqrt(u1) * std::sin(u3));
     Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
     pose.translate(place);
-    pose.rotate(rotation.normalized());
+    pose.rotate(rotation);
     pile.world_from_object.push_back(pose);
   }
   return pile;

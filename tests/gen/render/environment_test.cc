@@ -8,23 +8,10 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
+#include "tests/support/environments.h"
+
 namespace stackgen {
 namespace {
-
-// an environment of height h (2 h wide) whose radiance is f(direction)
-template <typename F>
-EnvironmentMap MapOf(F f, int height = 64) {
-  EnvironmentMap map;
-  map.name = "test";
-  map.radiance.create(height, 2 * height, CV_32FC3);
-  for (int v = 0; v < height; ++v) {
-    for (int u = 0; u < 2 * height; ++u) {
-      const Eigen::Vector3f c = f(DirectionOfPixel(u, v, 2 * height, height));
-      map.radiance.at<cv::Vec3f>(v, u) = cv::Vec3f(c.x(), c.y(), c.z());
-    }
-  }
-  return map;
-}
 
 // pixels and directions map back and forth; row 0 looks up, column 0 towards -x
 TEST(EnvironmentTest, PixelsAndDirectionsAgree) {
@@ -60,8 +47,10 @@ TEST(EnvironmentTest, DfgTableConservesEnergy) {
 
 // a uniform environment stays uniform at every roughness, and its irradiance is that radiance
 TEST(EnvironmentTest, UniformEnvironmentPrefiltersToItself) {
-  const PrefilteredEnvironment p = Prefilter(
-      MapOf([](const Eigen::Vector3d&) { return Eigen::Vector3f(0.2f, 0.5f, 1.f); }), 128);
+  const PrefilteredEnvironment p = Prefilter(testing::EnvironmentOf([](const Eigen::Vector3d&) {
+                                               return Eigen::Vector3f(0.2f, 0.5f, 1.f);
+                                             }),
+                                             128);
   ASSERT_EQ(p.levels.size(), static_cast<size_t>(PrefilteredEnvironment::kLevels));
   for (size_t k = 0; k < p.levels.size(); ++k) {
     EXPECT_EQ(p.levels[k].cols, 128 >> k);
@@ -83,8 +72,9 @@ TEST(EnvironmentTest, UniformEnvironmentPrefiltersToItself) {
 // blur the horizon but keep the zenith bright
 TEST(EnvironmentTest, SkyIrradianceFollowsTheCosineLaw) {
   const PrefilteredEnvironment p = Prefilter(
-      MapOf([](const Eigen::Vector3d& d) { return Eigen::Vector3f::Constant(d.z() > 0 ? 1 : 0); },
-            128),
+      testing::EnvironmentOf(
+          [](const Eigen::Vector3d& d) { return Eigen::Vector3f::Constant(d.z() > 0 ? 1 : 0); },
+          128),
       256);
   EXPECT_NEAR(EvaluateIrradianceSh(p.irradiance_sh, {0, 0, 1}).x(), 1.0, 0.06);
   EXPECT_NEAR(EvaluateIrradianceSh(p.irradiance_sh, {1, 0, 0}).x(), 0.5, 0.03);

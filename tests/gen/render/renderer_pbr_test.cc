@@ -11,7 +11,9 @@
 
 #include "gen/render/environment.h"
 #include "gen/render/renderer.h"
+#include "tests/support/environments.h"
 #include "tests/support/golden.h"
+#include "tests/support/meshes.h"
 
 namespace stackgen {
 namespace {
@@ -44,16 +46,6 @@ TriangleMesh MakeSphere(float radius_mm, int rings = 64, int segments = 128) {
   return mesh;
 }
 
-// a square in the object's z = 0 plane, normal +z
-TriangleMesh MakeSquare(float size_mm) {
-  TriangleMesh mesh;
-  const float h = size_mm / 2;
-  mesh.positions_mm = {{-h, -h, 0}, {h, -h, 0}, {h, h, 0}, {-h, h, 0}};
-  mesh.normals.assign(4, Eigen::Vector3f::UnitZ());
-  mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
-  return mesh;
-}
-
 // a camera at world (0, 0, height) looking straight down at the z = 0 plane, image x along
 // world x
 CameraModel CameraLookingDown(double height_mm, int width = 320, int height = 240) {
@@ -70,17 +62,8 @@ CameraModel CameraLookingDown(double height_mm, int width = 320, int height = 24
 
 // an environment whose radiance is `f` of the direction, prefiltered
 template <typename F>
-PrefilteredEnvironment EnvironmentOf(F f, int height = 128) {
-  EnvironmentMap map;
-  map.name = "test";
-  map.radiance.create(height, 2 * height, CV_32FC3);
-  for (int v = 0; v < height; ++v) {
-    for (int u = 0; u < 2 * height; ++u) {
-      const Eigen::Vector3f c = f(DirectionOfPixel(u, v, 2 * height, height));
-      map.radiance.at<cv::Vec3f>(v, u) = cv::Vec3f(c.x(), c.y(), c.z());
-    }
-  }
-  return Prefilter(map, 2 * height);
+PrefilteredEnvironment PrefilteredOf(F f, int height = 128) {
+  return Prefilter(testing::EnvironmentOf(f, height), 2 * height);
 }
 
 // a white item of the given metallic and roughness
@@ -117,7 +100,7 @@ TEST(RendererPbrTest, WhiteFurnaceGainsNoEnergyAndLosesLittle) {
   const int sphere = renderer.AddMesh(MakeSphere(60));
   const float radiance = 0.5f;
   const int furnace = renderer.AddEnvironment(
-      EnvironmentOf([&](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(radiance); }));
+      PrefilteredOf([&](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(radiance); }));
   const CameraModel camera = CameraLookingDown(300);
   for (const float metallic : {0.f, 1.f}) {
     for (const float roughness : {0.05f, 0.25f, 0.5f, 0.75f, 1.f}) {
@@ -156,7 +139,7 @@ TEST(RendererPbrTest, MirrorSphereReflectsTheEnvironment) {
                            static_cast<float>(0.5 + 0.5 * d.y()),
                            static_cast<float>(0.5 + 0.5 * d.z()));
   };
-  const int environment = renderer.AddEnvironment(EnvironmentOf(gradient, 256));
+  const int environment = renderer.AddEnvironment(PrefilteredOf(gradient, 256));
   const CameraModel camera = CameraLookingDown(300);
   for (const double yaw_deg : {0.0, 90.0}) {
     RenderOptions options = PbrOptions(environment);
@@ -196,9 +179,9 @@ TEST(RendererPbrTest, MirrorSphereReflectsTheEnvironment) {
 // off, and the same as a Phong frame's
 TEST(RendererPbrTest, AntiAliasedEdgesLeaveLabelsExact) {
   Renderer renderer(320, 240);
-  const int square = renderer.AddMesh(MakeSquare(100));
+  const int square = renderer.AddMesh(testing::MakeSquare(100));
   const int furnace = renderer.AddEnvironment(
-      EnvironmentOf([](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(0.8f); }, 32));
+      PrefilteredOf([](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(0.8f); }, 32));
   const CameraModel camera = CameraLookingDown(300);
   DrawItem item = WhiteItem(square, 0.f, 1.f);
   // turned by 20 degrees, so its edges cross pixels at every phase
@@ -234,7 +217,7 @@ TEST(RendererPbrTest, AntiAliasedEdgesLeaveLabelsExact) {
 // background image comes out as its decoded display values times background_scale
 TEST(RendererPbrTest, LightsAndBackgroundInLinearLight) {
   Renderer renderer(320, 240);
-  const int square = renderer.AddMesh(MakeSquare(100));
+  const int square = renderer.AddMesh(testing::MakeSquare(100));
   const CameraModel camera = CameraLookingDown(300);
   Light light;
   light.direction_world = Eigen::Vector3f(0, 0, -1);
@@ -251,7 +234,7 @@ TEST(RendererPbrTest, LightsAndBackgroundInLinearLight) {
 
 TEST(RendererPbrTest, BadOptionsThrow) {
   Renderer renderer(64, 48);
-  const int square = renderer.AddMesh(MakeSquare(100));
+  const int square = renderer.AddMesh(testing::MakeSquare(100));
   CameraModel camera = CameraLookingDown(300, 64, 48);
   const std::vector<DrawItem> items = {WhiteItem(square, 0.f, 0.5f)};
   EXPECT_THROW(renderer.Render(camera, {}, PbrOptions(-1, 3), items), std::runtime_error);
@@ -269,7 +252,7 @@ TEST(RendererPbrTest, BadOptionsThrow) {
 TEST(RendererPbrTest, MatchesGoldenImage) {
   Renderer renderer(320, 240);
   const int sphere = renderer.AddMesh(MakeSphere(40, 32, 64));
-  const int floor = renderer.AddMesh(MakeSquare(400));
+  const int floor = renderer.AddMesh(testing::MakeSquare(400));
   const int hall = renderer.AddEnvironment(Prefilter(MakeHallEnvironment(3, 128)));
   CameraModel camera = CameraLookingDown(400);
   camera.world_from_camera =

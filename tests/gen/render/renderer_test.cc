@@ -16,6 +16,7 @@
 
 #include "gen/mesh/mesh.h"
 #include "tests/support/golden.h"
+#include "tests/support/meshes.h"
 
 namespace stackgen {
 namespace {
@@ -49,16 +50,6 @@ TriangleMesh MakeBox(const Eigen::Vector3f& size_mm) {
       }
     }
   }
-  return mesh;
-}
-
-// a square in the object's z = 0 plane, normal +z
-TriangleMesh MakeSquare(float size_mm) {
-  TriangleMesh mesh;
-  const float h = size_mm / 2;
-  mesh.positions_mm = {{-h, -h, 0}, {h, -h, 0}, {h, h, 0}, {-h, h, 0}};
-  mesh.normals.assign(4, Eigen::Vector3f::UnitZ());
-  mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
   return mesh;
 }
 
@@ -247,7 +238,7 @@ TEST(RendererTest, NoLightsDrawsBlackSurfaces) {
 // depth is the camera z of the surface to 0.05 mm; background depth is 0
 TEST(RendererTest, DepthIsExact) {
   Renderer renderer(640, 480);
-  const int square = renderer.AddMesh(MakeSquare(400));
+  const int square = renderer.AddMesh(testing::MakeSquare(400));
   const CameraModel camera = CameraLookingDown(1000);
   DrawItem plane;
   plane.mesh_id = square;
@@ -343,7 +334,7 @@ TEST(RendererTest, SilhouettesCoverOccludedPixels) {
   Renderer renderer(640, 480);
   const int box = renderer.AddMesh(MakeBox({60, 60, 20}));
   const int cover = renderer.AddMesh(MakeBox({100, 200, 20}));
-  const int square = renderer.AddMesh(MakeSquare(1000));
+  const int square = renderer.AddMesh(testing::MakeSquare(1000));
   CameraModel camera;  // identity pose: world = camera frame
 
   DrawItem floor;  // a non-object behind everything
@@ -417,7 +408,7 @@ TEST(RendererTest, DrawsTheVisibleSideOfEveryMesh) {
   TriangleMesh inside_out = MakeBox({100, 100, 100});
   for (auto& triangle : inside_out.triangles) std::swap(triangle[1], triangle[2]);
   const int inverted_box = renderer.AddMesh(inside_out);
-  const int square = renderer.AddMesh(MakeSquare(100));
+  const int square = renderer.AddMesh(testing::MakeSquare(100));
   const CameraModel camera;  // identity pose: looking along +z
 
   // a closed box: its near face, 50 mm in front of its centre, 800 * 100 / 950 = 84.2 px wide
@@ -508,7 +499,7 @@ TEST(RendererTest, ResizesAndSwitchesContexts) {
   Renderer first(640, 480);
   Renderer second(320, 240);
   const int box_first = first.AddMesh(MakeBox({50, 50, 50}));
-  const int box_second = second.AddMesh(MakeSquare(2000));
+  const int box_second = second.AddMesh(testing::MakeSquare(2000));
   DrawItem item;
   item.instance_id = 3;
   item.world_from_object = Translation(0, 0, 500);
@@ -656,7 +647,7 @@ TEST(RendererTest, MaterialGainChangesColourOnly) {
 // with shadows on and off
 TEST(RendererTest, ShadowsDarkenOnlyTheShadowedFloor) {
   Renderer renderer(640, 480);
-  const int square = renderer.AddMesh(MakeSquare(600));
+  const int square = renderer.AddMesh(testing::MakeSquare(600));
   const Eigen::Vector3f floor_color(0.8f, 0.7f, 0.6f);
   Light light;  // travels +x as it falls: a point p shadows (p.x + p.z, p.y, 0)
   light.direction_world = Eigen::Vector3f(1, 0, -1).normalized();
@@ -740,7 +731,7 @@ TEST(RendererTest, ShadowsDarkenOnlyTheShadowedFloor) {
 // says; a directional light lights the floor evenly; without occluders, shadows change nothing
 TEST(RendererTest, PointLightDirectionVariesOverTheFloor) {
   Renderer renderer(640, 480);
-  const int square = renderer.AddMesh(MakeSquare(600));
+  const int square = renderer.AddMesh(testing::MakeSquare(600));
   const CameraModel camera = CameraLookingDown(1000);
   DrawItem floor;
   floor.mesh_id = square;
@@ -788,7 +779,7 @@ TEST(RendererTest, PointLightDirectionVariesOverTheFloor) {
 TEST(RendererTest, BackgroundImageShowsWhereNothingIsDrawn) {
   Renderer renderer(640, 480);
   const int box = renderer.AddMesh(MakeBox({100, 100, 100}));
-  const int square = renderer.AddMesh(MakeSquare(200));
+  const int square = renderer.AddMesh(testing::MakeSquare(200));
   const CameraModel camera = CameraLookingDown(1000);
   DrawItem object;
   object.mesh_id = box;
@@ -837,7 +828,7 @@ TEST(RendererTest, BackgroundImageShowsWhereNothingIsDrawn) {
 TEST(RendererTest, MatchesGoldenImage) {
   Renderer renderer(320, 240);
   const int box = renderer.AddMesh(MakeBox({60, 40, 25}));
-  const int square = renderer.AddMesh(MakeSquare(600));
+  const int square = renderer.AddMesh(testing::MakeSquare(600));
   CameraModel camera = CameraLookingDown(700);
   camera.width = 320;
   camera.height = 240;

@@ -315,12 +315,9 @@ int Run(int argc, char** argv) {
   // the config at once, before listening: a consumer hears this generator's key before any
   // stranger's unsigned flood can make it conclude that the bus uses another key (the first
   // scene may take seconds: piles, shader compilation)
-  // (five copies over the half second of listening: one lost datagram does not matter)
-  for (int k = 0; k < 5; ++k) {
-    config_message.header.utime = UnixMicros();
-    bus.Publish(kConfigChannel, config_message);
-    listen(0.1, [] { return false; });
-  }
+  config_message.header.utime = UnixMicros();
+  bus.Publish(kConfigChannel, config_message);
+  listen(0.5, [] { return false; });
   int64_t first_seq = 0;
   if (resume) {
     listen(consumer_timeout_s, [&] { return server.ResumeSeq().has_value(); });

@@ -375,6 +375,15 @@ std::string Bus::KeyMismatch(const std::vector<std::string>& channels, double se
   return all.Mismatch(*impl_->auth, "the messages on " + names + " of " + impl_->url);
 }
 
+void Bus::WatchKeys(const std::vector<std::string>& channels) {
+  for (const std::string& channel : channels) {
+    if (impl_->Find(channel) == nullptr) {
+      SubscribeBytes(
+          channel, [](const uint8_t*, size_t) {}, 1);
+    }
+  }
+}
+
 UdpmCounters Bus::receive_counters() const {
   return impl_->receiver ? impl_->receiver->counters() : UdpmCounters{};
 }

@@ -150,6 +150,12 @@ class Bus {
   /// not one this bus could take; "" otherwise. Programs call it to stop with that line rather
   /// than wait for ever.
   std::string KeyMismatch(const std::vector<std::string>& channels, double seconds) const;
+  /// Hears `channels` for KeyMismatch: each one not subscribed to yet is subscribed with a queue
+  /// of one whose messages are dropped unread. KeyMismatch judges only what was heard, so a
+  /// consumer that reads scenes but not configs watches both: a generator announces its config
+  /// before its first scene (which may take seconds), and a stranger's unsigned scenes heard
+  /// meanwhile are not all the evidence.
+  void WatchKeys(const std::vector<std::string>& channels);
   /// What receiving a udpm:// bus did with the datagrams it read (udpm.h; all zero on memq://
   /// and file://): malformed ones dropped, messages given up or dropped for a full queue.
   UdpmCounters receive_counters() const;

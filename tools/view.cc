@@ -750,6 +750,8 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
   bus_options.open_bus = flags.open_bus;
   bus_options.replay = flags.replay;
   stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url), bus_options);
+  const std::vector<std::string> generator_channels = {stackgen::kSceneChannel,
+                                                       stackgen::kConfigChannel};
   bus.Subscribe<stackgen::scene>(
       stackgen::kSceneChannel,
       [&](const stackgen::scene& scene) {
@@ -772,6 +774,9 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
       },
       kQueueCapacity,
       [&](const std::string& text) { warn(++undecodable, "skipped a message: " + text); });
+  // the generators' configs too, for their key alone: each announces its config before its
+  // first scene
+  bus.WatchKeys(generator_channels);
   std::printf("%s: listening on %s channel %s for %d scenes\n", kProgram, bus.url().c_str(),
               stackgen::kSceneChannel, flags.count);
   std::fflush(stdout);
@@ -806,8 +811,6 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
                         std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                             std::chrono::duration<double>(flags.timeout_s));
   auto last_status = std::chrono::steady_clock::now();
-  const std::vector<std::string> generator_channels = {stackgen::kSceneChannel,
-                                                       stackgen::kConfigChannel};
   while (!stop_requested && static_cast<int>(tiles.size()) < flags.count &&
          std::chrono::steady_clock::now() < deadline && !bus.log_ended()) {
     bus.HandleFor(100);

@@ -565,6 +565,9 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
           raw->CountBad();
           raw->Report(text);
         });
+    // the generators' configs too, for their key alone (Bus::WatchKeys): each generator
+    // announces its config before its first scene and then every second
+    impl.bus->WatchKeys({options.channel, kConfigChannel});
   }
   for (int k = 0; k < options.decode_threads; ++k) {
     impl.decoders.emplace_back([raw = impl_.get()] { raw->RunDecoder(); });

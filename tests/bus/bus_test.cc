@@ -231,5 +231,39 @@ TEST(BusTest, TwoDatagramsOfLcm628DoNotCrashAReceiver) {
   EXPECT_EQ(receiver.receive_counters().malformed, 1);
 }
 
+// A keyed consumer that reads scenes but watches the config channel too (Bus::WatchKeys) hears
+// its generator's key in the config announced before the first scene, so a stranger's unsigned
+// messages on the scene channel meanwhile are not all it heard; one that does not watch the
+// config channel has heard only those, and KeyMismatch says that its peers do not sign.
+TEST(BusTest, WatchedChannelsShowTheGeneratorsKeyBeforeItsFirstScene) {
+  const std::string url = testing::FreeMulticastUrl();
+  const std::vector<std::string> generator_channels = {kSceneChannel, kConfigChannel};
+  Bus watching(url);
+  Bus blind(url);
+  for (Bus* consumer : {&watching, &blind}) {
+    consumer->Subscribe<status>(kSceneChannel, [](const status&) {});
+  }
+  watching.WatchKeys(generator_channels);
+  ASSERT_TRUE(watching.keyed());
+  BusOptions open;
+  open.open_bus = true;
+  Bus stranger(url, open);
+  Bus generator(url);
+  for (int round = 0; round < 50; ++round) {
+    generator.Publish(kConfigChannel, MakeStatus(-1));
+    stranger.Publish(kSceneChannel, MakeStatus(round));
+    watching.HandleFor(20);
+    blind.HandleFor(20);
+    if (round >= 10 && watching.auth_counters().unsigned_messages >= 5 &&
+        blind.auth_counters().unsigned_messages >= 5) {
+      break;
+    }
+  }
+  EXPECT_GE(blind.auth_counters().unsigned_messages, 5);
+  EXPECT_NE(blind.KeyMismatch(generator_channels, 0).find("are not signed"), std::string::npos);
+  EXPECT_GE(watching.auth_counters().unsigned_messages, 5);
+  EXPECT_EQ(watching.KeyMismatch(generator_channels, 0), "");
+}
+
 }  // namespace
 }  // namespace stackgen

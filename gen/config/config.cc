@@ -173,6 +173,11 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
     range("shininess", part.shininess(), 1, 1000);
     range("metallic", part.metallic(), 0, 1);
     if (part.has_roughness()) range("roughness", part.roughness(), 0, 1);
+    if (part.detail() == config::SurfaceDetail::KIND_UNSPECIFIED) {
+      throw ConfigError(n.Where("part", "detail", i) + ": must be NONE, CAST, BRUSHED or SCUFFED");
+    }
+    range("detail_strength", part.detail_strength(), 0, 1);
+    range("detail_scale_mm", part.detail_scale_mm(), 0, 1000, true);
     if (part.role() == config::PartConfig::ROLE_UNSPECIFIED) {
       throw ConfigError(n.Where("part", "role", i) +
                         ": must be PART, DISTRACTOR or LABELLED_DISTRACTOR");
@@ -202,6 +207,26 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "bin", "mesh_scale_to_mm", bin.mesh_scale_to_mm(), 0, kHuge, true);
   CheckRange(n, "bin", "friction", bin.friction(), 0, 2);
   CheckRange(n, "bin", "restitution", bin.restitution(), 0, 1);
+  if (bin.detail() == config::SurfaceDetail::KIND_UNSPECIFIED) {
+    throw ConfigError(n.Where("bin", "detail") + ": must be NONE, CAST, BRUSHED or SCUFFED");
+  }
+  CheckRange(n, "bin", "detail_strength", bin.detail_strength(), 0, 1);
+  CheckRange(n, "bin", "detail_scale_mm", bin.detail_scale_mm(), 0, 1000, true);
+
+  // surroundings
+  const config::SurroundingsConfig& around = c.surroundings();
+  for (const auto& [field, value] :
+       {std::make_pair("bin_color_probability", around.bin_color_probability()),
+        std::make_pair("bin_roughness_min", around.bin_roughness_min()),
+        std::make_pair("bin_roughness_max", around.bin_roughness_max()),
+        std::make_pair("metal_bin_probability", around.metal_bin_probability()),
+        std::make_pair("scuffed_bin_probability", around.scuffed_bin_probability()),
+        std::make_pair("table_probability", around.table_probability()),
+        std::make_pair("conveyor_fraction", around.conveyor_fraction())}) {
+    CheckRange(n, "surroundings", field, value, 0, 1);
+  }
+  CheckOrdered(n, "surroundings", "bin_roughness_min", around.bin_roughness_min(),
+               "bin_roughness_max", around.bin_roughness_max());
 
   // camera
   const config::CameraConfig& camera = c.camera();

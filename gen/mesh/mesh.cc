@@ -179,7 +179,8 @@ MeshMaterial ReadMaterial(const std::string& model_path, const aiMaterial& mater
                                 ClampOr(diffuse.b, 0, 1, out.color.z()));
   }
   aiColor3D specular;
-  if (material.Get(AI_MATKEY_COLOR_SPECULAR, specular) == aiReturn_SUCCESS) {
+  const bool has_specular = material.Get(AI_MATKEY_COLOR_SPECULAR, specular) == aiReturn_SUCCESS;
+  if (has_specular) {
     out.specular = ClampOr((specular.r + specular.g + specular.b) / 3, 0, 2, out.specular);
   }
   float shininess = 0;
@@ -192,6 +193,15 @@ MeshMaterial ReadMaterial(const std::string& model_path, const aiMaterial& mater
   }
   if (material.Get(AI_MATKEY_ROUGHNESS_FACTOR, factor) == aiReturn_SUCCESS) {
     out.roughness = ClampOr(factor, 0, 1, out.roughness);
+  }
+  // where it is metal: the base colour of a physically based material, the highlight's colour
+  // of a classic one
+  if (out.metallic >= 0) {
+    out.metal_color = out.color;
+  } else if (has_specular) {
+    out.metal_color = Eigen::Vector3f(ClampOr(specular.r, 0, 1, out.color.x()),
+                                      ClampOr(specular.g, 0, 1, out.color.y()),
+                                      ClampOr(specular.b, 0, 1, out.color.z()));
   }
 
   // the diffuse texture (glTF: the base colour texture)

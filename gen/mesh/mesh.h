@@ -21,6 +21,11 @@ struct MeshMaterial {
   /// roughnessFactor, MTL Pm and Pr), each in [0, 1]; -1 where it does not.
   float metallic = -1.f;
   float roughness = -1.f;
+  /// Physically based: the colour where the surface is metal (its reflectance at normal
+  /// incidence, display values). A file that states PBR factors gives its base colour (`color`);
+  /// a classic one (OBJ/MTL without Pm) its specular colour Ks, as a metal's colour is its
+  /// highlight's (the connector's Ks 0.85 against Kd 0.62); -1 where it states neither.
+  Eigen::Vector3f metal_color{-1.f, -1.f, -1.f};
   std::string texture_path;  // the diffuse texture file (map_Kd), resolved; empty = none
   cv::Mat texture;  // CV_8UC3 RGB (not BGR), row 0 = top row of the image file; empty = none
 };

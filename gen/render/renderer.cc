@@ -453,6 +453,9 @@ struct PbrProgram {
   GLint environment_intensity = -1;
   GLint instance_id = -1;
   GLint surface_id = -1;
+  GLint detail_frame = -1;
+  GLint detail_kind = -1;
+  GLint detail_strength = -1;
   uint64_t frame = 0;              // the Render call its per-frame uniforms were set for
   const DrawItem* item = nullptr;  // the item its pose was set for, this frame
 };
@@ -524,7 +527,7 @@ struct Renderer::Impl {
   // physically based frames: the programs, the background, the DFG table, the environments;
   // a single-sampled framebuffer shading each pixel once (colour, id, camera z, surface), and
   // when anti-aliased a multisampled coverage pass and its resolve (resolve.frag.glsl)
-  std::array<PbrProgram, (kMaxLights + 1) * 8> pbr;
+  std::array<PbrProgram, (kMaxLights + 1) * 16> pbr;
   GLuint background_program = 0;  // 0 until the first physically based frame
   GLint background_scale = -1;
   GLuint background_texture = 0;
@@ -571,8 +574,8 @@ struct Renderer::Impl {
   }
   ShadingProgram& Shading(int light_count, bool shadows, bool textured);
   ShadingProgram& UseShading(bool textured);
-  PbrProgram& Pbr(int light_count, bool shadows, bool textured, bool environment);
-  PbrProgram& UsePbr(bool textured);
+  PbrProgram& Pbr(int light_count, bool shadows, bool textured, bool environment, bool detailed);
+  PbrProgram& UsePbr(bool textured, bool detailed);
   void EnsurePbrResources();
   void EnsurePbrTargets(int samples);
   GLuint ResolveProgram(int samples);
@@ -694,18 +697,19 @@ ShadingProgram& Renderer::Impl::UseShading(bool textured) {
   return s;
 }
 
-PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bool environment) {
-  PbrProgram& p =
-      pbr[light_count * 8 + (shadows ? 4 : 0) + (textured ? 2 : 0) + (environment ? 1 : 0)];
+PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bool environment,
+                                bool detailed) {
+  PbrProgram& p = pbr[light_count * 16 + (shadows ? 8 : 0) + (textured ? 4 : 0) +
+                      (detailed ? 2 : 0) + (environment ? 1 : 0)];
   if (p.program != 0) return p;
-  const std::string header = "#version 330 core\n#define LIGHT_COUNT " +
-                             std::to_string(light_count) + "\n#define SHADOWS " +
-                             (shadows ? "1" : "0") + "\n#define TEXTURED " +
-                             (textured ? "1" : "0") + "\n#define ENVIRONMENT " +
-                             (environment ? "1" : "0") + "\n#define SHADOW_TAPS 1\n";
+  const std::string header =
+      "#version 330 core\n#define LIGHT_COUNT " + std::to_string(light_count) +
+      "\n#define SHADOWS " + (shadows ? "1" : "0") + "\n#define TEXTURED " +
+      (textured ? "1" : "0") + "\n#define ENVIRONMENT " + (environment ? "1" : "0") +
+      "\n#define DETAIL " + (detailed ? "1" : "0") + "\n#define SHADOW_TAPS 1\n";
   const std::string name = "physically based program, " + std::to_string(light_count) + " lights" +
                            (shadows ? ", shadows" : "") + (textured ? ", texture" : "") +
-                           (environment ? ", environment" : "");
+                           (environment ? ", environment" : "") + (detailed ? ", detail" : "");
   const GLuint program = LinkProgram(
       header + projection_glsl + scene_vert_glsl,
       header + color_glsl + brdf_glsl + shadow_lookup_glsl + pbr_frag_glsl, name.c_str());
@@ -725,6 +729,9 @@ PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bo
   p.environment_intensity = find("environment_intensity");
   p.instance_id = find("instance_id");
   p.surface_id = find("surface_id");
+  p.detail_frame = find("detail_frame");
+  p.detail_kind = find("detail_kind");
+  p.detail_strength = find("detail_strength");
   // samplers on their fixed units
   glUseProgram(program);
   glUniform1i(find("material_texture"), kMaterialTextureUnit);
@@ -736,9 +743,9 @@ PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bo
   return p;
 }
 
-PbrProgram& Renderer::Impl::UsePbr(bool textured) {
+PbrProgram& Renderer::Impl::UsePbr(bool textured, bool detailed) {
   const FrameUniforms& f = frame_uniforms;
-  PbrProgram& p = Pbr(f.light_count, f.shadows, textured, f.environment != nullptr);
+  PbrProgram& p = Pbr(f.light_count, f.shadows, textured, f.environment != nullptr, detailed);
   glUseProgram(p.program);
   if (p.frame == frame) return p;
 
@@ -889,25 +896,43 @@ void Renderer::Impl::DrawPbrSurface(const DrawItem& item, size_t index,
                                     const MeshBuffers& mesh, const Material& material,
                                     GLsizei first, GLsizei count) {
   const bool textured = material.texture_id >= 0;
-  PbrProgram& p = UsePbr(textured);
+  const SurfaceDetail& detail = item.detail;
+  const bool detailed = detail.kind != SurfaceDetail::Kind::kNone && detail.strength > 0;
+  PbrProgram& p = UsePbr(textured, detailed);
   if (p.item != &item) {
     SetCameraFromObject(p.projection, camera_from_world, item);
     glUniform1ui(p.instance_id, item.instance_id);
     glUniform1ui(p.surface_id, static_cast<GLuint>(index + 1));
+    if (detailed) {
+      glUniform4f(p.detail_frame, detail.offset.x(), detail.offset.y(), detail.offset.z(),
+                  1.f / detail.scale_mm);
+      glUniform1i(p.detail_kind, static_cast<int>(detail.kind));
+      glUniform1f(p.detail_strength, detail.strength);
+    }
     p.item = &item;
   }
 
   // the material with the item's gain: what a mesh material leaves open, the item's gives
+  const float metallic = material.metallic >= 0 ? material.metallic : item.material.metallic;
+  const float metal = std::clamp(metallic + item.gain.metallic, 0.f, 1.f);
+  // the base colour: the surface's colour where it is a dielectric, its metal colour where it is
+  // metal, blended by metallic, in linear light
   const Eigen::Vector3f color =
       material.color.cwiseProduct(item.gain.color).cwiseMax(0.f).cwiseMin(1.f);
+  const Eigen::Vector3f metal_color =
+      (material.metal_color.minCoeff() >= 0 ? material.metal_color : material.color)
+          .cwiseProduct(item.gain.color)
+          .cwiseMax(0.f)
+          .cwiseMin(1.f);
   Eigen::Vector3f base;
-  for (int c = 0; c < 3; ++c) base[c] = SrgbToLinear(color[c]);
-  const float metallic = material.metallic >= 0 ? material.metallic : item.material.metallic;
+  for (int c = 0; c < 3; ++c) {
+    base[c] = (1 - metal) * SrgbToLinear(color[c]) + metal * SrgbToLinear(metal_color[c]);
+  }
   const float roughness = material.roughness >= 0        ? material.roughness
                           : item.material.roughness >= 0 ? item.material.roughness
                                                          : RoughnessOfShininess(material.shininess);
   glUniform3fv(p.base_color_linear, 1, base.data());
-  glUniform1f(p.metallic, std::clamp(metallic + item.gain.metallic, 0.f, 1.f));
+  glUniform1f(p.metallic, metal);
   glUniform1f(p.roughness, std::clamp(roughness * item.gain.roughness, 0.f, 1.f));
   glUniform1f(p.dielectric_f0,
               std::clamp(0.08f * material.specular * item.gain.specular, 0.f, 1.f));
@@ -1079,6 +1104,13 @@ void Renderer::Impl::Validate(const CameraModel& camera, const std::vector<DrawI
                                std::to_string(mesh_id) + " (" + std::to_string(meshes.size()) +
                                " meshes added)");
     }
+    const SurfaceDetail& detail = items[i].detail;
+    if (!(detail.strength >= 0 && detail.strength <= 1) || !(detail.scale_mm > 0) ||
+        !std::isfinite(detail.scale_mm) || !detail.offset.allFinite()) {
+      throw std::runtime_error("Renderer: item " + std::to_string(i) + "'s detail strength " +
+                               std::to_string(detail.strength) + " must be in 0..1, scale_mm " +
+                               std::to_string(detail.scale_mm) + " positive, offset finite");
+    }
   }
 }
 
@@ -1163,7 +1195,9 @@ void Renderer::Impl::DrawSurface(const DrawItem& item, const Eigen::Isometry3d& 
 Eigen::AlignedBox3d Renderer::Impl::WorldBounds(const std::vector<DrawItem>& items) const {
   Eigen::AlignedBox3d box;
   for (const DrawItem& item : items) {
-    box.extend(TransformedBox(item.world_from_object, meshes[item.mesh_id].bounds));
+    if (item.casts_shadow) {
+      box.extend(TransformedBox(item.world_from_object, meshes[item.mesh_id].bounds));
+    }
   }
   return box;
 }
@@ -1224,6 +1258,7 @@ void Renderer::Impl::RenderShadowMaps(const std::vector<Light>& lights, int size
     glFramebufferTextureLayer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, shadow_maps, 0, i);
     glClearBufferfv(GL_DEPTH, 0, &far_depth);
     for (const DrawItem& item : items) {
+      if (!item.casts_shadow) continue;
       const Eigen::Matrix4f clip_from_object =
           (shadow_views[i].clip_from_world * item.world_from_object.matrix()).cast<float>();
       glUniformMatrix4fv(light_clip_from_object, 1, GL_FALSE, clip_from_object.data());
@@ -1411,6 +1446,7 @@ int Renderer::AddMesh(const TriangleMesh& mesh) {
     material.shininess = source.shininess;
     material.metallic = source.metallic;
     material.roughness = source.roughness;
+    material.metal_color = source.metal_color;
     if (!source.texture.empty()) {
       const auto found = texture_ids.find(source.texture.data);
       material.texture_id = found != texture_ids.end() ? found->second : AddTexture(source.texture);
@@ -1520,7 +1556,9 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   // lights in the camera frame: towards a directional light, the position of a point light
   FrameUniforms& frame = impl.frame_uniforms;
   frame.light_count = static_cast<int>(lights.size());
-  frame.shadows = options.shadows && !lights.empty() && !items.empty();
+  frame.shadows = options.shadows && !lights.empty() &&
+                  std::any_of(items.begin(), items.end(),
+                              [](const DrawItem& item) { return item.casts_shadow; });
   for (size_t i = 0; i < lights.size(); ++i) {
     const Light& light = lights[i];
     Eigen::Vector4d vector_camera;

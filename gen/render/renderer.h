@@ -47,6 +47,9 @@ struct Material {
   /// from shininess as (2 / (shininess + 2))^(1/4), the GGX lobe as wide as the Blinn-Phong one
   /// (40 -> 0.47). In a mesh's own material, negative means the DrawItem's material gives it.
   float roughness = -1.f;
+  /// Physically based only: the colour where the surface is metal (display values), blended
+  /// with `color` by metallic; negative: `color` (MeshMaterial::metal_color).
+  Eigen::Vector3f metal_color{-1.f, -1.f, -1.f};
 };
 
 /// Per-draw randomisation applied on top of whichever material a surface uses.
@@ -72,6 +75,21 @@ struct Light {
   float ambient = 0.25f, diffuse = 0.7f, specular = 0.4f;
 };
 
+/// Procedural surface detail of physically based shading (pbr.frag.glsl): roughness and
+/// brightness that vary with the position in the item's own frame (value noise).
+struct SurfaceDetail {
+  enum class Kind {
+    kNone,
+    kCast,     // mottled roughness and brightness, as cast metal
+    kBrushed,  // fine streaks along the object's x axis
+    kScuffed,  // dust patches (lighter, rougher) and scuff marks
+  };
+  Kind kind = Kind::kNone;
+  float strength = 0.5f;            // 0..1
+  float scale_mm = 2.f;             // the features' size, > 0
+  Eigen::Vector3f offset{0, 0, 0};  // shifts the pattern, in features: a new one per scene
+};
+
 /// One mesh placed in the scene.
 struct DrawItem {
   int mesh_id = 0;                                                      // from Renderer::AddMesh
@@ -81,7 +99,11 @@ struct DrawItem {
   Material material;
   /// true: a mesh with materials (AddMesh kept them) draws each triangle with its own material.
   bool use_mesh_materials = true;
-  MaterialGain gain;  // applied to the material used (the mesh's or `material`)
+  MaterialGain gain;     // applied to the material used (the mesh's or `material`)
+  SurfaceDetail detail;  // physically based shading only
+  /// false: drawn, but not into the shadow maps, and not counted in the bounds they cover (a
+  /// large floor under everything would spread their texels thin); it still receives shadows.
+  bool casts_shadow = true;
 };
 
 /// How colour is computed.

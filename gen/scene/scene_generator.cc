@@ -20,6 +20,7 @@
 #include "gen/randomize/camera_pose.h"
 #include "gen/randomize/lighting.h"
 #include "gen/randomize/sensor.h"
+#include "gen/randomize/surroundings.h"
 #include "gen/randomize/uniform.h"
 #include "gen/render/renderer.h"
 
@@ -44,10 +45,33 @@ enum class Lever : uint64_t {
   kBackground,
   kSensor,
   kEnvironment,
+  kSurroundings,
 };
 
 std::mt19937_64 LeverEngine(uint64_t scene_seed, Lever lever) {
   return std::mt19937_64(SplitMixHash(SplitMixHash(scene_seed) ^ static_cast<uint64_t>(lever)));
+}
+
+// The renderer's surface detail of a config's kind, strength and feature size.
+SurfaceDetail DetailOf(config::SurfaceDetail::Kind kind, double strength, double scale_mm) {
+  SurfaceDetail detail;
+  detail.kind = kind == config::SurfaceDetail::CAST      ? SurfaceDetail::Kind::kCast
+                : kind == config::SurfaceDetail::BRUSHED ? SurfaceDetail::Kind::kBrushed
+                : kind == config::SurfaceDetail::SCUFFED ? SurfaceDetail::Kind::kScuffed
+                                                         : SurfaceDetail::Kind::kNone;
+  detail.strength = static_cast<float>(strength);
+  detail.scale_mm = static_cast<float>(scale_mm);
+  return detail;
+}
+
+// `detail` with the pattern of item `item` in the scene of `scene_seed`: each copy of a part
+// and each scene shows another piece of the noise (a hash, no engine draw: nothing else moves)
+SurfaceDetail PlacedDetail(SurfaceDetail detail, uint64_t scene_seed, uint64_t item) {
+  const uint64_t h = SplitMixHash(SplitMixHash(scene_seed ^ 0x64657461696cULL) + item);
+  for (int k = 0; k < 3; ++k) {
+    detail.offset[k] = static_cast<float>((h >> (20 * k)) & 0xFFFFF) * (1000.f / 0x100000);
+  }
+  return detail;
 }
 
 // a number drawn uniformly from [lo, hi] (the same on every platform).
@@ -141,6 +165,7 @@ struct TypeInScene {
   // the configured material (for meshes without their own) and whether file materials are used
   Material material;
   bool use_file_materials = true;
+  SurfaceDetail detail;  // physically based: its procedural detail
   // class id among the labelled types (1, 2, ... by first class_name), 0 = not labelled
   int class_id = 0;
 };
@@ -155,6 +180,10 @@ struct SceneGenerator::Impl {
   std::vector<TypeInScene> types;
   int bin_mesh_id = 0;
   Material bin_material;
+  SurfaceDetail bin_detail;
+  // surroundings.table_probability: the table's quad (-1: none) and height, mm
+  int floor_mesh_id = -1;
+  double floor_z_mm = 0;
   // physically based shading: the environments a scene draws from (renderer environment ids)
   std::vector<int> environment_ids;
   std::string description;
@@ -324,6 +353,7 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
     type.material.metallic = static_cast<float>(part.metallic());
     type.material.roughness = part.has_roughness() ? static_cast<float>(part.roughness()) : -1.f;
     type.use_file_materials = part.use_file_materials();
+    type.detail = DetailOf(part.detail(), part.detail_strength(), part.detail_scale_mm());
     if (part.role() != config::PartConfig::DISTRACTOR) {
       auto it = std::find(class_names.begin(), class_names.end(), part.class_name());
       if (it == class_names.end()) it = class_names.insert(it, part.class_name());
@@ -356,6 +386,20 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   impl_->bin_material.shininess = static_cast<float>(bin.shininess());
   impl_->bin_material.metallic = static_cast<float>(bin.metallic());
   impl_->bin_material.roughness = bin.has_roughness() ? static_cast<float>(bin.roughness()) : -1.f;
+  impl_->bin_detail = DetailOf(bin.detail(), bin.detail_strength(), bin.detail_scale_mm());
+  // a table under the bin: a square 2 m wide, 0.5 mm below the bin's lowest point (it hides the
+  // background wherever the camera looks)
+  if (config.config.surroundings().table_probability() > 0) {
+    const double bottom =
+        bin.mesh().empty() ? -bin.wall_thickness_mm() : Bounds(bin_spec.mesh).min().z();
+    impl_->floor_z_mm = bottom - 0.5;
+    TriangleMesh floor;
+    const float half = 1000;
+    floor.positions_mm = {{-half, -half, 0}, {half, -half, 0}, {half, half, 0}, {-half, half, 0}};
+    floor.normals.assign(4, Eigen::Vector3f::UnitZ());
+    floor.triangles = {{0, 1, 2}, {0, 2, 3}};
+    impl_->floor_mesh_id = impl_->renderer->AddMesh(floor);
+  }
 
   // physically based shading: the procedural halls and the user's environment files, each
   // prefiltered once here
@@ -691,6 +735,11 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
     gains.push_back(SampleMaterialGain(config.appearance(), appearance_engine));
   }
 
+  // physically based: the surroundings of this scene (always drawn, used only then)
+  std::mt19937_64 surroundings_engine = LeverEngine(seed, Lever::kSurroundings);
+  const DrawnSurroundings around = SampleSurroundings(config.surroundings(), surroundings_engine);
+  const bool pbr = options.shading == Shading::kPbr;
+
   // render the bin and the parts (instance ids 1..N), then each part alone.
   std::vector<DrawItem> items;
   if (config.bin().visible()) {
@@ -698,7 +747,37 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
     bin_item.mesh_id = impl_->bin_mesh_id;
     bin_item.instance_id = 0;
     bin_item.material = impl_->bin_material;
+    bin_item.detail = impl_->bin_detail;
+    if (pbr && around.bin_restyled) {
+      bin_item.material.color = around.bin_color;
+      bin_item.material.metal_color = around.bin_color;
+      bin_item.material.metallic = around.bin_metallic;
+      bin_item.material.roughness = around.bin_roughness;
+    }
+    if (pbr && around.bin_scuffed) {
+      bin_item.detail.kind = SurfaceDetail::Kind::kScuffed;
+      bin_item.detail.strength = around.bin_scuff_strength;
+    }
+    bin_item.detail = PlacedDetail(bin_item.detail, seed, 0);
     items.push_back(bin_item);
+  }
+  if (pbr && around.floor != DrawnSurroundings::Floor::kNone && impl_->floor_mesh_id >= 0) {
+    DrawItem floor;
+    floor.mesh_id = impl_->floor_mesh_id;
+    floor.instance_id = 0;
+    floor.world_from_object = Eigen::Translation3d(0, 0, impl_->floor_z_mm);
+    floor.material.color = around.floor_color;
+    floor.material.metallic = 0;
+    floor.material.roughness = around.floor_roughness;
+    floor.material.specular = 0.5f;
+    // a table is scuffed over centimetres; a belt has fine ribs across the bin's length
+    const bool conveyor = around.floor == DrawnSurroundings::Floor::kConveyor;
+    floor.detail.kind = conveyor ? SurfaceDetail::Kind::kBrushed : SurfaceDetail::Kind::kScuffed;
+    floor.detail.strength = around.floor_detail_strength;
+    floor.detail.scale_mm = conveyor ? 3.f : 20.f;
+    floor.detail = PlacedDetail(floor.detail, seed, 1);
+    floor.casts_shadow = false;
+    items.push_back(floor);
   }
   // labelled objects get instance ids 1, 2, ...; unlabelled distractors draw as 0, like the bin
   std::vector<ObjectTruth> objects;
@@ -712,6 +791,7 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
     part_item.material = type.material;
     part_item.use_mesh_materials = type.use_file_materials;
     part_item.gain = gains[t];
+    part_item.detail = PlacedDetail(type.detail, seed, 2 + i);
     if (type.class_id > 0) {
       ObjectTruth object;
       object.instance_id = static_cast<int>(objects.size() + 1);

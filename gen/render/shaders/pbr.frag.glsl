@@ -44,6 +44,50 @@ vec2 OctahedralUv(vec3 d) {
 }
 #endif
 
+#if DETAIL
+// procedural surface detail (renderer.h, SurfaceDetail), from the position in features
+in vec3 detail_position;
+uniform int detail_kind;        // 1 cast, 2 brushed, 3 scuffed
+uniform float detail_strength;  // 0..1
+
+// a hash of a lattice point to 0..1 (Inigo Quilez's), and smooth value noise between them
+float Hash(vec3 p) {
+  p = fract(p * 0.3183099 + 0.1) * 17.0;
+  return fract(p.x * p.y * p.z * (p.x + p.y + p.z));
+}
+float ValueNoise(vec3 x) {
+  vec3 i = floor(x);
+  vec3 f = fract(x);
+  f = f * f * (3.0 - 2.0 * f);
+  return mix(mix(mix(Hash(i), Hash(i + vec3(1, 0, 0)), f.x),
+                 mix(Hash(i + vec3(0, 1, 0)), Hash(i + vec3(1, 1, 0)), f.x), f.y),
+             mix(mix(Hash(i + vec3(0, 0, 1)), Hash(i + vec3(1, 0, 1)), f.x),
+                 mix(Hash(i + vec3(0, 1, 1)), Hash(i + vec3(1, 1, 1)), f.x), f.y),
+             f.z);
+}
+
+// what the detail does here: (roughness factor, brightness factor, dust: 0..1 towards grey)
+vec3 Detail(vec3 p) {
+  float k = detail_strength;
+  if (detail_kind == 1) {
+    // cast: two octaves of mottling
+    float m = 0.65 * ValueNoise(p) + 0.35 * ValueNoise(2.7 * p + 11.0) - 0.5;
+    return vec3(1.0 + 1.2 * k * m, 1.0 - 0.5 * k * m, 0.0);
+  }
+  if (detail_kind == 2) {
+    // brushed: streaks along x, long and thin
+    float s = 0.7 * ValueNoise(p * vec3(0.04, 5.0, 5.0)) +
+              0.3 * ValueNoise(p * vec3(0.1, 17.0, 17.0) + 5.0) - 0.5;
+    return vec3(1.0 + 1.4 * k * s, 1.0 + 0.4 * k * s, 0.0);
+  }
+  // scuffed: dust in patches, and thin scuff marks that roughen and lighten
+  float dust = smoothstep(0.45, 0.8, 0.7 * ValueNoise(0.3 * p) + 0.3 * ValueNoise(1.7 * p + 3.0));
+  float scuff = smoothstep(0.82, 0.95, ValueNoise(p * vec3(0.12, 3.0, 0.12) + 7.0)) *
+                smoothstep(0.4, 0.6, ValueNoise(0.5 * p + 13.0));
+  return vec3(1.0 + k * (0.9 * dust + 0.8 * scuff), 1.0 + 0.5 * k * scuff, 0.7 * k * dust);
+}
+#endif
+
 void main() {
   // shade both sides: the back of a two-sided (open) mesh uses the flipped normal
   vec3 n = normalize(gl_FrontFacing ? normal_camera : -normal_camera);
@@ -53,9 +97,16 @@ void main() {
   base *= SrgbToLinear(texture(material_texture, texture_coordinates).rgb);
 #endif
   float r = clamp(roughness, 0.03, 1.0);
+  float metal = metallic;
+#if DETAIL
+  vec3 detail = Detail(detail_position);
+  r = clamp(r * detail.x, 0.03, 1.0);
+  base = mix(min(base * detail.y, vec3(1.0)), vec3(0.3), detail.z);
+  metal *= 1.0 - detail.z;  // dust is no metal
+#endif
   float alpha = r * r;
-  vec3 f0 = mix(vec3(dielectric_f0), base, metallic);
-  vec3 diffuse_color = base * (1.0 - metallic);
+  vec3 f0 = mix(vec3(dielectric_f0), base, metal);
+  vec3 diffuse_color = base * (1.0 - metal);
   float n_dot_v = max(dot(n, v), 1e-4);
 
   // specular albedo from the lookup table; multiple scattering lifts it to the full albedo of

@@ -1,4 +1,4 @@
-// The vertex shader of the scene programs. LIGHT_COUNT, SHADOWS, TEXTURED and ENVIRONMENT are
+// The vertex shader of the scene programs. LIGHT_COUNT, SHADOWS, TEXTURED, ENVIRONMENT and DETAIL are
 // defined per
 // program: a loop with a constant count unrolls (a uniform count makes llvmpipe about twice as
 // slow), and scenes without shadows or textures pay nothing for them. A light is a vec4: (unit
@@ -29,6 +29,10 @@ vec3 Irradiance(vec3 n) {
   return max(e, vec3(0.0));
 }
 #endif
+#if DETAIL
+uniform vec4 detail_frame;  // (offset, 1 / feature size in mm)
+out vec3 detail_position;   // the position in the object's frame, in features
+#endif
 #if SHADOWS
 uniform vec4 light_vector_camera[LIGHT_COUNT];
 uniform mat4 shadow_from_camera[LIGHT_COUNT];      // to (s, t, depth) of each map, homogeneous
@@ -42,6 +46,9 @@ void main() {
   normal_camera = mat3(camera_from_object) * normal_object;
 #if TEXTURED
   texture_coordinates = vec2(uv_object.x, 1.0 - uv_object.y);
+#endif
+#if DETAIL
+  detail_position = position_object * detail_frame.w + detail_frame.xyz;
 #endif
 #if SHADOWS
   // look the surface up in each map a little off it, along the normal on the light's side and

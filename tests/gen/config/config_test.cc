@@ -23,7 +23,7 @@ TEST(ConfigTest, ShippedConfigsAreValid) {
        {"default.pbtxt", "tote.pbtxt", "mixed.pbtxt", "tapered_tote.pbtxt", "basler.pbtxt",
         "ignore_occluded.pbtxt", "phong.pbtxt", "studio_hdri.pbtxt", "cut_and_paste.pbtxt",
         "ablation/none.pbtxt", "ablation/no_background.pbtxt", "ablation/no_lighting.pbtxt",
-        "ablation/no_noise.pbtxt", "ablation/no_occlusion_filter.pbtxt"}) {
+        "ablation/no_noise.pbtxt", "ablation/no_occlusion_filter.pbtxt", "surroundings.pbtxt"}) {
     const LoadedConfig loaded = LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/" + name);
     EXPECT_GT(loaded.config.part(0).count(), 0) << name;
   }
@@ -60,6 +60,18 @@ TEST(ConfigTest, RenderingFieldsAreChecked) {
   EXPECT_NE(
       error("sensor { exposure_ev_min: 1 exposure_ev_max: 0 }").find("sensor.exposure_ev_max"),
       std::string::npos);
+  // surface detail and surroundings
+  EXPECT_NE(error("part { detail: CAST detail_scale_mm: 0 }").find("part[0].detail_scale_mm"),
+            std::string::npos);
+  EXPECT_NE(error("bin { detail_strength: 2 }").find("bin.detail_strength"), std::string::npos);
+  EXPECT_NE(error("surroundings { table_probability: 1.5 }").find("surroundings.table_probability"),
+            std::string::npos);
+  EXPECT_NE(error("surroundings { bin_roughness_min: 0.8 bin_roughness_max: 0.5 }")
+                .find("surroundings.bin_roughness_max"),
+            std::string::npos);
+  EXPECT_EQ(error("part { detail: BRUSHED } bin { detail: SCUFFED } "
+                  "surroundings { table_probability: 1 }"),
+            "");
 }
 
 // an unknown field is refused with the file, line and field name.

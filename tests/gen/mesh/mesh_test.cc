@@ -341,6 +341,9 @@ TEST_F(MeshTest, ReadsMaterialsAndTexture) {
   EXPECT_TRUE(l.color.isApprox(Eigen::Vector3f(1, 1, 1)));
   EXPECT_NEAR(l.specular, 0.4f, 1e-6f);
   EXPECT_NEAR(l.shininess, 64.f, 1e-6f);
+  // a classic material: where it is metal, its colour is its highlight's (Ks)
+  EXPECT_TRUE(b.metal_color.isApprox(Eigen::Vector3f(0.1f, 0.1f, 0.1f))) << b.metal_color;
+  EXPECT_TRUE(l.metal_color.isApprox(Eigen::Vector3f(0.3f, 0.4f, 0.5f))) << l.metal_color;
 
   // the texture: 64 x 64 RGB, red at the top left, green top right, blue bottom left
   EXPECT_EQ(fs::path(l.texture_path).filename(), "quadrants.png");
@@ -422,6 +425,30 @@ TEST_F(MeshTest, TextureWithoutCoordinatesIsError) {
   EXPECT_NE(error.find(path), std::string::npos) << error;
   EXPECT_NE(error.find("q.png"), std::string::npos) << error;
   EXPECT_NE(error.find("texture coordinates"), std::string::npos) << error;
+}
+
+// An MTL material with physically based factors (Pm, Pr): its Kd is the base colour, metal
+// where it is metal; Ks is only the dielectric's highlight.
+TEST_F(MeshTest, PhysicallyBasedMtlFactors) {
+  std::ofstream(dir_ / "pbr.mtl")
+      << "newmtl brass\nKd 0.9 0.6 0.2\nKs 0.1 0.1 0.1\nPm 0.8\nPr 0.3\n";
+  const TriangleMesh mesh = LoadMesh(Write("pbr.obj", R"(mtllib pbr.mtl
+v 0 0 0
+v 1 0 0
+v 0 1 0
+v 0 0 1
+usemtl brass
+f 1 3 2
+f 1 2 4
+f 1 4 3
+f 2 3 4
+)"),
+                                     1.0);
+  ASSERT_EQ(mesh.materials.size(), 1u);
+  const MeshMaterial& brass = mesh.materials[0];
+  EXPECT_NEAR(brass.metallic, 0.8f, 1e-6f);
+  EXPECT_NEAR(brass.roughness, 0.3f, 1e-6f);
+  EXPECT_TRUE(brass.metal_color.isApprox(Eigen::Vector3f(0.9f, 0.6f, 0.2f))) << brass.metal_color;
 }
 
 // An inside-out textured mesh is turned outward with each triangle keeping its material.

@@ -129,6 +129,32 @@ TEST(RendererPbrTest, WhiteFurnaceGainsNoEnergyAndLosesLittle) {
   }
 }
 
+// a classic material's two colours (MeshMaterial::metal_color): a dark diffuse colour and a
+// white metal colour give, in the furnace, a metal sphere as bright as the environment and a
+// dielectric one dark
+TEST(RendererPbrTest, MetalColourWhereMetalDiffuseColourWhereNot) {
+  Renderer renderer(320, 240);
+  const int sphere = renderer.AddMesh(MakeSphere(60));
+  const float radiance = 0.5f;
+  const int furnace = renderer.AddEnvironment(
+      PrefilteredOf([&](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(radiance); }));
+  const CameraModel camera = CameraLookingDown(300);
+  for (const float metallic : {0.f, 1.f}) {
+    DrawItem item = WhiteItem(sphere, metallic, 0.4f);
+    item.material.color = Eigen::Vector3f::Constant(0.2f);
+    item.material.metal_color = Eigen::Vector3f::Ones();
+    const RenderResult result = renderer.Render(camera, {}, PbrOptions(furnace), {item});
+    const cv::Scalar mean = cv::mean(result.color_linear, result.instance == 1);
+    SCOPED_TRACE("metallic " + std::to_string(metallic));
+    if (metallic == 1.f) {
+      EXPECT_NEAR(mean[0], radiance, 0.03 * radiance);
+    } else {
+      // the diffuse lobe of 0.2 (0.033 in linear light) and a 4 % highlight
+      EXPECT_LT(mean[0], 0.2 * radiance);
+    }
+  }
+}
+
 // a mirror-like metal sphere shows the environment in the reflected direction, turned by the
 // environment's yaw
 TEST(RendererPbrTest, MirrorSphereReflectsTheEnvironment) {

@@ -25,15 +25,22 @@ struct Levers {
   bool background = false;
   bool sensor = false;
   bool environment = false;
+  bool surroundings = false;
+  bool detail = false;
 };
 
 // five connectors in the default bin, raw images, with only the given levers on.
 LoadedConfig ConfigWith(const Levers& on) {
   std::string text = R"(
     part { mesh: "models/corner_connector.obj"
-           collision_mesh: "models/corner_connector_collision.obj" count: 5 }
-    output { image_encoding: RAW }
-  )";
+           collision_mesh: "models/corner_connector_collision.obj" count: 5 )";
+  text += on.detail ? "detail: CAST }\n" : "}\n";
+  text += "output { image_encoding: RAW }\n";
+  if (on.surroundings) {
+    text +=
+        "surroundings { bin_color_probability: 1 scuffed_bin_probability: 1 table_probability: 1 "
+        "}\n";
+  }
   text += on.camera ? "camera { tilt_max_deg: 8 }\n"
                     : "camera { distance_jitter_mm: 0 tilt_max_deg: 0 roll_max_deg: 0 }\n";
   text += std::string("lighting { randomize: ") + (on.lighting ? "true" : "false") +
@@ -191,6 +198,36 @@ TEST_F(LeversTest, EnvironmentChangesOnlySurfaces) {
   const cv::Mat changed = ColourChanged(fixed(), f);
   EXPECT_EQ(Count(changed, r.background_inside), 0);
   EXPECT_GT(Count(changed, r.bin), cv::countNonZero(r.bin) / 2);
+  EXPECT_GT(Count(changed, r.objects), cv::countNonZero(r.objects) / 2);
+}
+
+// the surroundings lever restyles the bin and puts a table or belt where the background was: the
+// parts' pixels, their ids and their depth stay as they were
+TEST_F(LeversTest, SurroundingsChangeOnlyBinAndBackground) {
+  Levers on;
+  on.surroundings = true;
+  const Frame f = Generate(on);
+  const Regions r(fixed());
+  EXPECT_TRUE(Same(f.ids, fixed().ids));
+  cv::Mat depth_changed = f.depth != fixed().depth;
+  EXPECT_EQ(Count(depth_changed, ~r.background), 0);
+  EXPECT_EQ(Count(f.depth > 0, r.background), cv::countNonZero(r.background)) << "no table";
+  const cv::Mat changed = ColourChanged(fixed(), f);
+  EXPECT_EQ(Count(changed, r.objects_inside), 0);
+  EXPECT_GT(Count(changed, r.bin), cv::countNonZero(r.bin) / 2);
+  EXPECT_GT(Count(changed, r.background), cv::countNonZero(r.background) / 2);
+}
+
+// procedural detail (here CAST) varies the parts' surfaces alone
+TEST_F(LeversTest, DetailChangesOnlyParts) {
+  Levers on;
+  on.detail = true;
+  const Frame f = Generate(on);
+  ExpectSameGeometry(f);
+  const Regions r(fixed());
+  const cv::Mat changed = ColourChanged(fixed(), f);
+  EXPECT_EQ(Count(changed, r.background_inside), 0);
+  EXPECT_EQ(Count(changed, r.bin_inside), 0);
   EXPECT_GT(Count(changed, r.objects), cv::countNonZero(r.objects) / 2);
 }
 

@@ -105,8 +105,10 @@ def parse_args(argv):
     parser.add_argument("--threads", type=whole_number(1), default=os.cpu_count() or 1,
                         help="torch CPU threads (default: the cores)")
     parser.add_argument("--work-dir", default=None,
-                        help="where training and held-out sets are made (default: a temporary "
-                             "folder, removed at the end)")
+                        help="where training and held-out sets are made and each trained model "
+                             "is kept (default: a temporary folder, removed at the end); a "
+                             "second run with the same folder and settings scores the kept "
+                             "models on its test sets without training again")
     parser.add_argument("--out", metavar="FILE", help="also write the results as JSON")
     args = parser.parse_args(argv)
     for key, value in MODES[args.mode].items():
@@ -301,8 +303,22 @@ def main(argv):
             if not os.path.isfile(os.path.join(train_dir, "annotations.json")):
                 make_dataset(config, args.train_scenes, args.seed, train_dir,
                              os.path.join(work, "train-%d.log" % k))
+        # a model trained before on a training set of this work folder with the same settings is
+        # scored again (a --train-dir folder is the user's: nothing is written there)
+        kept = None if args.train_dir else os.path.join(
+            train_dir, "model-%s-%s-%d-steps-%d-of-%d-x%.3f-lr%g-seed-%d.pt" % (
+                args.mode, args.backbone, args.train_scenes, args.steps, args.batch_size,
+                args.scale, args.lr, args.seed))
         start = time.monotonic()
-        model = train(args, CocoDataset(train_dir), name)
+        if kept and os.path.isfile(kept):
+            model = build_model(args).to(torch.device(args.device))
+            model.load_state_dict(torch.load(kept, map_location=args.device))
+            print("%s: %s: the model trained before, %s" % (PROGRAM, name, kept), flush=True)
+        else:
+            model = train(args, CocoDataset(train_dir), name)
+            if kept:
+                torch.save(model.state_dict(), kept + ".tmp")
+                os.replace(kept + ".tmp", kept)
         trained_s = time.monotonic() - start
         for test_name, test in tests:
             result = evaluate(args, model, test)

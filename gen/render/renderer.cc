@@ -29,13 +29,13 @@ using namespace shaders;
 
 constexpr int kObjectsPerSilhouettePass = 32;  // one bit each in an R32UI target
 
-// texture units: a material's texture, the shadow maps, the DFG table, the environment, the
-// background image (also used to set up textures)
+// texture units: a material's texture, the shadow maps, the DFG table, the environment, one to
+// set up textures on
 constexpr int kMaterialTextureUnit = 0;
 constexpr int kShadowMapUnit = 1;
 constexpr int kDfgUnit = 2;
 constexpr int kEnvironmentUnit = 3;
-constexpr int kBackgroundUnit = 4;
+constexpr int kSetupUnit = 4;
 constexpr int kResolveCoverageUnit = 5;  // the coverage pass's samples
 constexpr int kDfgSize = 32;             // texels per side of the DFG table
 
@@ -524,14 +524,11 @@ struct Renderer::Impl {
   int shadow_map_size = 0;
   int shadow_map_layers = 0;
 
-  // physically based frames: the programs, the background, the DFG table, the environments;
+  // physically based frames: the programs, the DFG table, the environments;
   // a single-sampled framebuffer shading each pixel once (colour, id, camera z, surface), and
   // when anti-aliased a multisampled coverage pass and its resolve (resolve.frag.glsl)
   std::array<PbrProgram, (kMaxLights + 1) * 16> pbr;
-  GLuint background_program = 0;  // 0 until the first physically based frame
-  GLint background_scale = -1;
-  GLuint background_texture = 0;
-  GLuint empty_vertex_array = 0;
+  GLuint empty_vertex_array = 0;  // 0 until the first physically based frame
   GLuint dfg_texture = 0;
   std::vector<EnvironmentTexture> environments;
   GLuint shaded_framebuffer = 0;  // colour, instance, camera z, surface; the scene depth buffer
@@ -583,6 +580,7 @@ struct Renderer::Impl {
                       const Eigen::Isometry3d& camera_from_world, const MeshBuffers& mesh,
                       const Material& material, GLsizei first, GLsizei count);
   void ReadLinearColor(cv::Mat* color);
+  void CompositeBackground(const RenderOptions& options, RenderResult* result);
   void RenderPbr(const CameraModel& camera, const RenderOptions& options,
                  const std::vector<DrawItem>& items, RenderResult* result);
   void Resize(int new_width, int new_height);
@@ -767,22 +765,9 @@ PbrProgram& Renderer::Impl::UsePbr(bool textured, bool detailed) {
 }
 
 void Renderer::Impl::EnsurePbrResources() {
-  if (background_program != 0) return;
-  // the background: one triangle, no vertex data
-  background_program =
-      LinkProgram(background_vert_glsl, std::string("#version 330 core\n") + background_frag_glsl,
-                  "background program");
-  background_scale = glGetUniformLocation(background_program, "background_scale");
-  glUseProgram(background_program);
-  glUniform1i(glGetUniformLocation(background_program, "background_image"), kBackgroundUnit);
+  if (empty_vertex_array != 0) return;
+  // the resolve pass draws one triangle without vertex data
   glGenVertexArrays(1, &empty_vertex_array);
-  glGenTextures(1, &background_texture);
-  glActiveTexture(GL_TEXTURE0 + kBackgroundUnit);
-  glBindTexture(GL_TEXTURE_2D, background_texture);
-  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
-  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
-  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-  glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
 
   // the coverage pass: the surface each sample sees
   const std::string header =
@@ -831,10 +816,9 @@ void Renderer::Impl::EnsurePbrTargets(int samples) {
   if (width != pbr_width || height != pbr_height) {
     // shaded once per pixel: colour and surface of its own, id, camera z and depth shared with
     // the Phong framebuffer
-    glActiveTexture(GL_TEXTURE0 + kBackgroundUnit);
+    glActiveTexture(GL_TEXTURE0 + kSetupUnit);
     plain_texture(shaded_texture, GL_RGBA16F, width, height);
     plain_texture(surface_texture, GL_R16UI, width, height);
-    glBindTexture(GL_TEXTURE_2D, background_texture);
     glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
     glBindRenderbuffer(GL_RENDERBUFFER, resolve_buffer);
     glRenderbufferStorage(GL_RENDERBUFFER, GL_RGBA16UI, width, height);
@@ -881,7 +865,7 @@ GLuint Renderer::Impl::ResolveProgram(int samples) {
   if (resolve_programs[samples] != 0) return resolve_programs[samples];
   const std::string name = "resolve program, " + std::to_string(samples) + " samples";
   const GLuint program = LinkProgram(
-      background_vert_glsl,
+      fullscreen_vert_glsl,
       "#version 330 core\n#define SAMPLES " + std::to_string(samples) + "\n" + resolve_frag_glsl,
       name.c_str());
   glUseProgram(program);
@@ -953,6 +937,26 @@ void Renderer::Impl::ReadLinearColor(cv::Mat* color) {
   cv::cvtColor(float_colors, *color, cv::COLOR_RGBA2RGB);
 }
 
+void Renderer::Impl::CompositeBackground(const RenderOptions& options, RenderResult* result) {
+  // the background image, decoded and scaled, where nothing was drawn (camera z 0); before the
+  // edges are resolved, which blend it with what borders it. A table lookup per pixel left
+  // costs less than uploading the image and drawing it (on llvmpipe, 3-7 % of a frame)
+  if (options.background_image.empty()) return;
+  float linear[256];
+  for (int k = 0; k < 256; ++k) {
+    linear[k] = options.background_scale * SrgbToLinear(static_cast<float>(k) / 255.f);
+  }
+  for (int v = 0; v < height; ++v) {
+    const float* depth = result->depth_mm.ptr<float>(v);
+    const uint8_t* background = options.background_image.ptr<uint8_t>(v);
+    float* color = result->color_linear.ptr<float>(v);
+    for (int u = 0; u < width; ++u) {
+      if (depth[u] != 0.f) continue;
+      for (int c = 0; c < 3; ++c) color[3 * u + c] = linear[background[3 * u + c]];
+    }
+  }
+}
+
 void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& options,
                                const std::vector<DrawItem>& items, RenderResult* result) {
   EnsurePbrResources();
@@ -991,29 +995,6 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
                      mesh.range_firsts[k], mesh.range_counts[k]);
     }
   }
-  // the background image last, at the far plane: shaded only where nothing else is
-  if (!options.background_image.empty()) {
-    const cv::Mat& image = options.background_image;
-    glActiveTexture(GL_TEXTURE0 + kBackgroundUnit);
-    glBindTexture(GL_TEXTURE_2D, background_texture);
-    glPixelStorei(GL_UNPACK_ROW_LENGTH, static_cast<GLint>(image.step[0] / image.elemSize()));
-    glTexImage2D(GL_TEXTURE_2D, 0, GL_SRGB8, image.cols, image.rows, 0, GL_RGB, GL_UNSIGNED_BYTE,
-                 image.data);
-    glPixelStorei(GL_UNPACK_ROW_LENGTH, 0);
-    glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
-    glDepthFunc(GL_LEQUAL);
-    glDepthMask(GL_FALSE);
-    if (culling) {
-      glDisable(GL_CULL_FACE);
-      culling = false;
-    }
-    glUseProgram(background_program);
-    glUniform1f(background_scale, options.background_scale);
-    glBindVertexArray(empty_vertex_array);
-    glDrawArrays(GL_TRIANGLES, 0, 3);
-    glDepthFunc(GL_LESS);
-    glDepthMask(GL_TRUE);
-  }
   EnsureImage(&result->instance, height, width, CV_16UC1);
   EnsureImage(&result->depth_mm, height, width, CV_32FC1);
   EnsureImage(&result->color_linear, height, width, CV_32FC3);
@@ -1024,6 +1005,7 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
   if (samples <= 1) {
     glReadBuffer(GL_COLOR_ATTACHMENT0);
     ReadLinearColor(&result->color_linear);
+    CompositeBackground(options, result);
   } else {
     // the surface each sample sees: a cheap multisampled pass
     glBindFramebuffer(GL_FRAMEBUFFER, coverage_framebuffer);
@@ -1063,6 +1045,7 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
     glReadPixels(0, 0, width, height, GL_RED_INTEGER, GL_UNSIGNED_SHORT, centre_surfaces.data);
     glReadBuffer(GL_COLOR_ATTACHMENT0);
     ReadLinearColor(&result->color_linear);
+    CompositeBackground(options, result);
     ResolveEdges(centre_surfaces, sample_surfaces, samples, positions, &result->color_linear,
                  &edge_colors);
   }

@@ -1,6 +1,6 @@
 #version 330 core
-// One triangle covering the frame at the far plane; texture_coordinates (0, 0) at the top left
-// of the image (image row 0 is framebuffer row 0).
+// One triangle covering the frame at the far plane (the resolve pass); texture_coordinates
+// (0, 0) at the top left of the image (image row 0 is framebuffer row 0).
 out vec2 texture_coordinates;
 
 void main() {

@@ -328,13 +328,15 @@ def main(argv):
                   "(%d images)" % (PROGRAM, name, test_name, result["miou"], result["tp"],
                                    result["fp"], result["fn"], result["ap"], result["ap50"],
                                    result["images"]), flush=True)
-    if args.out:
-        temporary = args.out + ".tmp"
-        with open(temporary, "w") as file:
-            json.dump({"mode": args.mode, "steps": args.steps, "batch_size": args.batch_size,
-                       "scale": args.scale, "backbone": args.backbone, "seed": args.seed,
-                       "train_scenes": args.train_scenes, "results": results}, file, indent=1)
-        os.replace(temporary, args.out)
+        # the results so far, after each config: a run cut short keeps what it measured
+        if args.out:
+            temporary = args.out + ".tmp"
+            with open(temporary, "w") as file:
+                json.dump({"mode": args.mode, "steps": args.steps, "batch_size": args.batch_size,
+                           "scale": args.scale, "backbone": args.backbone, "seed": args.seed,
+                           "train_scenes": args.train_scenes, "results": results}, file,
+                          indent=1)
+            os.replace(temporary, args.out)
     if not args.work_dir:
         import shutil
         shutil.rmtree(work, ignore_errors=True)

@@ -770,7 +770,7 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
     floor.material.metallic = 0;
     floor.material.roughness = around.floor_roughness;
     floor.material.specular = 0.5f;
-    // a table is scuffed over centimetres; a belt has fine ribs across the bin's length
+    // a table is scuffed over centimetres; a belt has fine grooves along the bin's length (x)
     const bool conveyor = around.floor == DrawnSurroundings::Floor::kConveyor;
     floor.detail.kind = conveyor ? SurfaceDetail::Kind::kBrushed : SurfaceDetail::Kind::kScuffed;
     floor.detail.strength = around.floor_detail_strength;

@@ -174,7 +174,8 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
     range("metallic", part.metallic(), 0, 1);
     if (part.has_roughness()) range("roughness", part.roughness(), 0, 1);
     if (part.detail() == config::SurfaceDetail::KIND_UNSPECIFIED) {
-      throw ConfigError(n.Where("part", "detail", i) + ": must be NONE, CAST, BRUSHED or SCUFFED");
+      throw ConfigError(n.Where("part", "detail", i) +
+                        ": must be NONE, CAST, BRUSHED, SCUFFED or MOULDED");
     }
     range("detail_strength", part.detail_strength(), 0, 1);
     range("detail_scale_mm", part.detail_scale_mm(), 0, 1000, true);
@@ -208,7 +209,8 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "bin", "friction", bin.friction(), 0, 2);
   CheckRange(n, "bin", "restitution", bin.restitution(), 0, 1);
   if (bin.detail() == config::SurfaceDetail::KIND_UNSPECIFIED) {
-    throw ConfigError(n.Where("bin", "detail") + ": must be NONE, CAST, BRUSHED or SCUFFED");
+    throw ConfigError(n.Where("bin", "detail") +
+                      ": must be NONE, CAST, BRUSHED, SCUFFED or MOULDED");
   }
   CheckRange(n, "bin", "detail_strength", bin.detail_strength(), 0, 1);
   CheckRange(n, "bin", "detail_scale_mm", bin.detail_scale_mm(), 0, 1000, true);

@@ -83,6 +83,7 @@ struct SurfaceDetail {
     kCast,     // mottled roughness and brightness, as cast metal
     kBrushed,  // fine streaks along the object's x axis
     kScuffed,  // dust patches (lighter, rougher) and scuff marks
+    kMoulded,  // scuffed, and injection-moulding marks: ejector-pin rings, flow lines
   };
   Kind kind = Kind::kNone;
   float strength = 0.5f;            // 0..1

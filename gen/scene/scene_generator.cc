@@ -58,6 +58,7 @@ SurfaceDetail DetailOf(config::SurfaceDetail::Kind kind, double strength, double
   detail.kind = kind == config::SurfaceDetail::CAST      ? SurfaceDetail::Kind::kCast
                 : kind == config::SurfaceDetail::BRUSHED ? SurfaceDetail::Kind::kBrushed
                 : kind == config::SurfaceDetail::SCUFFED ? SurfaceDetail::Kind::kScuffed
+                : kind == config::SurfaceDetail::MOULDED ? SurfaceDetail::Kind::kMoulded
                                                          : SurfaceDetail::Kind::kNone;
   detail.strength = static_cast<float>(strength);
   detail.scale_mm = static_cast<float>(scale_mm);
@@ -755,7 +756,10 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
       bin_item.material.roughness = around.bin_roughness;
     }
     if (pbr && around.bin_scuffed) {
-      bin_item.detail.kind = SurfaceDetail::Kind::kScuffed;
+      // a plastic tote also shows how it was moulded; a steel bin only wear
+      const float metallic = bin_item.material.metallic;
+      bin_item.detail.kind =
+          metallic < 0.5f ? SurfaceDetail::Kind::kMoulded : SurfaceDetail::Kind::kScuffed;
       bin_item.detail.strength = around.bin_scuff_strength;
     }
     bin_item.detail = PlacedDetail(bin_item.detail, seed, 0);

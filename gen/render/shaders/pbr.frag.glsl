@@ -47,7 +47,8 @@ vec2 OctahedralUv(vec3 d) {
 #if DETAIL
 // procedural surface detail (renderer.h, SurfaceDetail), from the position in features
 in vec3 detail_position;
-uniform int detail_kind;        // 1 cast, 2 brushed, 3 scuffed
+in vec3 detail_normal;
+uniform int detail_kind;        // 1 cast, 2 brushed, 3 scuffed, 4 moulded
 uniform float detail_strength;  // 0..1
 
 // a hash of a lattice point to 0..1 (Inigo Quilez's), and smooth value noise between them
@@ -84,7 +85,16 @@ vec3 Detail(vec3 p) {
   float dust = smoothstep(0.45, 0.8, 0.7 * ValueNoise(0.3 * p) + 0.3 * ValueNoise(1.7 * p + 3.0));
   float scuff = smoothstep(0.82, 0.95, ValueNoise(p * vec3(0.12, 3.0, 0.12) + 7.0)) *
                 smoothstep(0.4, 0.6, ValueNoise(0.5 * p + 13.0));
-  return vec3(1.0 + k * (0.9 * dust + 0.8 * scuff), 1.0 + 0.5 * k * scuff, 0.7 * k * dust);
+  vec3 scuffed = vec3(1.0 + k * (0.9 * dust + 0.8 * scuff), 1.0 + 0.5 * k * scuff, 0.7 * k * dust);
+  if (detail_kind == 3) return scuffed;
+  // moulded: that, and the marks of injection moulding: rings left by ejector pins, one every 5
+  // features in the plane of the face (the two axes the normal is furthest from), and faint flow
+  // lines around the gate
+  vec3 a = abs(detail_normal);
+  vec2 q = a.z >= a.x && a.z >= a.y ? p.xy : (a.y >= a.x ? p.xz : p.yz);
+  float ring = 1.0 - smoothstep(0.0, 0.04, abs(length(fract(0.2 * q) - 0.5) - 0.12));
+  float flow = 0.5 + 0.5 * sin(3.0 * length(p));
+  return scuffed + vec3(k * (0.6 * ring + 0.25 * flow), -0.2 * k * ring, 0.0);
 }
 #endif
 

@@ -32,6 +32,7 @@ vec3 Irradiance(vec3 n) {
 #if DETAIL
 uniform vec4 detail_frame;  // (offset, 1 / feature size in mm)
 out vec3 detail_position;   // the position in the object's frame, in features
+out vec3 detail_normal;     // the normal in the object's frame
 #endif
 #if SHADOWS
 uniform vec4 light_vector_camera[LIGHT_COUNT];
@@ -49,6 +50,7 @@ void main() {
 #endif
 #if DETAIL
   detail_position = position_object * detail_frame.w + detail_frame.xyz;
+  detail_normal = normal_object;
 #endif
 #if SHADOWS
   // look the surface up in each map a little off it, along the normal on the light's side and

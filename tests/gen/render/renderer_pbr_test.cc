@@ -155,6 +155,39 @@ TEST(RendererPbrTest, MetalColourWhereMetalDiffuseColourWhereNot) {
   }
 }
 
+// each kind of surface detail draws its own pattern on a plate (none, cast, brushed, scuffed and
+// moulded all differ somewhere), and no detail moves a label: ids and depth stay byte-identical
+TEST(RendererPbrTest, SurfaceDetailKindsDifferAndLeaveLabels) {
+  Renderer renderer(320, 240);
+  const int plate = renderer.AddMesh(testing::MakeSquare(200));
+  const int environment = renderer.AddEnvironment(PrefilteredOf(
+      [](const Eigen::Vector3d& d) { return Eigen::Vector3f::Constant(d.z() > 0 ? 1.f : 0.2f); }));
+  const CameraModel camera = CameraLookingDown(300);
+  std::vector<RenderResult> results;
+  for (const SurfaceDetail::Kind kind :
+       {SurfaceDetail::Kind::kNone, SurfaceDetail::Kind::kCast, SurfaceDetail::Kind::kBrushed,
+        SurfaceDetail::Kind::kScuffed, SurfaceDetail::Kind::kMoulded}) {
+    DrawItem item = WhiteItem(plate, 0.f, 0.5f);
+    item.material.color = Eigen::Vector3f::Constant(0.4f);
+    item.detail.kind = kind;
+    item.detail.strength = 1.f;
+    item.detail.scale_mm = 4.f;
+    item.detail.offset = Eigen::Vector3f(3.f, 7.f, 11.f);
+    results.push_back(renderer.Render(camera, {}, PbrOptions(environment), {item}));
+  }
+  for (size_t a = 0; a < results.size(); ++a) {
+    EXPECT_TRUE(Identical(results[a].instance, results[0].instance)) << a;
+    EXPECT_TRUE(Identical(results[a].depth_mm, results[0].depth_mm)) << a;
+    for (size_t b = a + 1; b < results.size(); ++b) {
+      cv::Mat difference;
+      cv::absdiff(results[a].color_linear, results[b].color_linear, difference);
+      double largest = 0;
+      cv::minMaxLoc(difference.reshape(1), nullptr, &largest);
+      EXPECT_GT(largest, 0.01) << "kinds " << a << " and " << b << " look the same";
+    }
+  }
+}
+
 // a mirror-like metal sphere shows the environment in the reflected direction, turned by the
 // environment's yaw
 TEST(RendererPbrTest, MirrorSphereReflectsTheEnvironment) {

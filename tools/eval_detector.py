@@ -11,8 +11,9 @@ default config at another seed, made here unless --no-held-out) and any COCO fol
 with --out writes the same as JSON.
 
 Modes: --mode cpu (default; a small Mask R-CNN, ResNet-18 FPN with light heads, on images scaled
-to 320 x 240, 300 steps of 2 images: about 15 minutes for two configs on 2 cores) and --mode gpu (torchvision's ResNet-50
-FPN Mask R-CNN at full size, 3,000 steps of 4, for the paper's numbers where a GPU is lent).
+to 320 x 240, 300 steps of 2 images: about 15 minutes for two configs on 2 cores) and --mode gpu
+(torchvision's ResNet-50 FPN Mask R-CNN at full size, 3,000 steps of 4, for the paper's numbers
+where a GPU is lent).
 """
 
 import argparse
@@ -24,6 +25,8 @@ import subprocess
 import sys
 import tempfile
 import time
+
+import toolcli
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -38,27 +41,8 @@ MODES = {
 }
 
 
-class Parser(argparse.ArgumentParser):
-    def error(self, message):
-        sys.stderr.write("%s: error: %s (see --help)\n" % (PROGRAM, message))
-        sys.exit(2)
-
-
 def fail(message):
-    sys.stderr.write("%s: error: %s\n" % (PROGRAM, message))
-    sys.exit(1)
-
-
-def whole_number(minimum):
-    def parse(text):
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError("wants a whole number, got %r" % text) from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError("wants a whole number >= %d, got %r" % (minimum, text))
-        return value
-    return parse
+    toolcli.fail(PROGRAM, message)
 
 
 def fraction(text):
@@ -72,7 +56,7 @@ def fraction(text):
 
 
 def parse_args(argv):
-    parser = Parser(prog="tools/eval-detector", allow_abbrev=False,
+    parser = toolcli.Parser(PROGRAM, prog="tools/eval-detector", allow_abbrev=False,
                     description="Trains Mask R-CNN on scenes of each config and scores it.",
                     epilog="Exit status: 0 done, 1 error, 2 bad command line.")
     parser.add_argument("--config", action="append", required=True, metavar="FILE",
@@ -85,24 +69,24 @@ def parse_args(argv):
     parser.add_argument("--no-held-out", action="store_true",
                         help="no held-out stackgen test set (default: --held-out scenes of "
                              "config/default.pbtxt at seed 1000000)")
-    parser.add_argument("--held-out", type=whole_number(1), default=40, metavar="N",
+    parser.add_argument("--held-out", type=toolcli.whole_number(1), default=40, metavar="N",
                         help="held-out stackgen scenes (default 40)")
     parser.add_argument("--mode", choices=sorted(MODES), default="cpu",
                         help="cpu (default: small model and images) or gpu (the paper's model)")
-    parser.add_argument("--train-scenes", type=whole_number(1), default=None, metavar="N",
+    parser.add_argument("--train-scenes", type=toolcli.whole_number(1), default=None, metavar="N",
                         help="training scenes per config (cpu 200, gpu 2000)")
-    parser.add_argument("--steps", type=whole_number(1), default=None,
+    parser.add_argument("--steps", type=toolcli.whole_number(1), default=None,
                         help="optimiser steps (cpu 300, gpu 3000)")
-    parser.add_argument("--batch-size", type=whole_number(1), default=None,
+    parser.add_argument("--batch-size", type=toolcli.whole_number(1), default=None,
                         help="images per step (cpu 2, gpu 4)")
     parser.add_argument("--scale", type=fraction, default=None,
                         help="image scale for the model (cpu 0.5, gpu 1)")
-    parser.add_argument("--seed", type=whole_number(0), default=0,
+    parser.add_argument("--seed", type=toolcli.whole_number(0), default=0,
                         help="scene seed of the training sets, model and order seed (default 0)")
     parser.add_argument("--score-threshold", type=fraction, default=0.5,
                         help="the paper's score counts predictions at or above it (default 0.5)")
     parser.add_argument("--device", default=None, help="cpu or cuda (default: the mode's)")
-    parser.add_argument("--threads", type=whole_number(1), default=os.cpu_count() or 1,
+    parser.add_argument("--threads", type=toolcli.whole_number(1), default=os.cpu_count() or 1,
                         help="torch CPU threads (default: the cores)")
     parser.add_argument("--work-dir", default=None,
                         help="where training and held-out sets are made and each trained model "
@@ -246,7 +230,6 @@ def train(args, dataset, name):
 
 
 def evaluate(args, model, dataset):
-    import numpy as np
     import torch
     from stackgen.metrics import DetectionScores
 

@@ -23,6 +23,8 @@ import tempfile
 import time
 import zlib
 
+import toolcli
+
 # OpenMP threads that spin while they wait starve the generators on a small machine; set before
 # torch loads its OpenMP runtime
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
@@ -35,33 +37,12 @@ REPLAYED = ("workers", "batch_size", "seed", "reuse", "reuse_buffer", "augment",
             "backbone", "num_classes", "rois", "lr", "threads", "min_visib_fract")
 
 
-class Parser(argparse.ArgumentParser):
-    def error(self, message):
-        sys.stderr.write("%s: error: %s (see --help)\n" % (PROGRAM, message))
-        sys.exit(2)
-
-
 def fail(message):
-    sys.stderr.write("%s: error: %s\n" % (PROGRAM, message))
-    sys.exit(1)
+    toolcli.fail(PROGRAM, message)
 
 
-def whole_number(minimum):
-    """An argparse type: a whole number >= minimum."""
-    def parse(text):
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError("wants a whole number, got %r" % text) from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError("wants a whole number >= %d, got %r" %
-                                             (minimum, text))
-        return value
-    return parse
-
-
-positive_int = whole_number(1)
-non_negative_int = whole_number(0)
+positive_int = toolcli.whole_number(1)
+non_negative_int = toolcli.whole_number(0)
 
 
 def positive_float(text):
@@ -75,7 +56,8 @@ def positive_float(text):
 
 
 def parse_args(argv):
-    parser = Parser(
+    parser = toolcli.Parser(
+        PROGRAM,
         prog="tools/train-live",
         description="Trains torchvision's Mask R-CNN (weights=None) live on stackgen scenes.",
         epilog="Exit status: 0 done, 1 error, 2 bad command line.")

@@ -110,6 +110,17 @@ void CheckOrdered(const FieldNamer& namer, const std::string& message_field,
   }
 }
 
+// the surface detail of a part (`index`) or of the bin (-1): its kind, strength and feature size
+void CheckDetail(const FieldNamer& namer, const std::string& message_field, int index,
+                 config::SurfaceDetail::Kind kind, double strength, double scale_mm) {
+  if (kind == config::SurfaceDetail::KIND_UNSPECIFIED) {
+    throw ConfigError(namer.Where(message_field, "detail", index) +
+                      ": must be NONE, CAST, BRUSHED, SCUFFED or MOULDED");
+  }
+  CheckRange(namer, message_field, "detail_strength", strength, 0, 1, false, index);
+  CheckRange(namer, message_field, "detail_scale_mm", scale_mm, 0, 1000, true, index);
+}
+
 // fills the camera's size and intrinsics from its preset, keeping fields the file sets.
 void ApplyCameraPreset(config::CameraConfig* camera, const FieldNamer& n) {
   if (camera->preset().empty()) return;
@@ -173,12 +184,7 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
     range("shininess", part.shininess(), 1, 1000);
     range("metallic", part.metallic(), 0, 1);
     if (part.has_roughness()) range("roughness", part.roughness(), 0, 1);
-    if (part.detail() == config::SurfaceDetail::KIND_UNSPECIFIED) {
-      throw ConfigError(n.Where("part", "detail", i) +
-                        ": must be NONE, CAST, BRUSHED, SCUFFED or MOULDED");
-    }
-    range("detail_strength", part.detail_strength(), 0, 1);
-    range("detail_scale_mm", part.detail_scale_mm(), 0, 1000, true);
+    CheckDetail(n, "part", i, part.detail(), part.detail_strength(), part.detail_scale_mm());
     if (part.role() == config::PartConfig::ROLE_UNSPECIFIED) {
       throw ConfigError(n.Where("part", "role", i) +
                         ": must be PART, DISTRACTOR or LABELLED_DISTRACTOR");
@@ -208,12 +214,7 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "bin", "mesh_scale_to_mm", bin.mesh_scale_to_mm(), 0, kHuge, true);
   CheckRange(n, "bin", "friction", bin.friction(), 0, 2);
   CheckRange(n, "bin", "restitution", bin.restitution(), 0, 1);
-  if (bin.detail() == config::SurfaceDetail::KIND_UNSPECIFIED) {
-    throw ConfigError(n.Where("bin", "detail") +
-                      ": must be NONE, CAST, BRUSHED, SCUFFED or MOULDED");
-  }
-  CheckRange(n, "bin", "detail_strength", bin.detail_strength(), 0, 1);
-  CheckRange(n, "bin", "detail_scale_mm", bin.detail_scale_mm(), 0, 1000, true);
+  CheckDetail(n, "bin", -1, bin.detail(), bin.detail_strength(), bin.detail_scale_mm());
 
   // surroundings
   const config::SurroundingsConfig& around = c.surroundings();

@@ -475,6 +475,15 @@ std::vector<TriangleMesh> LoadMeshPieces(const std::string& path, double scale_t
   return pieces;
 }
 
+TriangleMesh MakeSquareMesh(float size_mm) {
+  TriangleMesh mesh;
+  const float h = size_mm / 2;
+  mesh.positions_mm = {{-h, -h, 0}, {h, -h, 0}, {h, h, 0}, {-h, h, 0}};
+  mesh.normals.assign(4, Eigen::Vector3f::UnitZ());
+  mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
+  return mesh;
+}
+
 TriangleMesh MakeOpenBinMesh(double inner_length_mm, double inner_width_mm, double inner_height_mm,
                              double wall_mm) {
   if (!(inner_length_mm > 0 && inner_width_mm > 0 && inner_height_mm > 0 && wall_mm > 0)) {

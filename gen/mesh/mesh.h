@@ -78,6 +78,10 @@ double SignedVolume(const TriangleMesh& mesh);
 /// Axis-aligned bounds of the vertices, mm (empty for a mesh without vertices).
 Eigen::AlignedBox3d Bounds(const TriangleMesh& mesh);
 
+/// A square of side `size_mm` in the z = 0 plane, centred at the origin, normal +z: open, so a
+/// renderer draws it two-sided (a table under the bin).
+TriangleMesh MakeSquareMesh(float size_mm);
+
 /// An open box standing on z = 0 with its inner floor centred at the origin: floor and four walls
 /// of thickness `wall_mm` around an inner space of length (x) x width (y) x height (z), mm.
 TriangleMesh MakeOpenBinMesh(double inner_length_mm, double inner_width_mm, double inner_height_mm,

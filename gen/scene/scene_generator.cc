@@ -394,12 +394,7 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
     const double bottom =
         bin.mesh().empty() ? -bin.wall_thickness_mm() : Bounds(bin_spec.mesh).min().z();
     impl_->floor_z_mm = bottom - 0.5;
-    TriangleMesh floor;
-    const float half = 1000;
-    floor.positions_mm = {{-half, -half, 0}, {half, -half, 0}, {half, half, 0}, {-half, half, 0}};
-    floor.normals.assign(4, Eigen::Vector3f::UnitZ());
-    floor.triangles = {{0, 1, 2}, {0, 2, 3}};
-    impl_->floor_mesh_id = impl_->renderer->AddMesh(floor);
+    impl_->floor_mesh_id = impl_->renderer->AddMesh(MakeSquareMesh(2000));
   }
 
   // physically based shading: the procedural halls and the user's environment files, each

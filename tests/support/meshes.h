@@ -33,14 +33,7 @@ inline TriangleMesh BoxMesh(const Eigen::Vector3f& size) { return BoxMesh(-size 
 
 /// A square of side size_mm in the object's z = 0 plane, centred at the origin, normal +z (open:
 /// drawn two-sided).
-inline TriangleMesh MakeSquare(float size_mm) {
-  TriangleMesh mesh;
-  const float h = size_mm / 2;
-  mesh.positions_mm = {{-h, -h, 0}, {h, -h, 0}, {h, h, 0}, {-h, h, 0}};
-  mesh.normals.assign(4, Eigen::Vector3f::UnitZ());
-  mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
-  return mesh;
-}
+inline TriangleMesh MakeSquare(float size_mm) { return MakeSquareMesh(size_mm); }
 
 }  // namespace testing
 }  // namespace stackgen

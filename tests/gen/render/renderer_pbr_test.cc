@@ -66,6 +66,12 @@ PrefilteredEnvironment PrefilteredOf(F f, int height = 128) {
   return Prefilter(testing::EnvironmentOf(f, height), 2 * height);
 }
 
+// the furnace: an environment of `radiance` in every direction, added to `renderer`
+int AddFurnace(Renderer* renderer, float radiance) {
+  return renderer->AddEnvironment(
+      PrefilteredOf([&](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(radiance); }));
+}
+
 // a white item of the given metallic and roughness
 DrawItem WhiteItem(int mesh_id, float metallic, float roughness, uint16_t id = 1) {
   DrawItem item;
@@ -99,8 +105,7 @@ TEST(RendererPbrTest, WhiteFurnaceGainsNoEnergyAndLosesLittle) {
   Renderer renderer(320, 240);
   const int sphere = renderer.AddMesh(MakeSphere(60));
   const float radiance = 0.5f;
-  const int furnace = renderer.AddEnvironment(
-      PrefilteredOf([&](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(radiance); }));
+  const int furnace = AddFurnace(&renderer, radiance);
   const CameraModel camera = CameraLookingDown(300);
   for (const float metallic : {0.f, 1.f}) {
     for (const float roughness : {0.05f, 0.25f, 0.5f, 0.75f, 1.f}) {
@@ -136,8 +141,7 @@ TEST(RendererPbrTest, MetalColourWhereMetalDiffuseColourWhereNot) {
   Renderer renderer(320, 240);
   const int sphere = renderer.AddMesh(MakeSphere(60));
   const float radiance = 0.5f;
-  const int furnace = renderer.AddEnvironment(
-      PrefilteredOf([&](const Eigen::Vector3d&) { return Eigen::Vector3f::Constant(radiance); }));
+  const int furnace = AddFurnace(&renderer, radiance);
   const CameraModel camera = CameraLookingDown(300);
   for (const float metallic : {0.f, 1.f}) {
     DrawItem item = WhiteItem(sphere, metallic, 0.4f);

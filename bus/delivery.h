@@ -63,7 +63,7 @@ struct SceneServerOptions {
 /// and STACKGEN_RESEND on the bus given; messages there that address another generator are
 /// skipped; those that do not decode or that no SceneClient sends are counted (bad_messages) and
 /// skipped, the first of each kind said in a notice: a credit with an empty or over-long name,
-/// seqs outside -1..999999998 or a window outside 0..10000; a resend request for more than 256
+/// seqs outside -1..99999998 or a window outside 0..10000; a resend request for more than 256
 /// seqs, for seqs not ascending or never published. A consumer that offers no window (0) for
 /// longer than the consumer timeout is no longer waited for until it offers one. Resend
 /// requests are served only for seqs the consumer has not stored and can take (its window). Not
@@ -178,7 +178,7 @@ class SceneClient {
  public:
   /// `bus` must outlive the client. Throws std::invalid_argument on options out of range.
   /// Generator ids outside 0..65535 (or outside options.generator_ids) and seqs outside
-  /// 0..999999998 are not tracked: Received returns false for them, and Stored, Skipped and
+  /// 0..99999998 are not tracked: Received returns false for them, and Stored, Skipped and
   /// Restore ignore them. So are seqs of other shards, except that Received notes them as
   /// published (they show that a generator has gone on, and count as done).
   SceneClient(Bus* bus, const SceneClientOptions& options);

@@ -73,27 +73,48 @@ bool CheckImage(const image& m, const std::string& field, int width, int height,
   return true;
 }
 
+// whether a box [x, y, w, h] lies inside a width x height image
+bool BoxInside(const int32_t box[4], int width, int height) {
+  return box[0] >= 0 && box[1] >= 0 && box[2] >= 0 && box[3] >= 0 &&
+         int64_t{box[0]} + box[2] <= width && int64_t{box[1]} + box[3] <= height;
+}
+
+std::string BoxText(const int32_t box[4]) {
+  return "[" + std::to_string(box[0]) + ", " + std::to_string(box[1]) + ", " +
+         std::to_string(box[2]) + ", " + std::to_string(box[3]) + "]";
+}
+
 // a box [x, y, w, h] inside a width x height image
 bool CheckBox(const int32_t box[4], const std::string& field, int width, int height,
               std::string* why) {
-  if (box[0] >= 0 && box[1] >= 0 && box[2] >= 0 && box[3] >= 0 &&
-      int64_t{box[0]} + box[2] <= width && int64_t{box[1]} + box[3] <= height) {
-    return true;
-  }
-  return Refuse(field + " [" + std::to_string(box[0]) + ", " + std::to_string(box[1]) + ", " +
-                    std::to_string(box[2]) + ", " + std::to_string(box[3]) +
-                    "] is not inside the " + std::to_string(width) + " x " +
+  if (BoxInside(box, width, height)) return true;
+  return Refuse(field + " " + BoxText(box) + " is not inside the " + std::to_string(width) + " x " +
                     std::to_string(height) + " image",
                 why);
 }
 
-// a mask over the image holding `expected` pixels (the value of `count_field`)
+// the box [x, y, w, h] of a whole silhouette: it may reach past the image's edges, by at most
+// the image's size each way (the canvas the generator draws it on, as bop_toolkit's)
+bool CheckAmodalBox(const int32_t box[4], const std::string& field, int width, int height,
+                    std::string* why) {
+  if (box[0] >= -width && box[1] >= -height && box[2] >= 0 && box[3] >= 0 &&
+      int64_t{box[0]} + box[2] <= 2 * int64_t{width} &&
+      int64_t{box[1]} + box[3] <= 2 * int64_t{height}) {
+    return true;
+  }
+  return Refuse(field + " " + BoxText(box) + " reaches more than the image's size past the " +
+                    std::to_string(width) + " x " + std::to_string(height) + " image",
+                why);
+}
+
+// a mask over the image holding `expected` pixels (the value of `count_field`), or at most that
+// many when `at_most`
 bool CheckMask(const std::string& counts, int32_t expected, int64_t area, const std::string& field,
-               const std::string& count_field, std::string* why) {
+               const std::string& count_field, std::string* why, bool at_most = false) {
   std::string problem;
   const int64_t pixels = MaskPixels(counts, area, &problem);
   if (pixels < 0) return Refuse(field + " " + problem, why);
-  if (pixels != expected) {
+  if (at_most ? pixels > expected : pixels != expected) {
     return Refuse(field + " holds " + std::to_string(pixels) + " pixels, " + count_field + " is " +
                       std::to_string(expected),
                   why);
@@ -225,12 +246,15 @@ bool CheckScene(const scene& message, std::string* why) {
                         " is not in 0..px_count_all (" + std::to_string(object.px_count_all) + ")",
                     why);
     }
-    if (!CheckBox(object.bbox_obj, field + ".bbox_obj", width, height, why) ||
+    // the whole silhouette may reach past the image's edges (bbox_obj and px_count_all count
+    // that part too); its mask holds the part in the image, all of it when bbox_obj lies inside
+    const bool whole_in_image = BoxInside(object.bbox_obj, width, height);
+    if (!CheckAmodalBox(object.bbox_obj, field + ".bbox_obj", width, height, why) ||
         !CheckBox(object.bbox_visib, field + ".bbox_visib", width, height, why) ||
         !CheckMask(object.mask_visib_rle, object.px_count_visib, area, field + ".mask_visib_rle",
                    "px_count_visib", why) ||
         !CheckMask(object.mask_obj_rle, object.px_count_all, area, field + ".mask_obj_rle",
-                   "px_count_all", why)) {
+                   "px_count_all", why, !whole_in_image)) {
       return false;
     }
     // the generator's label: annotated, ignored or neither; both need visible pixels

@@ -15,9 +15,11 @@ namespace stackgen {
 
 /// The largest generator id (--generator-id is 0..65535).
 inline constexpr int32_t kMaxGeneratorId = 65535;
-/// The largest seq of a generator: image ids are generator_id * 10^9 + seq + 1 (COCO), and
-/// 999999999 stays free.
-inline constexpr int64_t kMaxSeq = 999999998;
+/// The largest seq of a generator (10^8 - 2: 58 days of 20 scenes/s): COCO image ids are
+/// generator_id * 10^8 + seq + 1 and annotation ids image id * 1000 + instance, so every id of
+/// every allowed scene stays below 2^53 (a double, JavaScript's and jq's numbers, holds it
+/// exactly), and 99999999 stays free.
+inline constexpr int64_t kMaxSeq = 99999998;
 /// The largest instance id: the instance map is uint16, 0 = background.
 inline constexpr int32_t kMaxInstanceId = 65535;
 
@@ -47,8 +49,10 @@ inline constexpr int64_t kMaxSceneMaskPixels = int64_t{1} << 32;
 /// - instances: num_instances equal to their number, at most kMaxSceneMaskPixels mask pixels;
 ///   each with an instance_id in 1..kMaxInstanceId used once, class_id >= 1, a class_name,
 ///   finite poses and posture, visib_fract in [0, 1], 0 <= px_count_visib <= px_count_all,
-///   boxes inside the image, masks (MaskPixels) over the image holding px_count_visib and
-///   px_count_all pixels, not both annotated and ignored, and visible pixels when either.
+///   bbox_visib inside the image and bbox_obj reaching past it by at most the image's size each
+///   way, masks (MaskPixels) over the image holding px_count_visib and px_count_all pixels (at
+///   most px_count_all when bbox_obj reaches outside the image), not both annotated and ignored,
+///   and visible pixels when either.
 bool CheckScene(const scene& message, std::string* why);
 
 }  // namespace stackgen

@@ -34,12 +34,16 @@ namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-// id layout: image id = generator_id * 1e9 + seq + 1, annotation id = image id * 1000 +
-// instance_id; these bounds keep both unique and inside int64
-// (kMaxGeneratorId and kMaxSeq of bus/scene_contract.h keep them there)
-constexpr int64_t kSeqsPerGenerator = 1000000000;
+// id layout: image id = generator_id * 1e8 + seq + 1, annotation id = image id * 1000 +
+// instance_id; kMaxGeneratorId and kMaxSeq of bus/scene_contract.h keep both unique and below
+// 2^53, so a tool that reads JSON numbers as doubles (JavaScript, jq) tells every id apart
+constexpr int64_t kSeqsPerGenerator = 100000000;
 static_assert(kMaxSeq < kSeqsPerGenerator - 1, "a seq's image id would reach the next generator");
 constexpr int32_t kMaxCocoInstanceId = 999;
+static_assert((int64_t{kMaxGeneratorId} * kSeqsPerGenerator + kMaxSeq + 1) * 1000 +
+                      kMaxCocoInstanceId <
+                  (int64_t{1} << 53),
+              "an annotation id would pass 2^53");
 
 constexpr const char* kAnnotationsFile = "annotations.json";
 constexpr const char* kJournalFile = "annotations.journal";
@@ -48,7 +52,8 @@ constexpr const char* kShardsFolder = "shards";
 constexpr std::string_view kTemporarySuffix = ".tmp";
 
 // a journal line: {"image":IMAGE,"annotations":[ANNOTATIONS],"scene":SCENE}\n (see the header)
-constexpr int kJournalVersion = 1;
+// version 2: image ids generator_id * 1e8 + seq + 1 (version 1: * 1e9)
+constexpr int kJournalVersion = 2;
 constexpr std::string_view kImagePrefix = "{\"image\":";
 constexpr std::string_view kAnnotationsPrefix = ",\"annotations\":[";
 constexpr std::string_view kScenePrefix = "],\"scene\":";
@@ -244,7 +249,11 @@ void CocoWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64
     const json& scene = record["scene"];
     if (scene.at("journal_version") != kJournalVersion) {
       throw corrupt("journal_version " + scene["journal_version"].dump() + " is not " +
-                    std::to_string(kJournalVersion));
+                    std::to_string(kJournalVersion) +
+                    (scene["journal_version"] == 1
+                         ? " (written by an older stackgen-coco, whose image ids were "
+                           "generator_id * 10^9 + seq + 1: write to a new folder)"
+                         : ""));
     }
 
     // the scene, once, and its image record
@@ -729,14 +738,11 @@ void CocoWriter::Finish() {
   try {
     OutputFile out(temporary);
 
-    // info and licenses
-    const std::string date = UtcNow();
+    // info and licenses: no date, so the same scenes give the same bytes
     const json info = {{"description", options_.description},
                        {"version", "1.0"},
-                       {"year", std::stoi(date.substr(0, 4))},
                        {"contributor", "stackgen-coco"},
-                       {"url", ""},
-                       {"date_created", date}};
+                       {"url", ""}};
     out.Write("{\n\"info\": " + info.dump() + ",\n\"licenses\": [],\n\"images\": [\n");
 
     // images, by id, as the journal holds them

@@ -62,7 +62,7 @@ struct CocoWriterOptions {
 /// memory. annotations.json is derived from the journal: Finish streams the journal, sorted by
 /// id, into it. The journal is kept after Finish, so a dataset (finished or cut short by a crash)
 /// can be resumed and extended (CocoWriterOptions::resume). Ids: image id =
-/// generator_id * 1000000000 + seq + 1, annotation id = image id * 1000 + instance_id, so a
+/// generator_id * 100000000 + seq + 1, annotation id = image id * 1000 + instance_id, so a
 /// dataset does not depend on the order scenes arrive in. Categories come from the scenes'
 /// class_id and class_name. One writer per folder at a time (the journal is locked); not
 /// thread-safe.
@@ -183,7 +183,7 @@ class CocoWriter : public DatasetSink {
   /// journal ended with a complete line).
   int64_t truncated_journal_bytes() const override { return truncated_journal_bytes_; }
 
-  /// The image id of a scene: generator_id * 1000000000 + seq + 1.
+  /// The image id of a scene: generator_id * 100000000 + seq + 1.
   static int64_t ImageId(int32_t generator_id, int64_t seq);
   /// The annotation id of an instance: image_id * 1000 + instance_id.
   static int64_t AnnotationId(int64_t image_id, int32_t instance_id);

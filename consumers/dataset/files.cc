@@ -6,7 +6,6 @@
 
 #include <cerrno>
 #include <cstring>
-#include <ctime>
 
 namespace stackgen {
 
@@ -170,15 +169,6 @@ void OutputFile::Flush() {
   const int error = WriteAll(fd_, buffer_.data(), buffer_.size());
   if (error != 0) throw SystemError("cannot write", path_, error);
   buffer_.clear();
-}
-
-std::string UtcNow() {
-  const std::time_t now = std::time(nullptr);
-  std::tm utc{};
-  gmtime_r(&now, &utc);
-  char text[32];
-  std::strftime(text, sizeof(text), "%Y-%m-%dT%H:%M:%SZ", &utc);
-  return text;
 }
 
 }  // namespace stackgen

@@ -111,7 +111,4 @@ void WriteFileWhole(const std::filesystem::path& path, WriteContents write) {
   SyncFolder(path.parent_path());
 }
 
-/// The time now, UTC, as "2026-11-25T10:00:00Z".
-std::string UtcNow();
-
 }  // namespace stackgen

@@ -30,6 +30,7 @@ void BoxOfMask(const cv::Mat& mask, int32_t box[4]) {
 
 std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
                                                const std::vector<cv::Mat>& silhouettes,
+                                               const std::vector<cv::Mat>& beyond,
                                                const std::vector<ObjectTruth>& objects,
                                                const Eigen::Isometry3d& world_from_camera,
                                                double min_visib_fract, bool ignore_occluded) {
@@ -41,6 +42,10 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
   if (silhouettes.size() != objects.size()) {
     throw std::runtime_error("LabelInstances: " + std::to_string(silhouettes.size()) +
                              " silhouettes for " + std::to_string(objects.size()) + " objects");
+  }
+  if (!beyond.empty() && beyond.size() != objects.size()) {
+    throw std::runtime_error("LabelInstances: " + std::to_string(beyond.size()) +
+                             " beyond masks for " + std::to_string(objects.size()) + " objects");
   }
   if (!(min_visib_fract >= 0.0 && min_visib_fract <= 1.0)) {
     throw std::runtime_error("LabelInstances: min_visib_fract " + std::to_string(min_visib_fract) +
@@ -63,12 +68,23 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
                                " like instance_map, got type " + std::to_string(silhouette.type()) +
                                " of " + SizeText(silhouette));
     }
+    if (beyond.empty() || beyond[i].empty()) continue;
+    const cv::Mat& canvas = beyond[i];
+    const int margin_x = canvas.cols - instance_map.cols;
+    const int margin_y = canvas.rows - instance_map.rows;
+    if (canvas.type() != CV_8UC1 || margin_x < 0 || margin_y < 0 || margin_x % 2 != 0 ||
+        margin_y % 2 != 0) {
+      throw std::runtime_error("LabelInstances: beyond[" + std::to_string(i) +
+                               "] must be CV_8UC1 and larger than " + SizeText(instance_map) +
+                               " by an even number of pixels each way, got type " +
+                               std::to_string(canvas.type()) + " of " + SizeText(canvas));
+    }
   }
 
   const Eigen::Isometry3d camera_from_world = world_from_camera.inverse();
   std::vector<stackgen::instance> instances;
   instances.reserve(objects.size());
-  cv::Mat visible;
+  cv::Mat visible, outside;
   for (size_t i = 0; i < objects.size(); ++i) {
     const ObjectTruth& object = objects[i];
     stackgen::instance label{};
@@ -83,10 +99,29 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
     for (int k = 0; k < 3; ++k) label.posture_deg[k] = posture[k];
     label.resting_face = object.resting_face;
 
-    // the whole object from its silhouette
+    // the whole object from its silhouette: in the image, and beyond its edges
     label.px_count_all = cv::countNonZero(silhouettes[i]);
     BoxOfMask(silhouettes[i], label.bbox_obj);
     label.mask_obj_rle = EncodeRle(silhouettes[i]);
+    if (!beyond.empty() && !beyond[i].empty()) {
+      const cv::Point image_corner((beyond[i].cols - instance_map.cols) / 2,
+                                   (beyond[i].rows - instance_map.rows) / 2);
+      outside = beyond[i].clone();
+      outside(cv::Rect(image_corner, instance_map.size())).setTo(0);
+      const int outside_pixels = cv::countNonZero(outside);
+      if (outside_pixels > 0) {
+        cv::Rect box = cv::boundingRect(outside) - image_corner;
+        if (label.px_count_all > 0) {
+          box |=
+              cv::Rect(label.bbox_obj[0], label.bbox_obj[1], label.bbox_obj[2], label.bbox_obj[3]);
+        }
+        label.px_count_all += outside_pixels;
+        label.bbox_obj[0] = box.x;
+        label.bbox_obj[1] = box.y;
+        label.bbox_obj[2] = box.width;
+        label.bbox_obj[3] = box.height;
+      }
+    }
 
     // the visible part from the instance map
     cv::compare(instance_map, cv::Scalar(object.instance_id), visible, cv::CMP_EQ);

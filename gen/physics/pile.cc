@@ -804,6 +804,18 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed)
 
 PileResult PileSimulator::Resettle(const std::vector<int>& types,
                                    const std::vector<Eigen::Isometry3d>& world_from_object) const {
+  const SimulationParams& params = model_->params;
+  RestRule rule;
+  rule.translation_mm = params.settle_translation_mm;
+  rule.rotation_deg = params.settle_rotation_deg;
+  rule.window_s = params.settle_window_s;
+  rule.max_time_s = params.max_sim_time_s;
+  return Resettle(types, world_from_object, rule);
+}
+
+PileResult PileSimulator::Resettle(const std::vector<int>& types,
+                                   const std::vector<Eigen::Isometry3d>& world_from_object,
+                                   const RestRule& rule) const {
   const Model& m = *model_;
   for (int type : types) TypeAt(m.types, type);
   if (types.size() != world_from_object.size()) {
@@ -811,20 +823,24 @@ PileResult PileSimulator::Resettle(const std::vector<int>& types,
                                 " types but " + std::to_string(world_from_object.size()) +
                                 " poses");
   }
-  const SimulationParams& params = m.params;
-  const double dt = params.time_step_s;
+  if (!(rule.translation_mm > 0 && rule.rotation_deg > 0 && rule.window_s > 0 &&
+        rule.max_time_s > 0)) {
+    throw std::invalid_argument(
+        "PileSimulator::Resettle: the rest rule's thresholds, window and "
+        "cap must be positive");
+  }
+  const double dt = m.params.time_step_s;
   PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm);
   w.AddShapes(types);
   std::vector<btRigidBody*> bodies;
   for (size_t i = 0; i < types.size(); ++i)
     bodies.push_back(w.AddPart(types[i], world_from_object[i]));
 
-  // step until settled (the window starts at once) or the cap, checking as Simulate does
-  const int max_steps = static_cast<int>(std::ceil(params.max_sim_time_s / dt - 1e-9));
+  // step until at rest (the window starts at once) or the cap, checking as Simulate does
+  const int max_steps = static_cast<int>(std::ceil(rule.max_time_s / dt - 1e-9));
   const int check_every =
-      std::max(1, static_cast<int>(std::lround(params.settle_window_s / kChecksPerWindow / dt)));
-  SettleDetector settle(params.settle_translation_mm, params.settle_rotation_deg,
-                        params.settle_window_s);
+      std::max(1, static_cast<int>(std::lround(rule.window_s / kChecksPerWindow / dt)));
+  SettleDetector settle(rule.translation_mm, rule.rotation_deg, rule.window_s);
   PileResult result;
   result.settled = bodies.empty();
   int step = 0;
@@ -864,7 +880,9 @@ std::vector<int> PileSimulator::PickOrder(
   }
 
   // vertical rays on a grid over the opening: each counts for the part it meets first, and as
-  // covering every other part it passes through
+  // covering every other part it passes through. A compound part reports a hit for each of its
+  // pieces on the ray: each part counts once, at its nearest hit, so a part's own lower pieces
+  // never cover it
   std::vector<int> seen(types.size(), 0), covered(types.size(), 0);
   const int nx = std::max(1, static_cast<int>(std::floor(m.bin.inner_length_mm / kPickRayPitchMm)));
   const int ny = std::max(1, static_cast<int>(std::floor(m.bin.inner_width_mm / kPickRayPitchMm)));
@@ -883,8 +901,12 @@ std::vector<int> PileSimulator::PickOrder(
                            callback.m_collisionObjects[h]->getUserIndex());
       }
       std::sort(along.begin(), along.end());
+      std::vector<int> met;
       for (size_t h = 0; h < along.size() && along[h].second >= 0; ++h) {
-        ++(h == 0 ? seen : covered)[along[h].second];
+        const int part = along[h].second;
+        if (std::find(met.begin(), met.end(), part) != met.end()) continue;
+        ++(met.empty() ? seen : covered)[part];
+        met.push_back(part);
       }
     }
   }

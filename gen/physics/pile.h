@@ -68,6 +68,17 @@ struct SimulationParams {
   Eigen::Vector2d drop_point_mm = Eigen::Vector2d::Zero();  // kSequential: x, y of the release
 };
 
+/// When a pile counts as at rest for Resettle with a rule: every part moved less than
+/// translation_mm and turned less than rotation_deg over the last window_s seconds, within
+/// max_time_s of simulated time. The defaults are a strict check of a published pile (0.1 mm,
+/// 0.1 degrees, 1 s, 60 s).
+struct RestRule {
+  double translation_mm = 0.1;
+  double rotation_deg = 0.1;
+  double window_s = 1;
+  double max_time_s = 60;
+};
+
 /// A settled (or capped) pile.
 struct PileResult {
   // mm, the MESH frame of each part (not its centre of mass)
@@ -138,6 +149,13 @@ class PileSimulator {
   /// function of the inputs. Throws std::invalid_argument unless there is one pose per type.
   PileResult Resettle(const std::vector<int>& types,
                       const std::vector<Eigen::Isometry3d>& world_from_object) const;
+
+  /// As above, until the pile is at rest by `rule` (not the simulator's settle parameters) or
+  /// rule.max_time_s: a strict check that a pile was at rest, by how far its parts still move.
+  /// Throws std::invalid_argument as above, or when a value of `rule` is not positive.
+  PileResult Resettle(const std::vector<int>& types,
+                      const std::vector<Eigen::Isometry3d>& world_from_object,
+                      const RestRule& rule) const;
 
   /// The order in which a robot picking from above takes the parts of a pile (indices into
   /// `types`), the most visible part on top first: vertical rays on a 2 mm grid over the bin

@@ -235,9 +235,15 @@ class Renderer {
                                          const std::vector<DrawItem>& items);
 
   /// As above, writing into `masks` (resized to the number of objects); masks already of the
-  /// right size are reused.
+  /// right size are reused. With `beyond` (resized to the number of objects), also what each
+  /// object covers outside the image, as bop_toolkit's calc_gt_info counts it: an object whose
+  /// mask touches the image's edge, or is empty, is drawn again on a canvas that holds the image
+  /// and a margin of the image's width and height on each side (3 x 3 images, the image at
+  /// (width, height); less where GL_MAX_RENDERBUFFER_SIZE is smaller), and its `beyond` mask is
+  /// that canvas, CV_8UC1 255 inside, zero over the image itself (whose pixels are in `masks`,
+  /// exact). Every other object gets an empty Mat.
   void RenderSilhouettes(const CameraModel& camera, const std::vector<DrawItem>& items,
-                         std::vector<cv::Mat>* masks);
+                         std::vector<cv::Mat>* masks, std::vector<cv::Mat>* beyond = nullptr);
 
   /// The platform, GL_RENDERER and GL_VERSION of the context (see EglContext::Description).
   std::string Description() const;

@@ -50,7 +50,8 @@ Drops copies of a part into a bin with Bullet physics, renders the settled pile 
 
 flags:
   --config FILE       generator config, protobuf text (default: %s)
-  --count N           scenes to publish, then exit; 0 = until SIGINT/SIGTERM (default: 0)
+  --count N           scenes to publish, then exit, 0..100000000; 0 = until SIGINT/SIGTERM
+                      or the last seq, 99999998 (default: 0)
   --seed S            base seed; scene k is a pure function of (config, S, G, k) (default: 0)
   --generator-id G    id of this generator, 0..65535, distinct per concurrent generator
                       (default: 0)
@@ -89,14 +90,6 @@ Best-effort listeners (stackgen-view, lcm-spy, lcm-logger) are never waited for.
 The next pile settles on a second thread and scenes are encoded on a third while the next one renders.
 On exit and on SIGINT it prints the mean milliseconds per scene of each stage.
 )";
-
-std::string DefaultCacheDir() {
-  const char* xdg = std::getenv("XDG_CACHE_HOME");
-  if (xdg != nullptr && xdg[0] != '\0') return std::string(xdg) + "/stackgen";
-  const char* home = std::getenv("HOME");
-  if (home != nullptr && home[0] != '\0') return std::string(home) + "/.cache/stackgen";
-  return "/tmp/stackgen-cache";
-}
 
 std::string FormatMs(double total_ms, int64_t scenes) {
   char text[32];
@@ -181,7 +174,7 @@ int Run(int argc, char** argv) {
   BusOptions bus_options;
   FlagParser parser("stackgen");
   parser.String("--config", &config_path);
-  parser.Int("--count", &count, 0, INT64_MAX);
+  parser.Int("--count", &count, 0, kMaxSeq + 1);
   parser.Int("--seed", &seed_flag, 0, INT64_MAX);
   parser.Int("--generator-id", &generator_id, 0, kMaxGeneratorId);
   parser.LcmUrl(&lcm_url);
@@ -409,7 +402,7 @@ int Run(int argc, char** argv) {
   std::optional<SettledPile> current;
   const auto settle_ahead = [&] {
     const int64_t next_first = current ? current->first_seq + views : first_seq;
-    if (count != 0 && next_first >= count) return;
+    if ((count != 0 && next_first >= count) || next_first > kMaxSeq) return;
     if (current) {
       ahead = physics_worker.Submit(
           [&generator, state = *current] { return generator.SettleNext(state); });
@@ -457,7 +450,9 @@ int Run(int argc, char** argv) {
   };
 
   publish_periodic(true);
-  for (int64_t seq = first_seq; (count == 0 || seq < count) && !g_stop; ++seq) {
+  // without --count, until a signal or the last seq of the id layout (bus/scene_contract.h)
+  const int64_t last_seq = count > 0 ? count - 1 : kMaxSeq;
+  for (int64_t seq = first_seq; seq <= last_seq && !g_stop; ++seq) {
     // nothing in flight: render only what may be published (later, the one scene being
     // encoded is published first, and rendering runs at most one scene ahead of it)
     if (!encoding.valid()) {
@@ -490,8 +485,14 @@ int Run(int argc, char** argv) {
   if (encoding.valid()) encoding.wait();
   if (ahead.valid()) ahead.wait();
   // after the last scene, until every reliable consumer has stored it (or went silent)
-  if (count > 0 && next_seq == count) {
-    while (!server.AllStoredThrough(count - 1) && !g_stop) wait_for_consumers(20);
+  if (next_seq == last_seq + 1) {
+    while (!server.AllStoredThrough(last_seq) && !g_stop) wait_for_consumers(20);
+    if (count == 0) {
+      std::printf(
+          "stackgen: generator %d reached the last seq, %lld: go on with another "
+          "--generator-id\n",
+          generator_id, static_cast<long long>(last_seq));
+    }
   }
   // consumers that use another key were heard, and none with this one: nothing was delivered
   const std::string mismatch = bus.KeyMismatch(consumer_channels, 0);

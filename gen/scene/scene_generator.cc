@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <mutex>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -805,7 +806,8 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
     items.push_back(part_item);
   }
   RenderResult rendered = impl_->renderer->Render(camera, lights, options, items);
-  const std::vector<cv::Mat> silhouettes = impl_->renderer->RenderSilhouettes(camera, items);
+  std::vector<cv::Mat> silhouettes, beyond;
+  impl_->renderer->RenderSilhouettes(camera, items, &silhouettes, &beyond);
   local.render_ms = MillisecondsSince(start);
 
   // label every object from the same render.
@@ -824,7 +826,7 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   out.camera.world_from_camera = ToPoseMessage(camera.world_from_camera);
   out.camera.depth_scale_mm = config.camera().depth_scale_mm();
   out.instances =
-      LabelInstances(rendered.instance, silhouettes, objects, camera.world_from_camera,
+      LabelInstances(rendered.instance, silhouettes, beyond, objects, camera.world_from_camera,
                      config.annotation().min_visib_fract(),
                      config.annotation().occlusion_rule() == config::AnnotationConfig::IGNORE);
   out.num_instances = static_cast<int32_t>(out.instances.size());
@@ -881,6 +883,16 @@ labels LabelsOf(const scene& scene) {
   out.num_instances = scene.num_instances;
   out.instances = scene.instances;
   return out;
+}
+
+const PileSimulator& SceneGenerator::simulator() const { return *impl_->simulator; }
+
+std::string DefaultCacheDir() {
+  const char* xdg = std::getenv("XDG_CACHE_HOME");
+  if (xdg != nullptr && xdg[0] != '\0') return std::string(xdg) + "/stackgen";
+  const char* home = std::getenv("HOME");
+  if (home != nullptr && home[0] != '\0') return std::string(home) + "/.cache/stackgen";
+  return "/tmp/stackgen-cache";
 }
 
 }  // namespace stackgen

@@ -15,6 +15,8 @@
 
 namespace stackgen {
 
+class PileSimulator;
+
 /// Milliseconds spent per stage on one scene, and how often it was redrawn.
 struct StageTimes {
   double physics_ms = 0;
@@ -129,6 +131,9 @@ class SceneGenerator {
   /// Scenes per state of a pile (physics.views_per_pile).
   int views_per_pile() const;
 
+  /// The pile simulator the scenes' physics runs on (for checks such as stackgen-rest-check).
+  const PileSimulator& simulator() const;
+
   /// Lines describing the collision shape and the renderer in use.
   std::string Description() const;
 
@@ -144,5 +149,9 @@ class SceneGenerator {
 
 /// The labels of a scene: the same header, camera and instances, without images.
 labels LabelsOf(const scene& scene);
+
+/// Where collision decompositions are cached unless a --cache-dir says otherwise:
+/// $XDG_CACHE_HOME/stackgen, else ~/.cache/stackgen, else /tmp/stackgen-cache.
+std::string DefaultCacheDir();
 
 }  // namespace stackgen

@@ -14,14 +14,14 @@
 namespace stackgen {
 namespace {
 
-// The id limits every consumer shares: generator ids 0..65535, seqs 0..999999998.
+// The id limits every consumer shares: generator ids 0..65535, seqs 0..99999998.
 TEST(SceneContractTest, IdsInRange) {
   EXPECT_TRUE(SceneIdsInRange(0, 0));
-  EXPECT_TRUE(SceneIdsInRange(65535, 999999998));
+  EXPECT_TRUE(SceneIdsInRange(65535, 99999998));
   EXPECT_FALSE(SceneIdsInRange(65536, 0));
   EXPECT_FALSE(SceneIdsInRange(-1, 0));
   EXPECT_FALSE(SceneIdsInRange(0, -1));
-  EXPECT_FALSE(SceneIdsInRange(0, 999999999));
+  EXPECT_FALSE(SceneIdsInRange(0, 99999999));
 }
 
 // A mask's pixels: a COCO compressed RLE string (cocoapi's rleToString) over the whole image;
@@ -76,7 +76,24 @@ TEST(SceneContractTest, CheckSceneNamesTheField) {
        [](scene& s) { s.instances[0].posture_deg[2] = 0.0 / 0.0; }},
       {"instances[2].px_count_visib", [](scene& s) { s.instances[2].px_count_visib = -1; }},
       {"instances[0].mask_obj_rle holds", [](scene& s) { s.instances[0].px_count_all += 1; }},
+      {"instances[0].bbox_visib [-1,", [](scene& s) { s.instances[0].bbox_visib[0] = -1; }},
+      // the whole silhouette may reach past the image by the image's size, not further
+      {"instances[0].bbox_obj [-",
+       [](scene& s) { s.instances[0].bbox_obj[0] = -s.camera.width - 1; }},
+      // past the image, the mask may hold fewer pixels than px_count_all, never more
+      {"instances[0].mask_obj_rle holds",
+       [](scene& s) {
+         s.instances[0].bbox_obj[1] = -5;
+         s.instances[0].px_count_all -= 1;
+       }},
   };
+  // an object cut by the image's edge: its box starts outside, px_count_all counts the part there
+  scene cut = scenes[0];
+  cut.instances[0].bbox_obj[0] = -30;
+  cut.instances[0].bbox_obj[2] += 30;
+  cut.instances[0].px_count_all += 500;
+  EXPECT_TRUE(CheckScene(cut, &why)) << why;
+
   for (const auto& [field, breaker] : breaks) {
     scene broken = scenes[0];
     breaker(broken);

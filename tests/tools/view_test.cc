@@ -119,7 +119,7 @@ TEST(ViewTest, DrawsCocoDataset) {
   const std::string dataset = scratch.path() + "/coco";
   {
     CocoWriter writer(dataset);
-    // image ids: A 1, B 2, C 1000000001, D 2000000001
+    // image ids: A 1, B 2, C 100000001, D 200000001
     for (const stackgen::scene& scene :
          {testing::SceneD(), testing::SceneA(), testing::SceneC(), testing::SceneB()}) {
       ASSERT_TRUE(writer.Add(scene));

@@ -11,7 +11,10 @@ computed again from the transformed maps, not transformed themselves:
   erasure, which hides what lies under the erased rectangle, as an occluder would);
 - box = the extent of that mask (XYXY, pixel edges);
 - px_count_all = the pixels of the transformed full mask, counted on a canvas that reaches past
-  the image where the object does, so an object cut by a crop keeps its whole size;
+  the image where the object does, so an object cut by a crop keeps its whole size; for an
+  object the scene's own image edge already cut (its px_count_all counts pixels its full mask,
+  which covers the image only, does not hold), those pixels are added scaled by the map's area
+  factor |det A|, their count after any affine map up to rounding at the outline;
 - visib_fract = visible pixels / px_count_all: cropping or erasing part of an object lowers it;
 - an object the generator annotated stays annotated while visib_fract >= min_visib_fract;
   below it, or when the generator marked it ignored, it is an ignore region (iscrowd 1); with no
@@ -260,10 +263,13 @@ class Augment:
             # even neighbour where it was)
             if len(px_all) > 0:
                 masks_obj = sample["boxed_masks_obj"]()
+                area_factor = abs(float(np.linalg.det(a[:2, :2])))
                 for k, box in enumerate(np.asarray(sample["bbox_obj"])):
                     if box[2] <= 0 or box[3] <= 0:
                         px_all[k] = 0
                         continue
+                    # the part of the silhouette beyond the scene's image (no mask pixels there)
+                    beyond = int(px_all[k]) - int(cv2.countNonZero(masks_obj[k]))
                     cx0, cy0, cx1, cy1 = _moved_box(a, box, width, height, clip=False)
                     canvas_x, canvas_y = self._maps(inverse, cx0, cx1, cy0, cy1)
                     odd_x, odd_y = int(box[0]) % 2, int(box[1]) % 2
@@ -271,7 +277,8 @@ class Augment:
                     canvas = cv2.remap(source, canvas_x - np.float32(box[0] - odd_x),
                                        canvas_y - np.float32(box[1] - odd_y), cv2.INTER_NEAREST,
                                        borderMode=border, borderValue=0)
-                    px_all[k] = cv2.countNonZero(canvas)
+                    px_all[k] = cv2.countNonZero(canvas) + (
+                        int(round(beyond * area_factor)) if beyond > 0 else 0)
             # where each object's visible pixels can be now
             regions = np.array([_moved_box(a, box, width, height, clip=True)
                                 for box in np.asarray(sample["bbox_visib"])],

@@ -86,7 +86,7 @@ class StreamDataset(IterableDataset):
         float32 visible pixels; visib_fract (M,) float32; px_count_all, px_count_visib,
         instance_ids (M,) int64; camera_from_object, world_from_object (M, 4, 4) float64
         (millimetres, OpenCV camera frame); K (3, 3) float64 (A @ K after augmentation);
-        image_id () int64 (generator_id * 10^9 + seq + 1, as stackgen-coco); scene (3,) int64
+        image_id () int64 (generator_id * 10^8 + seq + 1, as stackgen-coco); scene (3,) int64
         (generator_id, seq, use); with depth=True also depth_mm (H, W) float32.
     Torchvision's models want the ignore regions out: without_ignore_regions(target).
 
@@ -332,7 +332,7 @@ class StreamDataset(IterableDataset):
             "camera_from_object": torch.from_numpy(scene.camera_from_object[chosen]),
             "world_from_object": torch.from_numpy(scene.world_from_object[chosen]),
             "K": torch.from_numpy(np.asarray(sample["K"], dtype=np.float64)),
-            "image_id": torch.tensor(scene.generator_id * 1000000000 + scene.seq + 1,
+            "image_id": torch.tensor(scene.generator_id * 100000000 + scene.seq + 1,
                                      dtype=torch.int64),
             "scene": torch.tensor([scene.generator_id, scene.seq, use], dtype=torch.int64),
         }

@@ -205,3 +205,35 @@ def test_full_size_counts_the_whole_moved_mask():
                 assert out["px_count_all"][k] == cv2.countNonZero(canvas)
                 compared += 1
     assert compared > 1000
+
+
+# an object the scene's own image edge cut counts pixels outside the image that its full mask
+# (over the image only) cannot show: after a transform they are still counted, scaled by the
+# map's area factor |det A|, on top of the moved mask's pixels
+def test_part_beyond_the_scene_image_keeps_its_share():
+    augment = sgt.Augment(**EVERYTHING)
+    compared = 0
+    for seed in range(20):
+        for scene in scenes():
+            everyone = list(range(scene.num_instances))
+
+            def sample(extra):
+                return {"image": scene.rgb, "instance_map": scene.instance_map, "depth": None,
+                        "K": scene.K, "instance_ids": scene.instance_ids,
+                        "px_count_all": scene.px_count_all + extra,
+                        "annotated": scene.annotated, "ignored": scene.ignored,
+                        "bbox_obj": scene.bbox_obj, "bbox_visib": scene.bbox_visib,
+                        "boxed_masks_obj": lambda: scene.boxed_masks_obj(everyone)}
+            beyond = np.where(scene.px_count_all > 0, 1000, 0)
+            whole = augment(sample(0), np.random.default_rng(seed))
+            cut = augment(sample(beyond), np.random.default_rng(seed))
+            a = whole["affine"]
+            if np.allclose(a, np.eye(3)):
+                assert list(cut["px_count_all"]) == list(whole["px_count_all"] + beyond)
+                continue
+            factor = abs(np.linalg.det(a[:2, :2]))
+            assert list(cut["px_count_all"]) == [
+                w + (round(b * factor) if b > 0 else 0)
+                for w, b in zip(whole["px_count_all"], beyond)]
+            compared += 1
+    assert compared > 20

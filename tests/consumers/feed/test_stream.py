@@ -40,7 +40,7 @@ def test_stream_equals_what_stackgen_coco_stores(tmp_path, processes):
     torch_view = sgt.StreamDataset("file://" + TINY_LOG)
     compared = 0
     for scene in scenes:
-        image_id = scene.generator_id * 1000000000 + scene.seq + 1
+        image_id = scene.generator_id * 100000000 + scene.seq + 1
         stored = cv2.imread(str(tmp_path / "coco" / "images" / images[image_id]["file_name"]),
                             cv2.IMREAD_COLOR)
         assert np.array_equal(cv2.cvtColor(stored, cv2.COLOR_BGR2RGB), scene.rgb)
@@ -84,11 +84,13 @@ def test_stream_equals_what_stackgen_coco_stores(tmp_path, processes):
     assert compared == len(dataset["annotations"]) > 0
 
 
-# a reliable stream that drops 10 % of what it receives (and a generator that drops 10 % of the
-# credits and resend requests) still gets every scene, exactly once
+# a reliable stream that drops 30 % of what it receives (and a generator that drops 10 % of the
+# credits and resend requests) still gets every scene, exactly once. (At 10 %, which messages
+# are dropped shifts with timing, as status messages interleave, and now and then none of the 16
+# scenes was: 0.9^16 = 19 %, nothing to resend. At 30 % that is 0.7^16 = 0.3 %.)
 def test_reliable_stream_misses_nothing_under_loss(tmp_path, processes):
     url, count = free_url(), 16
-    with stackgen.Stream(url, reliable=True, count=count, timeout=60, fault_drop=0.1) as stream:
+    with stackgen.Stream(url, reliable=True, count=count, timeout=60, fault_drop=0.3) as stream:
         generator = processes(generator_argv(url, count, tmp_path / "cache", "--fault-drop", "0.1"),
                               "stackgen")
         seqs = [scene.seq for scene in stream]

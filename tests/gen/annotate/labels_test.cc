@@ -64,8 +64,9 @@ struct Scene {
 // Object 2 covering half of object 1 gives visib_fract 0.5 and 1.0; boxes and counts are exact.
 TEST(LabelsTest, HalfCoveredObject) {
   const Scene scene;
-  const std::vector<stackgen::instance> labels = LabelInstances(
-      scene.instance_map, scene.silhouettes, scene.objects, scene.world_from_camera, 0.3, false);
+  const std::vector<stackgen::instance> labels =
+      LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
+                     scene.world_from_camera, 0.3, false);
   ASSERT_EQ(labels.size(), 5u);
 
   const stackgen::instance& one = labels[0];
@@ -103,8 +104,9 @@ TEST(LabelsTest, HalfCoveredObject) {
 // A fully hidden object and one outside the image have visib_fract 0 and are not annotated.
 TEST(LabelsTest, HiddenAndOutsideObjects) {
   const Scene scene;
-  const std::vector<stackgen::instance> labels = LabelInstances(
-      scene.instance_map, scene.silhouettes, scene.objects, scene.world_from_camera, 0.0, false);
+  const std::vector<stackgen::instance> labels =
+      LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
+                     scene.world_from_camera, 0.0, false);
   const stackgen::instance& hidden = labels[2];
   EXPECT_EQ(hidden.px_count_all, 4);
   EXPECT_EQ(hidden.px_count_visib, 0);
@@ -126,11 +128,11 @@ TEST(LabelsTest, HiddenAndOutsideObjects) {
 // The threshold decides `annotated`: 0.6 drops the half-covered object.
 TEST(LabelsTest, ThresholdDecidesAnnotated) {
   const Scene scene;
-  const auto labels = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
+  const auto labels = LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
                                      scene.world_from_camera, 0.6, false);
   EXPECT_FALSE(labels[0].annotated);
   EXPECT_TRUE(labels[1].annotated);
-  const auto at_half = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
+  const auto at_half = LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
                                       scene.world_from_camera, 0.5, false);
   EXPECT_TRUE(at_half[0].annotated);  // >=, not >
 }
@@ -138,11 +140,11 @@ TEST(LabelsTest, ThresholdDecidesAnnotated) {
 // The IGNORE rule keeps a too-hidden but visible object as ignored; nothing visible is neither.
 TEST(LabelsTest, IgnoreRuleMarksOccludedObjects) {
   const Scene scene;
-  const auto dropped = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
+  const auto dropped = LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
                                       scene.world_from_camera, 0.6, false);
   EXPECT_FALSE(dropped[0].annotated);
   EXPECT_FALSE(dropped[0].ignored);
-  const auto kept = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
+  const auto kept = LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
                                    scene.world_from_camera, 0.6, true);
   EXPECT_FALSE(kept[0].annotated);
   EXPECT_TRUE(kept[0].ignored);
@@ -155,7 +157,7 @@ TEST(LabelsTest, IgnoreRuleMarksOccludedObjects) {
 // Both poses and the posture angles come from world_from_object and world_from_camera.
 TEST(LabelsTest, PosesAndPosture) {
   const Scene scene;
-  const auto labels = LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
+  const auto labels = LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
                                      scene.world_from_camera, 0.3, false);
   const Eigen::Isometry3d world_from_object = FromPoseMessage(labels[0].world_from_object);
   const Eigen::Isometry3d camera_from_object = FromPoseMessage(labels[0].camera_from_object);
@@ -175,7 +177,7 @@ TEST(LabelsTest, PosesAndPosture) {
 TEST(LabelsTest, BadInputsThrow) {
   Scene scene;
   const auto label = [&](double min_visib_fract) {
-    return LabelInstances(scene.instance_map, scene.silhouettes, scene.objects,
+    return LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
                           scene.world_from_camera, min_visib_fract, false);
   };
   EXPECT_THROW(label(1.5), std::runtime_error);

@@ -389,5 +389,30 @@ TEST_F(PileTest, PickOrderTakesTheMostVisiblePartOnTopFirst) {
   EXPECT_THROW(simulator.PickOrder({0, 0}, {top}), std::invalid_argument);
 }
 
+// A connector is a compound of nine convex pieces, and a vertical ray meets several of them (the
+// gusset, then the plate under it): a part's own pieces must not count as covering it. Connector
+// A lies on the floor with B above a third of it; C lies on its side, free, showing less area
+// than what is still seen of A. B and C are on top; A goes last, though more of it is seen than
+// of C.
+TEST_F(PileTest, PickOrderCountsACompoundPartOnceAlongARay) {
+  const PileSimulator simulator = ConnectorSimulator();
+  const auto at = [](double x, double z, const Eigen::Matrix3d& turn) {
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    pose.linear() = turn;
+    pose.translation() = Eigen::Vector3d(x, 0, z);
+    return pose;
+  };
+  const Eigen::Matrix3d flat = Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d on_side =
+      Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  const Eigen::Isometry3d a = at(-40, 0, flat);  // x -67.5..-12.5, upright up to z 55
+  const Eigen::Isometry3d b = at(-5, 60, flat);  // x -32.5..22.5, above A's upright
+  const Eigen::Isometry3d c = at(60, 27.5, on_side);
+  EXPECT_EQ(simulator.PickOrder({0, 0, 0}, {a, b, c}), (std::vector<int>{1, 2, 0}));
+  EXPECT_EQ(simulator.PickOrder({0, 0, 0}, {c, a, b}), (std::vector<int>{2, 0, 1}));
+  // alone, each is on top, and the one showing more area goes first
+  EXPECT_EQ(simulator.PickOrder({0, 0}, {c, a}), (std::vector<int>{1, 0}));
+}
+
 }  // namespace
 }  // namespace stackgen

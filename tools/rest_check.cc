@@ -1,0 +1,175 @@
+// stackgen-rest-check: are a config's piles at rest when they are published? Settles piles as
+// the generator does, puts each again into a fresh world and runs it until it is at rest by a
+// strict rule, and says how far the parts still moved, on which faces they lie, and what the
+// physics cost.
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "bus/flags.h"
+#include "gen/config/config.h"
+#include "gen/physics/hull_faces.h"
+#include "gen/physics/pile.h"
+#include "gen/scene/scene_generator.h"
+
+namespace {
+
+constexpr const char* kUsage = R"(usage: stackgen-rest-check [--config FILE] [--count N] [--seed S]
+                           [--generator-id G] [--cache-dir DIR] [--strict-mm D]
+                           [--strict-deg A] [--strict-window-s W] [--strict-max-s T]
+
+Settles the first N piles (default 20) that `stackgen --config FILE --seed S --generator-id G`
+would publish (the same drops, redraws and picks), then puts each pile again into a fresh
+Bullet world and runs it until every part moved less than D mm (default 0.1) and turned less
+than A degrees (default 0.1) over W seconds (default 1), or T seconds passed (default 60).
+A pile published at rest hardly moves; one published while it still crept or toppled moves on.
+Prints, over all parts: the share that moved more than 1 mm or 1 degree, and more than 5 mm or
+10 degrees; how far the heaps sank; how many piles came to rest; the faces of each part type's
+convex hull the parts rest on (0 = the largest), as published and after; the physics time per
+pile (median).
+)";
+
+double Median(std::vector<double> values) {
+  if (values.empty()) return 0;
+  std::sort(values.begin(), values.end());
+  const size_t n = values.size();
+  return n % 2 == 1 ? values[n / 2] : (values[n / 2 - 1] + values[n / 2]) / 2;
+}
+
+double Percent(int64_t part, int64_t whole) { return whole > 0 ? 100.0 * part / whole : 0.0; }
+
+// "0 41.2 %, 1 40.0 %, ..." for each type's resting faces, most common first
+std::string FaceShares(const std::vector<std::map<int, int64_t>>& faces, bool several_types) {
+  std::string text;
+  for (size_t t = 0; t < faces.size(); ++t) {
+    int64_t total = 0;
+    for (const auto& [face, count] : faces[t]) total += count;
+    if (total == 0) continue;
+    std::vector<std::pair<int64_t, int>> order;
+    for (const auto& [face, count] : faces[t]) order.emplace_back(-count, face);
+    std::sort(order.begin(), order.end());
+    if (!text.empty()) text += "; ";
+    if (several_types) text += "type " + std::to_string(t) + ": ";
+    for (size_t k = 0; k < order.size(); ++k) {
+      char item[64];
+      std::snprintf(item, sizeof(item), "%s%d %.1f %%", k == 0 ? "" : ", ", order[k].second,
+                    Percent(-order[k].first, total));
+      text += item;
+    }
+  }
+  return text;
+}
+
+int Run(int argc, char** argv) {
+  std::string config_path = STACKGEN_DEFAULT_CONFIG;
+  int64_t count = 20, seed = 0;
+  int generator_id = 0;
+  std::string cache_dir = stackgen::DefaultCacheDir();
+  stackgen::RestRule rule;
+  stackgen::FlagParser parser("stackgen-rest-check");
+  parser.String("--config", &config_path, "a config file");
+  parser.Int("--count", &count, 1, 1000000);
+  parser.Int("--seed", &seed, 0, INT64_MAX);
+  parser.Int("--generator-id", &generator_id, 0, 65535);
+  parser.String("--cache-dir", &cache_dir);
+  using stackgen::Interval;
+  parser.Double("--strict-mm", &rule.translation_mm, Interval::OpenClosed(0, 1e6));
+  parser.Double("--strict-deg", &rule.rotation_deg, Interval::OpenClosed(0, 360));
+  parser.Double("--strict-window-s", &rule.window_s, Interval::OpenClosed(0, 3600));
+  parser.Double("--strict-max-s", &rule.max_time_s, Interval::OpenClosed(0, 1e5));
+  parser.ParseOrExit(argc, argv, [] { std::printf("%s", kUsage); });
+  if (rule.window_s > rule.max_time_s) {
+    std::fprintf(stderr,
+                 "stackgen-rest-check: error: --strict-window-s %g is longer than "
+                 "--strict-max-s %g\n",
+                 rule.window_s, rule.max_time_s);
+    return 2;
+  }
+
+  const stackgen::LoadedConfig config = stackgen::LoadConfig(config_path);
+  const stackgen::SceneGenerator generator(config, generator_id, static_cast<uint64_t>(seed),
+                                           cache_dir);
+  const stackgen::PileSimulator& simulator = generator.simulator();
+  const int types = config.config.part_size();
+  std::vector<std::map<int, int64_t>> faces_before(types), faces_after(types);
+  std::vector<double> physics_ms, resettle_s;
+  stackgen::StageTimes redraws;
+  int64_t parts = 0, moved = 0, moved_far = 0, at_rest = 0, shifted = 0, turned = 0;
+  std::vector<double> shifts_mm, turns_deg;
+  double sank_mm = 0;
+  stackgen::SettledPile pile;
+  for (int64_t k = 0; k < count; ++k) {
+    pile = k == 0 ? generator.Settle(0) : generator.SettleNext(pile);
+    physics_ms.push_back(pile.times.physics_ms);
+    redraws.Add(pile.times);
+    const stackgen::PileResult again =
+        simulator.Resettle(pile.object_types, pile.world_from_object, rule);
+    resettle_s.push_back(again.simulated_s);
+    at_rest += again.settled ? 1 : 0;
+    for (size_t i = 0; i < pile.object_types.size(); ++i) {
+      const int type = pile.object_types[i];
+      const Eigen::Isometry3d& before = pile.world_from_object[i];
+      const Eigen::Isometry3d& after = again.world_from_object[i];
+      const double moved_mm = (after.translation() - before.translation()).norm();
+      const double turned_deg =
+          Eigen::AngleAxisd(after.linear() * before.linear().transpose()).angle() * 180 / M_PI;
+      ++parts;
+      moved += moved_mm > 1 || turned_deg > 1 ? 1 : 0;
+      shifted += moved_mm > 1 ? 1 : 0;
+      turned += turned_deg > 1 ? 1 : 0;
+      shifts_mm.push_back(moved_mm);
+      turns_deg.push_back(turned_deg);
+      moved_far += moved_mm > 5 || turned_deg > 10 ? 1 : 0;
+      sank_mm += before.translation().z() - after.translation().z();
+      const auto& hull = simulator.hull_faces(type);
+      ++faces_before[type][stackgen::RestingFace(hull, before.linear())];
+      ++faces_after[type][stackgen::RestingFace(hull, after.linear())];
+    }
+    std::fprintf(stderr, "\rstackgen-rest-check: pile %lld of %lld", static_cast<long long>(k + 1),
+                 static_cast<long long>(count));
+  }
+  std::fprintf(stderr, "\n");
+
+  std::printf(
+      "stackgen-rest-check: %s, seed %lld, generator %d: %lld piles, %lld parts; "
+      "physics %.1f ms per pile (median), %d drops redrawn (%d unsettled, %d outside the "
+      "bin, %d interpenetrating)\n",
+      config.path.c_str(), static_cast<long long>(seed), generator_id,
+      static_cast<long long>(count), static_cast<long long>(parts), Median(physics_ms),
+      redraws.redraws, redraws.redraws_unsettled, redraws.redraws_outside,
+      redraws.redraws_penetrating);
+  std::printf(
+      "stackgen-rest-check: strict re-settle (every part < %g mm and < %g deg over %g s, "
+      "at most %g s): %lld of %lld piles came to rest, in %.2f s (median)\n",
+      rule.translation_mm, rule.rotation_deg, rule.window_s, rule.max_time_s,
+      static_cast<long long>(at_rest), static_cast<long long>(count), Median(resettle_s));
+  std::printf(
+      "stackgen-rest-check: parts that moved: %.1f %% (%lld) more than 1 mm or 1 deg "
+      "(%.1f %% more than 1 mm, %.1f %% more than 1 deg), %.1f %% (%lld) more than 5 mm or "
+      "10 deg; median %.2f mm and %.2f deg; the parts sank %.2f mm on average\n",
+      Percent(moved, parts), static_cast<long long>(moved), Percent(shifted, parts),
+      Percent(turned, parts), Percent(moved_far, parts), static_cast<long long>(moved_far),
+      Median(shifts_mm), Median(turns_deg), parts > 0 ? sank_mm / parts : 0.0);
+  std::printf("stackgen-rest-check: resting faces as published: %s\n",
+              FaceShares(faces_before, types > 1).c_str());
+  std::printf("stackgen-rest-check: resting faces after re-settling: %s\n",
+              FaceShares(faces_after, types > 1).c_str());
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    return Run(argc, argv);
+  } catch (const std::exception& error) {
+    std::fprintf(stderr, "stackgen-rest-check: error: %s\n", error.what());
+    return 1;
+  }
+}

@@ -68,10 +68,10 @@ struct SimulationParams {
   Eigen::Vector2d drop_point_mm = Eigen::Vector2d::Zero();  // kSequential: x, y of the release
 };
 
-/// When a pile counts as at rest for Resettle with a rule: every part moved less than
-/// translation_mm and turned less than rotation_deg over the last window_s seconds, within
-/// max_time_s of simulated time. The defaults are a strict check of a published pile (0.1 mm,
-/// 0.1 degrees, 1 s, 60 s).
+/// When a pile counts as at rest for a strict check (Simulate or Resettle with a rule): every
+/// part moved less than translation_mm and turned less than rotation_deg over the last window_s
+/// seconds, within max_time_s of simulated time. The defaults are a strict check of a published
+/// pile (0.1 mm, 0.1 degrees, 1 s, 60 s).
 struct RestRule {
   double translation_mm = 0.1;
   double rotation_deg = 0.1;
@@ -103,7 +103,8 @@ struct PileResult {
 /// Drops copies of rigid parts (one or more part types) into an open bin with Bullet and runs
 /// until they settle.
 /// Bullet works in centimetres with 0.2 mm collision margins (hull pieces are shrunk by the
-/// margin first), 20 solver iterations per fixed step, split-impulse contacts and a little angular
+/// margin first), 20 solver iterations per fixed step, split-impulse contacts, friction anchors
+/// (static friction: contact points held while inside the friction cone) and a little angular
 /// damping; at the default 1/600 s step a 6 mm plate does not tunnel and penetrations stay far
 /// below 0.5 mm (at most 0.09 mm in 100 piles of 12 connectors). The simulator is immutable
 /// after construction; Simulate() builds a fresh world each call and keeps no state between calls.
@@ -140,6 +141,11 @@ class PileSimulator {
   /// settle window starts after the last release. Throws std::runtime_error for an unknown type.
   PileResult Simulate(const std::vector<int>& types, uint64_t seed) const;
 
+  /// As above; then, when `after` is not null, goes on as Resettle with a rule does. The result
+  /// itself is the same as without (bit for bit).
+  PileResult Simulate(const std::vector<int>& types, uint64_t seed, const RestRule& rule,
+                      PileResult* after) const;
+
   /// `count` copies of type 0. Throws std::runtime_error if count < 0.
   PileResult Simulate(int count, uint64_t seed) const;
 
@@ -150,12 +156,15 @@ class PileSimulator {
   PileResult Resettle(const std::vector<int>& types,
                       const std::vector<Eigen::Isometry3d>& world_from_object) const;
 
-  /// As above, until the pile is at rest by `rule` (not the simulator's settle parameters) or
-  /// rule.max_time_s: a strict check that a pile was at rest, by how far its parts still move.
-  /// Throws std::invalid_argument as above, or when a value of `rule` is not positive.
+  /// As above; then, when `after` is not null, goes on in the same world until the pile is at
+  /// rest by `rule` or rule.max_time_s more passed, and `after` gets the poses and checks then
+  /// (settled: at rest by the rule; simulated_s: the time it went on). A strict check that a
+  /// published pile was at rest: how far its parts still move. The result itself is the same
+  /// as without. Throws std::invalid_argument as above, or for a rule whose values are not
+  /// positive or whose window is longer than its cap.
   PileResult Resettle(const std::vector<int>& types,
-                      const std::vector<Eigen::Isometry3d>& world_from_object,
-                      const RestRule& rule) const;
+                      const std::vector<Eigen::Isometry3d>& world_from_object, const RestRule& rule,
+                      PileResult* after) const;
 
   /// The order in which a robot picking from above takes the parts of a pile (indices into
   /// `types`), the most visible part on top first: vertical rays on a 2 mm grid over the bin

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <regex>
 #include <stdexcept>
 #include <string>
@@ -387,6 +388,81 @@ TEST_F(PileTest, PickOrderTakesTheMostVisiblePartOnTopFirst) {
             (std::vector<int>{1, 0}));
   EXPECT_TRUE(simulator.PickOrder({}, {}).empty());
   EXPECT_THROW(simulator.PickOrder({0, 0}, {top}), std::invalid_argument);
+}
+
+// How far each part of `published` moved and turned by `after`: whether more than 1 mm or 1
+// degree, more than 5 mm or 10 degrees, and how far it sank, summed over the parts.
+struct MovedOn {
+  int over_1 = 0, over_5 = 0;
+  double sank_mm = 0;
+};
+MovedOn Moved(const PileResult& published, const PileResult& after) {
+  MovedOn moved;
+  for (size_t i = 0; i < published.world_from_object.size(); ++i) {
+    const Eigen::Isometry3d& a = published.world_from_object[i];
+    const Eigen::Isometry3d& b = after.world_from_object[i];
+    const double mm = (b.translation() - a.translation()).norm();
+    const double deg = Eigen::AngleAxisd(b.linear() * a.linear().transpose()).angle() * 180 / M_PI;
+    moved.over_1 += mm > 1 || deg > 1 ? 1 : 0;
+    moved.over_5 += mm > 5 || deg > 10 ? 1 : 0;
+    moved.sank_mm += a.translation().z() - b.translation().z();
+  }
+  return moved;
+}
+
+// A published connector pile is at rest: simulated on in the same world until every part moved
+// less than 0.1 mm and 0.1 degrees over 1 s (60 s at most), few parts move far and the heap hardly
+// sinks. Without friction anchors the piles crept on: of 240 parts 75 % moved more than 5 mm or
+// 10 degrees and the heaps sank 6.4 mm (stackgen-rest-check, 20 piles); 3 piles of 20 came to
+// rest within the 60 s.
+TEST_F(PileTest, PublishedConnectorPilesMoveLittleWhenSimulatedOn) {
+  const PileSimulator simulator = ConnectorSimulator();
+  int piles = 0, parts = 0, over_5 = 0, at_rest = 0;
+  double sank_mm = 0;
+  for (uint64_t seed = 1; piles < 4; ++seed) {
+    PileResult after;
+    const PileResult pile = simulator.Simulate(std::vector<int>(12, 0), seed, RestRule{}, &after);
+    if (!pile.settled || pile.num_outside > 0) continue;  // the generator redraws those
+    // going on changes nothing about what was published
+    const PileResult alone = simulator.Simulate(12, seed);
+    for (size_t i = 0; i < 12; ++i) {
+      ASSERT_TRUE(alone.world_from_object[i].matrix() == pile.world_from_object[i].matrix());
+    }
+    const MovedOn moved = Moved(pile, after);
+    std::cout << "seed " << seed << ": " << moved.over_1
+              << " of 12 parts moved over 1 mm or 1 deg, " << moved.over_5
+              << " over 5 mm or 10 deg, sank " << moved.sank_mm / 12 << " mm; at rest "
+              << after.settled << " after " << after.simulated_s << " s\n";
+    ++piles;
+    parts += 12;
+    over_5 += moved.over_5;
+    sank_mm += moved.sank_mm;
+    at_rest += after.settled ? 1 : 0;
+  }
+  EXPECT_LE(over_5, parts / 4);
+  EXPECT_LT(sank_mm / parts, 3.0);
+  EXPECT_GE(at_rest, 3);
+}
+
+// A flat 80 x 40 x 10 mm box dropped alone is published at rest: simulated on, none of 100 moves
+// more than 5 mm or 10 degrees, at most 2 more than 1 mm or 1 degree (without friction anchors 3
+// boxes toppled after they were published, 8 moved more than 1 mm or 1 degree).
+TEST_F(PileTest, PublishedFlatBoxesStayAtRest) {
+  const PileSimulator simulator(BoxMesh({-40, -20, -5}, {40, 20, 5}), {}, PartPhysics{}, kBin,
+                                SimulationParams{}, (dir_ / "cache").string());
+  int over_1 = 0, over_5 = 0, at_rest = 0;
+  for (uint64_t seed = 0; seed < 100; ++seed) {
+    PileResult after;
+    const PileResult pile = simulator.Simulate({0}, seed, RestRule{}, &after);
+    ASSERT_TRUE(pile.settled) << "seed " << seed;
+    const MovedOn moved = Moved(pile, after);
+    over_1 += moved.over_1;
+    over_5 += moved.over_5;
+    at_rest += after.settled ? 1 : 0;
+  }
+  EXPECT_EQ(over_5, 0);
+  EXPECT_LE(over_1, 2);
+  EXPECT_EQ(at_rest, 100);
 }
 
 // A connector is a compound of nine convex pieces, and a vertical ray meets several of them (the

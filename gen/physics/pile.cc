@@ -723,6 +723,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
   if (count == 0) {
     PileResult empty;
     empty.settled = true;
+    if (after != nullptr) *after = empty;
     return empty;
   }
   w.AddShapes(types);

@@ -307,6 +307,12 @@ TEST_F(PileTest, EmptyPile) {
   EXPECT_TRUE(pile.settled);
   EXPECT_TRUE(pile.world_from_object.empty());
   EXPECT_EQ(pile.num_outside, 0);
+  // simulated on, it is at rest at once
+  PileResult after;
+  after.settled = false;
+  ConnectorSimulator().Simulate({}, 1, RestRule{}, &after);
+  EXPECT_TRUE(after.settled);
+  EXPECT_EQ(after.simulated_s, 0);
 }
 
 // A settled pile put back at rest where it lay stays there: Resettle settles at once, nothing

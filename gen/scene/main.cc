@@ -50,7 +50,7 @@ Drops copies of a part into a bin with Bullet physics, renders the settled pile 
 
 flags:
   --config FILE       generator config, protobuf text (default: %s)
-  --count N           scenes to publish, then exit, 0..100000000; 0 = until SIGINT/SIGTERM
+  --count N           scenes to publish, then exit, 0..99999999; 0 = until SIGINT/SIGTERM
                       or the last seq, 99999998 (default: 0)
   --seed S            base seed; scene k is a pure function of (config, S, G, k) (default: 0)
   --generator-id G    id of this generator, 0..65535, distinct per concurrent generator

@@ -672,9 +672,11 @@ void CheckRule(const RestRule& rule) {
 
 // Goes on stepping the world `w` of `bodies` (of `types`) until they are at rest by `rule` or
 // rule.max_time_s more has passed; `after` gets the poses and checks then, settled (at rest by
-// the rule) and the time it went on.
+// the rule) and the time it went on. With `from_now`, the window reaches back to the poses now
+// (going on after a pile was published); without, it starts with the first check (a pile just
+// put into the world).
 void GoOnToRest(const BinSpec& bin, const std::vector<TypeModel>& type_models, double dt,
-                const RestRule& rule, const std::vector<int>& types,
+                const RestRule& rule, bool from_now, const std::vector<int>& types,
                 const std::vector<btRigidBody*>& bodies, PileWorld* w, PileResult* after) {
   const int max_steps = static_cast<int>(std::ceil(rule.max_time_s / dt - 1e-9));
   const int check_every =
@@ -689,7 +691,7 @@ void GoOnToRest(const BinSpec& bin, const std::vector<TypeModel>& type_models, d
     for (const btRigidBody* body : bodies) poses.push_back(FromSim(body->getWorldTransform()));
     return settle.AddSample(step * dt, poses);
   };
-  sample();  // the window reaches back to where the pile was published
+  if (from_now) sample();
   while (step < max_steps && !after->settled) {
     w->world().stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
     ++step;
@@ -861,7 +863,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
       after->settled = false;
       after->simulated_s = 0;
     } else {
-      GoOnToRest(m.bin, m.types, dt, rule, types, body_of_part, &w, after);
+      GoOnToRest(m.bin, m.types, dt, rule, true, types, body_of_part, &w, after);
     }
   }
   return result;
@@ -891,30 +893,15 @@ PileResult PileSimulator::Resettle(const std::vector<int>& types,
   for (size_t i = 0; i < types.size(); ++i)
     bodies.push_back(w.AddPart(types[i], world_from_object[i]));
 
-  // step until settled (the window starts at once) or the cap, checking as Simulate does
-  const int max_steps = static_cast<int>(std::ceil(params.max_sim_time_s / dt - 1e-9));
-  const int check_every =
-      std::max(1, static_cast<int>(std::lround(params.settle_window_s / kChecksPerWindow / dt)));
-  SettleDetector settle(params.settle_translation_mm, params.settle_rotation_deg,
-                        params.settle_window_s);
+  // step until settled by the simulator's rule (the window starts at once) or its cap
+  RestRule settle_rule;
+  settle_rule.translation_mm = params.settle_translation_mm;
+  settle_rule.rotation_deg = params.settle_rotation_deg;
+  settle_rule.window_s = params.settle_window_s;
+  settle_rule.max_time_s = params.max_sim_time_s;
   PileResult result;
-  result.settled = bodies.empty();
-  int step = 0;
-  while (step < max_steps && !result.settled) {
-    w.world().stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
-    ++step;
-    if (step % check_every != 0) continue;
-    if (w.FellOut()) break;
-    std::vector<Eigen::Isometry3d> poses;
-    for (const btRigidBody* body : bodies) poses.push_back(FromSim(body->getWorldTransform()));
-    result.settled = settle.AddSample(step * dt, poses);
-  }
-  result.simulated_s = step * dt;
-  for (size_t i = 0; i < types.size(); ++i) {
-    AddPlacement(m.bin, m.types[types[i]], FromSim(bodies[i]->getWorldTransform()), &result);
-  }
-  result.max_penetration_mm = w.MaxPenetrationMm();
-  if (after != nullptr) GoOnToRest(m.bin, m.types, dt, rule, types, bodies, &w, after);
+  GoOnToRest(m.bin, m.types, dt, settle_rule, false, types, bodies, &w, &result);
+  if (after != nullptr) GoOnToRest(m.bin, m.types, dt, rule, true, types, bodies, &w, after);
   return result;
 }
 

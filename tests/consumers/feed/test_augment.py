@@ -175,6 +175,16 @@ def test_recording_replays_its_uses(tmp_path):
     assert [s.seq for s in stackgen.Stream("file://%s" % log)] == sorted(set(order))
 
 
+def augment_input(scene, px_count_all):
+    """What StreamDataset hands Augment for `scene`, every instance a candidate."""
+    everyone = list(range(scene.num_instances))
+    return {"image": scene.rgb, "instance_map": scene.instance_map, "depth": None, "K": scene.K,
+            "instance_ids": scene.instance_ids, "px_count_all": px_count_all,
+            "annotated": scene.annotated, "ignored": scene.ignored, "bbox_obj": scene.bbox_obj,
+            "bbox_visib": scene.bbox_visib,
+            "boxed_masks_obj": lambda: scene.boxed_masks_obj(everyone)}
+
+
 # px_count_all after a transform is the count of the whole moved full mask, in the image or out
 # of it: the same as resampling each full mask over a canvas that holds the whole moved image,
 # through the same maps (what Augment does on each object's box only, for speed)
@@ -183,14 +193,8 @@ def test_full_size_counts_the_whole_moved_mask():
     compared = 0
     for seed in range(60):
         for scene in scenes():
-            everyone = list(range(scene.num_instances))
-            sample = {"image": scene.rgb, "instance_map": scene.instance_map, "depth": None,
-                      "K": scene.K, "instance_ids": scene.instance_ids,
-                      "px_count_all": scene.px_count_all, "annotated": scene.annotated,
-                      "ignored": scene.ignored, "bbox_obj": scene.bbox_obj,
-                      "bbox_visib": scene.bbox_visib,
-                      "boxed_masks_obj": lambda s=scene, e=everyone: s.boxed_masks_obj(e)}
-            out = augment(sample, np.random.default_rng(seed))
+            out = augment(augment_input(scene, scene.px_count_all),
+                          np.random.default_rng(seed))
             a = out["affine"]
             if np.allclose(a, np.eye(3)):
                 continue
@@ -215,18 +219,10 @@ def test_part_beyond_the_scene_image_keeps_its_share():
     compared = 0
     for seed in range(20):
         for scene in scenes():
-            everyone = list(range(scene.num_instances))
-
-            def sample(extra):
-                return {"image": scene.rgb, "instance_map": scene.instance_map, "depth": None,
-                        "K": scene.K, "instance_ids": scene.instance_ids,
-                        "px_count_all": scene.px_count_all + extra,
-                        "annotated": scene.annotated, "ignored": scene.ignored,
-                        "bbox_obj": scene.bbox_obj, "bbox_visib": scene.bbox_visib,
-                        "boxed_masks_obj": lambda: scene.boxed_masks_obj(everyone)}
             beyond = np.where(scene.px_count_all > 0, 1000, 0)
-            whole = augment(sample(0), np.random.default_rng(seed))
-            cut = augment(sample(beyond), np.random.default_rng(seed))
+            whole = augment(augment_input(scene, scene.px_count_all), np.random.default_rng(seed))
+            cut = augment(augment_input(scene, scene.px_count_all + beyond),
+                          np.random.default_rng(seed))
             a = whole["affine"]
             if np.allclose(a, np.eye(3)):
                 assert list(cut["px_count_all"]) == list(whole["px_count_all"] + beyond)

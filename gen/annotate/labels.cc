@@ -33,7 +33,8 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
                                                const std::vector<cv::Mat>& beyond,
                                                const std::vector<ObjectTruth>& objects,
                                                const Eigen::Isometry3d& world_from_camera,
-                                               double min_visib_fract, bool ignore_occluded) {
+                                               double min_visib_fract, bool ignore_occluded,
+                                               int min_visible_px) {
   // check the inputs agree
   if (instance_map.type() != CV_16UC1) {
     throw std::runtime_error("LabelInstances: instance_map must be CV_16UC1, got type " +
@@ -134,7 +135,8 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
         label.px_count_all > 0
             ? std::min(1.0, static_cast<double>(label.px_count_visib) / label.px_count_all)
             : 0.0;
-    label.annotated = label.visib_fract >= min_visib_fract && label.px_count_visib > 0;
+    label.annotated =
+        label.visib_fract >= min_visib_fract && label.px_count_visib >= std::max(1, min_visible_px);
     label.ignored = !label.annotated && label.px_count_visib > 0 && ignore_occluded;
     instances.push_back(std::move(label));
   }

@@ -34,18 +34,18 @@ struct ObjectTruth {
 /// bop_toolkit: the box may start left of or above the image and reach past its edges),
 /// bbox_visib (from instance_map == instance_id) as [x, y, width, height] pixels,
 /// px_count_visib, visib_fract (0 when px_count_all is 0, at most 1), annotated = visib_fract >=
-/// `min_visib_fract` and px_count_visib > 0, ignored = not annotated, px_count_visib > 0 and
-/// `ignore_occluded` (the IGNORE occlusion rule), mask_visib_rle (COCO compressed RLE of
-/// instance_map == instance_id) and mask_obj_rle (of the silhouette in the image). Returns one
-/// instance per object, in the order of `objects`.
-/// Throws std::runtime_error if a type or size disagrees, silhouettes, beyond (when not empty)
-/// and objects differ in number, an instance_id is outside 1..65535 or repeated, or
-/// min_visib_fract is outside [0, 1].
+/// `min_visib_fract` and px_count_visib >= max(1, `min_visible_px`), ignored = not annotated,
+/// px_count_visib > 0 and `ignore_occluded` (the IGNORE occlusion rule), mask_visib_rle (COCO
+/// compressed RLE of instance_map == instance_id) and mask_obj_rle (of the silhouette in the
+/// image). Returns one instance per object, in the order of `objects`. Throws std::runtime_error if
+/// a type or size disagrees, silhouettes, beyond (when not empty) and objects differ in number, an
+/// instance_id is outside 1..65535 or repeated, or min_visib_fract is outside [0, 1].
 std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
                                                const std::vector<cv::Mat>& silhouettes,
                                                const std::vector<cv::Mat>& beyond,
                                                const std::vector<ObjectTruth>& objects,
                                                const Eigen::Isometry3d& world_from_camera,
-                                               double min_visib_fract, bool ignore_occluded);
+                                               double min_visib_fract, bool ignore_occluded,
+                                               int min_visible_px = 1);
 
 }  // namespace stackgen

@@ -385,6 +385,7 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
 
   // annotation and output
   CheckRange(n, "annotation", "min_visib_fract", c.annotation().min_visib_fract(), 0, 1);
+  CheckRange(n, "annotation", "min_visible_px", c.annotation().min_visible_px(), 1, 10000);
   if (c.annotation().occlusion_rule() == config::AnnotationConfig::OCCLUSION_RULE_UNSPECIFIED) {
     throw ConfigError(n.Where("annotation", "occlusion_rule") + ": must be DROP or IGNORE");
   }

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <iomanip>
 #include <mutex>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -74,6 +75,56 @@ SurfaceDetail PlacedDetail(SurfaceDetail detail, uint64_t scene_seed, uint64_t i
     detail.offset[k] = static_cast<float>((h >> (20 * k)) & 0xFFFFF) * (1000.f / 0x100000);
   }
   return detail;
+}
+
+// A part shorter than this across, in pixels at the camera's nominal distance, cannot be
+// labelled usefully; nor one whose longest side is below 1/kMinPartFractionOfBin of the bin floor's
+// short side (a mesh in metres read as millimetres is both).
+constexpr double kMinPartPixels = 8;
+constexpr double kMinPartFractionOfBin = 100;
+
+// The likely unit of a mesh whose longest side `longest` (in the config's mm) is implausible for
+// a bin with floor sides `floor_short` <= `floor_long`: the hint for its error.
+std::string ScaleHint(double longest, double scale_to_mm, double floor_short, double floor_long) {
+  struct Unit {
+    const char* name;
+    double factor;
+  };
+  for (const Unit unit : {Unit{"metres", 1000}, Unit{"inches", 25.4}, Unit{"centimetres", 10}}) {
+    const double scaled = longest * unit.factor;
+    if (scaled >= floor_short / 20 && scaled <= floor_long) {
+      std::ostringstream text;
+      text << "a mesh in " << unit.name << " needs scale_to_mm: " << unit.factor * scale_to_mm
+           << " in its part block";
+      return text.str();
+    }
+  }
+  std::ostringstream text;
+  text << "scale_to_mm (now " << scale_to_mm << ") is the factor from the mesh's units to mm";
+  return text.str();
+}
+
+// a length in pixels: "142", or "0.071" (two significant digits) below 10
+std::string PixelsText(double pixels) {
+  std::ostringstream text;
+  if (pixels >= 10) {
+    text << std::fixed << std::setprecision(0) << pixels;
+  } else {
+    text << std::setprecision(2) << pixels;
+  }
+  return text.str();
+}
+
+// "80 x 40 x 10 mm, 142 px across at 450 mm": a part's size, and the longest side's length in
+// the image at the camera's nominal distance.
+std::string PartSizeText(const TriangleMesh& mesh, const config::CameraConfig& camera) {
+  Eigen::Vector3d sides = Bounds(mesh).sizes();
+  std::sort(sides.data(), sides.data() + 3);
+  std::ostringstream text;
+  text << std::fixed << std::setprecision(1) << sides[2] << " x " << sides[1] << " x " << sides[0]
+       << " mm, " << std::setprecision(0) << camera.fx() * sides[2] / camera.height_mm()
+       << " px across at " << camera.height_mm() << " mm";
+  return text.str();
 }
 
 // a number drawn uniformly from [lo, hi] (the same on every platform).
@@ -285,6 +336,18 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
     std::vector<double> extent = {sizes.x(), sizes.y(), sizes.z()};
     std::sort(extent.begin(), extent.end());
     const Eigen::Vector3d sides(extent[0], extent[1], extent[2]);
+    const double pixels =
+        config.config.camera().fx() * extent[2] / config.config.camera().height_mm();
+    if (pixels < kMinPartPixels || extent[2] * kMinPartFractionOfBin < floor_short) {
+      std::ostringstream text;
+      text << config.path << ": part[" << t << "] (" << config.Resolve(part.mesh()) << ") is "
+           << SizeText(sides) << ", " << PixelsText(pixels) << " px across at the camera's "
+           << config.config.camera().height_mm() << " mm: too small to label (at least "
+           << kMinPartPixels << " px and 1/" << kMinPartFractionOfBin << " of the bin floor's "
+           << floor_short << " mm); "
+           << ScaleHint(extent[2], part.scale_to_mm(), floor_short, floor_long);
+      throw ConfigError(text.str());
+    }
     if (extent[1] > floor_short || extent[2] > floor_long) {
       std::ostringstream text;
       text << config.path << ": bin.inner_length_mm/inner_width_mm: part[" << t << "] ("
@@ -375,7 +438,8 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
                         ? std::string("configured material")
                         : std::to_string(mesh.materials.size()) + " file material(s), " +
                               std::to_string(textured) + " textured")
-                << ", " << impl_->simulator->CollisionDescription(static_cast<int>(t)) << "\n";
+                << ", " << impl_->simulator->CollisionDescription(static_cast<int>(t)) << ", "
+                << PartSizeText(mesh, config.config.camera()) << "\n";
   }
   // a box bin collides as boxes (exact, fast) and is drawn from the same sizes
   impl_->bin_mesh_id = impl_->renderer->AddMesh(
@@ -828,7 +892,8 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   out.instances =
       LabelInstances(rendered.instance, silhouettes, beyond, objects, camera.world_from_camera,
                      config.annotation().min_visib_fract(),
-                     config.annotation().occlusion_rule() == config::AnnotationConfig::IGNORE);
+                     config.annotation().occlusion_rule() == config::AnnotationConfig::IGNORE,
+                     config.annotation().min_visible_px());
   out.num_instances = static_cast<int32_t>(out.instances.size());
   local.annotate_ms = MillisecondsSince(start);
 

@@ -137,6 +137,21 @@ TEST(LabelsTest, ThresholdDecidesAnnotated) {
   EXPECT_TRUE(at_half[0].annotated);  // >=, not >
 }
 
+// Fewer visible pixels than min_visible_px: not annotated, however visible (object 4 shows all
+// of its 4 pixels); under the IGNORE rule an ignore region.
+TEST(LabelsTest, TooFewPixelsAreNotAnnotated) {
+  const Scene scene;
+  const auto at_four = LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
+                                      scene.world_from_camera, 0.3, true, 4);
+  EXPECT_EQ(at_four[3].px_count_visib, 4);
+  EXPECT_TRUE(at_four[3].annotated);
+  const auto at_five = LabelInstances(scene.instance_map, scene.silhouettes, {}, scene.objects,
+                                      scene.world_from_camera, 0.3, true, 5);
+  EXPECT_FALSE(at_five[3].annotated);
+  EXPECT_TRUE(at_five[3].ignored);
+  EXPECT_TRUE(at_five[1].annotated);  // 24 px
+}
+
 // The IGNORE rule keeps a too-hidden but visible object as ignored; nothing visible is neither.
 TEST(LabelsTest, IgnoreRuleMarksOccludedObjects) {
   const Scene scene;

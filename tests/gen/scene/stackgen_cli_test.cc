@@ -2,6 +2,7 @@
 // one clear line and a non-zero exit, and answers --help.
 
 #include <algorithm>
+#include <array>
 #include <fstream>
 #include <string>
 
@@ -122,6 +123,52 @@ TEST(StackgenCliTest, BinTooSmall) {
   EXPECT_NE(outcome.err.find("bad.pbtxt"), std::string::npos) << outcome.err;
   EXPECT_NE(outcome.err.find("bin"), std::string::npos) << outcome.err;
   ExpectOneLine(outcome.err);
+}
+
+// an ASCII STL of a box with sides lx, ly, lz (in the file's units) at `path`.
+void WriteBoxStl(const std::string& path, double lx, double ly, double lz) {
+  const int quads[6][4] = {{0, 1, 3, 2}, {4, 6, 7, 5}, {0, 4, 5, 1},
+                           {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 5, 7, 3}};
+  std::ofstream stl(path);
+  stl << "solid box\n";
+  for (const auto& quad : quads) {
+    const std::array<std::array<int, 3>, 2> triangles = {
+        {{quad[0], quad[1], quad[2]}, {quad[0], quad[2], quad[3]}}};
+    for (const std::array<int, 3>& triangle : triangles) {
+      stl << " facet normal 0 0 0\n  outer loop\n";
+      for (int k = 0; k < 3; ++k) {
+        const int v = triangle[k];
+        stl << "   vertex " << (v & 4 ? lx : 0) << " " << (v & 2 ? ly : 0) << " "
+            << (v & 1 ? lz : 0) << "\n";
+      }
+      stl << "  endloop\n endfacet\n";
+    }
+  }
+  stl << "endsolid box\n";
+}
+
+// a part exported in metres (an 80 x 40 x 10 mm box as 0.08 x 0.04 x 0.01) is refused with its
+// size and the hint; with scale_to_mm: 1000 it is checked and its size printed.
+TEST(StackgenCliTest, PartInMetresIsRefusedWithTheHint) {
+  const std::string dir = testing::MakeTempDir("stackgen-cli");
+  WriteBoxStl(dir + "/box.stl", 0.08, 0.04, 0.01);
+  const std::string config = WriteConfig(dir, "part { mesh: \"box.stl\" count: 3 }\n");
+  const Outcome outcome = RunStackgen(
+      {"--config", config, "--check", "--lcm-url", "memq://", "--cache-dir", dir + "/cache"}, dir);
+  EXPECT_EQ(outcome.code, 1);
+  EXPECT_NE(outcome.err.find("box.stl) is 0.08 x 0.04 x 0.01 mm, 0.14 px across"),
+            std::string::npos)
+      << outcome.err;
+  EXPECT_NE(outcome.err.find("a mesh in metres needs scale_to_mm: 1000"), std::string::npos)
+      << outcome.err;
+  ExpectOneLine(outcome.err);
+
+  std::ofstream(config) << "part { mesh: \"box.stl\" count: 3 scale_to_mm: 1000 }\n";
+  const Outcome scaled = RunStackgen(
+      {"--config", config, "--check", "--lcm-url", "memq://", "--cache-dir", dir + "/cache"}, dir);
+  EXPECT_EQ(scaled.code, 0) << scaled.err;
+  EXPECT_NE(scaled.out.find("80.0 x 40.0 x 10.0 mm, 142 px across at 450 mm"), std::string::npos)
+      << scaled.out;
 }
 
 // a missing config file names it.

@@ -111,6 +111,8 @@ struct SceneServer::Impl {
   std::map<int64_t, Clock::time_point> resent_at;  // when a seq was last published again
   int64_t resent = 0;
   int64_t regenerated = 0;
+  int64_t registrations = 0;
+  std::set<std::string> gone_silent;  // dropped for silence, not registered again
   int64_t bad_messages = 0;
   std::set<std::string> refused_kinds;  // kinds of refused messages already reported
   std::string run_conflict;
@@ -148,6 +150,7 @@ struct SceneServer::Impl {
     auto found = consumers.find(message.consumer);
     if (message.leaving) {
       held_off.erase(message.consumer);
+      gone_silent.erase(message.consumer);
       if (found != consumers.end()) {
         consumers.erase(found);
         notice("reliable consumer " + message.consumer + " left");
@@ -172,6 +175,8 @@ struct SceneServer::Impl {
       found->second.last_tail_resend = now;
       found->second.last_progress = now;
       notice("reliable consumer " + message.consumer + " registered");
+      ++registrations;
+      gone_silent.erase(message.consumer);
     }
     Consumer& consumer = found->second;
     consumer.last_heard = now;
@@ -307,6 +312,7 @@ void SceneServer::Service(int timeout_ms) {
       impl.notice("reliable consumer " + it->first + " silent for " +
                   std::to_string(static_cast<int>(silent_s)) +
                   " s: no longer waited for (it registers again with its next credit)");
+      if (impl.gone_silent.size() < kMaxHeldOff) impl.gone_silent.insert(it->first);
       it = impl.consumers.erase(it);
     } else {
       ++it;
@@ -367,6 +373,10 @@ std::optional<int64_t> SceneServer::ResumeSeq() const {
 
 int SceneServer::reliable_consumers() const { return static_cast<int>(impl_->consumers.size()); }
 int64_t SceneServer::resent() const { return impl_->resent; }
+int64_t SceneServer::registrations() const { return impl_->registrations; }
+std::vector<std::string> SceneServer::gone_silent() const {
+  return {impl_->gone_silent.begin(), impl_->gone_silent.end()};
+}
 int64_t SceneServer::regenerated() const { return impl_->regenerated; }
 int64_t SceneServer::bad_messages() const { return impl_->bad_messages; }
 const std::string& SceneServer::run_conflict() const { return impl_->run_conflict; }

@@ -105,6 +105,11 @@ class SceneServer {
 
   /// Reliable consumers registered now.
   int reliable_consumers() const;
+  /// Reliable consumers ever registered (a consumer registering again counts again).
+  int64_t registrations() const;
+  /// The consumers dropped for going silent (consumer timeout) that have not registered again
+  /// since, by name: their datasets may lack scenes.
+  std::vector<std::string> gone_silent() const;
   /// Scenes published again from the ring.
   int64_t resent() const;
   /// Scenes regenerated (older than the ring) and published again.

@@ -138,6 +138,7 @@ void AddWriterFlags(FlagParser* parser, WriterFlags* flags) {
   parser->Int("--window", &flags->window, 1, 10000);
   parser->Int("--group-commit", &flags->group_commit, 1, 10000);
   parser->FaultDrop(&flags->fault_drop);
+  parser->Int("--warn-silent", &flags->warn_silent_s, 0, 86400);
 }
 
 std::string WriterFlagsHelp(const std::string& journal) {
@@ -167,6 +168,9 @@ std::string WriterFlagsHelp(const std::string& journal) {
          "                        refuses recordings by default (a file:// log needs no flag).\n"
          "  --window N            scenes a generator may run ahead of what is stored, 1..10000\n"
          "                        (default 8).\n"
+         "  --warn-silent S       say so on stderr when no generator has been heard for S\n"
+         "                        seconds (no scene, no config), naming the URL and the key to\n"
+         "                        check; again after each new silence (default 10; 0: never).\n"
          "  --group-commit N      scenes made durable together, 1..10000 (default 16): scenes\n"
          "                        are written as they come and made durable (one sync of the file\n"
          "                        system, one of the journal) and credited once N are waiting or\n"
@@ -238,6 +242,10 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
     // its id gets its scenes refused
     std::map<int32_t, std::string> heard_runs;
     std::set<int32_t> foreign_runs;
+    // when a generator was last heard (its config every second, or a scene): a writer that
+    // hears none for --warn-silent seconds says so
+    auto generator_heard_at = std::chrono::steady_clock::now();
+    bool warned_silent = false;
     bus.Subscribe<config_text>(
         kConfigChannel,
         [&](const config_text& config) {
@@ -245,6 +253,7 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
           if (generator_id < 0 || generator_id > kMaxGeneratorId || config.header.seed < 0) {
             return;
           }
+          generator_heard_at = std::chrono::steady_clock::now();
           const std::string run = RunName(config.header.seed, config.path, config.pbtxt);
           const auto stored = writer->Runs().find(generator_id);
           if (stored == writer->Runs().end()) {
@@ -284,6 +293,7 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
     bus.Subscribe<scene>(
         kSceneChannel,
         [&](const scene& scene) {
+          generator_heard_at = std::chrono::steady_clock::now();
           // once --count scenes are stored, later ones in the same batch are left out
           if (enough()) return;
           const int32_t generator_id = scene.header.generator_id;
@@ -397,6 +407,22 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
       if (!mismatch.empty()) throw std::runtime_error(mismatch);
       if (client) client->Service();
       const auto now = std::chrono::steady_clock::now();
+      const double silent_s = std::chrono::duration<double>(now - generator_heard_at).count();
+      if (silent_s < 1) {
+        warned_silent = false;
+      } else if (!warned_silent && flags.warn_silent_s > 0 && silent_s >= flags.warn_silent_s &&
+                 bus.url().rfind("file://", 0) != 0) {
+        warned_silent = true;
+        if (show_progress) std::fprintf(stderr, "\n");
+        std::fprintf(stderr,
+                     "%s: no generator heard for %d s on %s (no scene, no config): is stackgen "
+                     "running with this --lcm-url (the same port) and %s? still waiting\n",
+                     name_text, static_cast<int>(silent_s), bus.url().c_str(),
+                     bus.keyed() ? ("the bus key " + bus.key_file() + " (key id " +
+                                    KeyIdText(bus.key_id()) + ")")
+                                       .c_str()
+                                 : "--open-bus (this writer checks no key)");
+      }
       if (client && now - last_status >= std::chrono::seconds(1)) publish_status(now);
       if (show_progress && now - last_progress >= std::chrono::milliseconds(500)) {
         last_progress = now;

@@ -30,10 +30,11 @@ struct WriterFlags {
   int64_t window = 8;
   int64_t group_commit = 16;
   double fault_drop = 0;
+  int64_t warn_silent_s = 10;  // says so when no generator is heard this long; 0: never
 };
 
 /// Registers the WriterFlags on `parser`: --out (required), --count, --resume, --lcm-url,
-/// --bus-key-file, --open-bus, --replay, --window, --group-commit, --fault-drop.
+/// --bus-key-file, --open-bus, --replay, --window, --group-commit, --fault-drop, --warn-silent.
 void AddWriterFlags(FlagParser* parser, WriterFlags* flags);
 
 /// The help text of those flags, for a program's --help (`program` names its journal).

@@ -68,6 +68,9 @@ flags:
                       stored through: waits up to --consumer-timeout for their credits
   --consumer-timeout S  a reliable consumer silent for S seconds is no longer waited for
                       (default: 10)
+  --no-consumer-ok    a run that ends by itself (--count) exits 0 even when no reliable
+                      consumer registered, or one went silent before storing every scene
+                      (default: both end with an error, exit 1: a dataset missed them)
   --resend-ring N     recent scenes kept for resending, 1..10000 (default: 64; each takes the
                       size of an encoded scene, about 1 MB at 640x480); older ones are
                       regenerated from their seed when asked for
@@ -86,7 +89,8 @@ stackgen-bop) send
 credits: the generator never runs more than a consumer's window ahead of what it has stored,
 resends scenes a consumer missed (from the ring, else regenerated: scene k is always the same),
 and after --count scenes waits until every reliable consumer has stored them all.
-Best-effort listeners (stackgen-view, lcm-spy, lcm-logger) are never waited for.
+Best-effort listeners (stackgen-view, lcm-spy, lcm-logger) are never waited for; with only
+them, pass --no-consumer-ok.
 The next pile settles on a second thread and scenes are encoded on a third while the next one renders.
 On exit and on SIGINT it prints the mean milliseconds per scene of each stage.
 )";
@@ -169,6 +173,7 @@ int Run(int argc, char** argv) {
   std::string cache_dir = DefaultCacheDir();
   bool resume = false;
   bool check = false;
+  bool no_consumer_ok = false;
   int64_t consumer_timeout = 10;
   int ring_size = 64;
   BusOptions bus_options;
@@ -182,6 +187,7 @@ int Run(int argc, char** argv) {
   parser.String("--cache-dir", &cache_dir);
   parser.Switch("--resume", &resume);
   parser.Switch("--check", &check);
+  parser.Switch("--no-consumer-ok", &no_consumer_ok);
   parser.Int("--consumer-timeout", &consumer_timeout, 1, 86400);
   parser.Int("--resend-ring", &ring_size, 1, 10000);
   parser.FaultDrop(&bus_options.drop_receive_fraction);
@@ -515,6 +521,26 @@ int Run(int argc, char** argv) {
       static_cast<long long>(server.resent()), static_cast<long long>(server.regenerated()),
       AuthSummary(bus, published).c_str());
   std::printf("stackgen: %s\n", ReceiveSummary(bus.receive_counters()).c_str());
+
+  // a run that ended by itself delivered to someone, unless told that listeners are enough
+  if (!g_stop && !no_consumer_ok) {
+    if (server.registrations() == 0) {
+      throw std::runtime_error(
+          "published " + std::to_string(published) + (published == 1 ? " scene" : " scenes") +
+          " on " + bus.url() +
+          " and no reliable consumer (stackgen-coco, stackgen-bop, a reliable Stream) took "
+          "them: start the writer first, with this --lcm-url and bus key; pass --no-consumer-ok "
+          "when listeners alone are meant");
+    }
+    const std::vector<std::string> silent = server.gone_silent();
+    if (!silent.empty()) {
+      throw std::runtime_error(
+          "reliable consumer " + silent.front() +
+          (silent.size() > 1 ? " (and " + std::to_string(silent.size() - 1) + " more)" : "") +
+          " went silent before it had stored every scene: its dataset lacks scenes; restart it "
+          "with --resume and run this generator again (pass --no-consumer-ok to accept the loss)");
+    }
+  }
   return 0;
 }
 

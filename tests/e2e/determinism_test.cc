@@ -50,7 +50,7 @@ GeneratorRun Generate(const std::string& dir, uint64_t seed,
       kLabelsChannel, [&run](const labels& message) { run.scenes[message.header.seq] = message; });
   Process generator({std::string(STACKGEN_BIN_DIR) + "/stackgen", "--config", config, "--count",
                      std::to_string(count), "--seed", std::to_string(seed), "--lcm-url", url,
-                     "--cache-dir", dir + "/cache"},
+                     "--cache-dir", dir + "/cache", "--no-consumer-ok"},
                     dir + "/stackgen");
 
   // the labels arrive as the scenes are made; generous time for a slow machine

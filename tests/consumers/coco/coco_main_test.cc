@@ -203,6 +203,27 @@ TEST(CocoMainTest, DamagedCopyIsRefusedAndAskedForAgain) {
       << "the stored image is not the intact copy";
 }
 
+// A writer that hears no generator says so after --warn-silent seconds, naming the URL and the
+// bus key to check, and goes on waiting.
+TEST(CocoMainTest, SaysSoWhenNoGeneratorIsHeard) {
+  const testing::ScopedTempDir scratch("coco-main");
+  const std::string dir = scratch.path();
+  const std::string url = testing::FreeMulticastUrl();
+  Process coco({kProgram, "--out", dir + "/coco", "--lcm-url", url, "--warn-silent", "1"},
+               dir + "/run");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  for (int i = 0; i < 100 && coco.Stderr().find("no generator") == std::string::npos; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  const std::string err = coco.Stderr();
+  EXPECT_NE(err.find("stackgen-coco: no generator heard for 1 s on " + url), std::string::npos)
+      << err;
+  EXPECT_NE(err.find("(the same port) and the bus key "), std::string::npos) << err;
+  EXPECT_NE(err.find("still waiting"), std::string::npos) << err;
+  coco.Signal(SIGINT);
+  EXPECT_EQ(coco.Wait(30), 0) << coco.Stderr();
+}
+
 // SIGINT and SIGTERM finish a valid dataset of what arrived; --min-visib-fract drops annotated
 // instances below it and keeps ignore regions.
 TEST(CocoMainTest, SignalFinishesDataset) {

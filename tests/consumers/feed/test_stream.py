@@ -109,7 +109,8 @@ def test_reliable_stream_misses_nothing_under_loss(tmp_path, processes):
 def test_best_effort_stream_never_holds_the_generator(tmp_path, processes):
     url, count = free_url(), 10
     with stackgen.Stream(url, reliable=False, queue=2, timeout=60) as stream:
-        generator = processes(generator_argv(url, count, tmp_path / "cache"), "stackgen")
+        generator = processes(generator_argv(url, count, tmp_path / "cache", "--no-consumer-ok"),
+                              "stackgen")
         first = stream.next(timeout=60)
         assert generator.wait(60) == 0, generator.stderr()
         counters = stream.counters

@@ -231,6 +231,27 @@ TEST(StackgenCliTest, CheckPublishesNothing) {
             "found\n");
 }
 
+// a run whose scenes no reliable consumer took ends with an error (exit 1) after its summary,
+// one line naming the bus; --no-consumer-ok accepts listeners alone.
+TEST(StackgenCliTest, NoReliableConsumerIsAnError) {
+  const testing::ScratchDir scratch("stackgen-cli");
+  const std::string dir = scratch.path();
+  const std::vector<std::string> args = {"--count", "1",           "--lcm-url",
+                                         "memq://", "--cache-dir", dir + "/cache"};
+  const Outcome alone = RunStackgen(args, dir);
+  EXPECT_EQ(alone.code, 1);
+  ExpectOneLine(alone.err);
+  EXPECT_NE(alone.err.find("stackgen: error: published 1 scene on memq:// and no reliable "
+                           "consumer"),
+            std::string::npos)
+      << alone.err;
+  EXPECT_NE(alone.out.find("stackgen: 1 scenes in"), std::string::npos) << alone.out;
+  std::vector<std::string> ok_args = args;
+  ok_args.push_back("--no-consumer-ok");
+  const Outcome ok = RunStackgen(ok_args, dir);
+  EXPECT_EQ(ok.code, 0) << ok.err;
+}
+
 // a second generator with the same --generator-id on the same bus refuses to run, naming the id
 // and the first one, while the first (it has published more) goes on with a warning.
 TEST(StackgenCliTest, SameGeneratorIdRefused) {

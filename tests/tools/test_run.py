@@ -1,0 +1,103 @@
+"""tools/run as a user runs it (real processes, a bus of its own): a run stopped by SIGINT keeps
+what it stored, says how to continue and exits 130; the printed command finishes it with the
+same files as a run straight through; --split makes one dataset per split, disjoint by pile; bad
+arguments get one line before anything is made.
+
+CTest runs this file with Debian's /usr/bin/python3 -m pytest and STACKGEN_SOURCE_DIR set."""
+
+import json
+import os
+import shlex
+import signal
+import subprocess
+import time
+
+SOURCE = os.environ.get("STACKGEN_SOURCE_DIR",
+                        os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
+                            __file__)))))
+RUN = os.path.join(SOURCE, "tools", "run")
+# 6 connectors, 160 x 120: small and quick scenes
+TINY = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.pbtxt")
+
+
+def run(*args):
+    return subprocess.run([RUN, *args], capture_output=True, text=True, timeout=600)
+
+
+def dataset_files(folder):
+    """Relative path -> bytes of every file a COCO dataset holds (the contact sheet and the
+    journal, whose records follow the groups the scenes arrived in, left out)."""
+    files = {}
+    for base, _, names in os.walk(folder):
+        for name in names:
+            if name in ("contact_sheet.png", "annotations.journal"):
+                continue
+            path = os.path.join(base, name)
+            with open(path, "rb") as file:
+                files[os.path.relpath(path, folder)] = file.read()
+    return files
+
+
+def test_interrupted_run_resumes_to_the_same_files(tmp_path):
+    args = ["--config", TINY, "--count", "30", "--seed", "3"]
+    whole = tmp_path / "whole"
+    straight = run(*args, "--out", str(whole))
+    assert straight.returncode == 0, straight.stderr
+    assert "images: 30," in straight.stdout
+
+    cut = tmp_path / "cut"
+    process = subprocess.Popen([RUN, *args, "--out", str(cut)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline:
+        images = cut / "images"
+        if images.is_dir() and len(os.listdir(images)) >= 3:
+            break
+        assert process.poll() is None, process.communicate()
+        time.sleep(0.02)
+    process.send_signal(signal.SIGINT)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 130, err
+    stored = len(os.listdir(cut / "images"))
+    assert 3 <= stored < 30, err
+    assert "tools/run: interrupted: %d of 30 scenes stored in %s" % (stored, cut) in err, err
+    hint = err.split("continue with:\n", 1)[1].strip()
+    assert hint.startswith("tools/run --resume --out ")
+
+    resumed = subprocess.run(shlex.split(hint), capture_output=True, text=True, timeout=600,
+                             cwd=SOURCE)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "%d in all" % 30 in resumed.stdout, resumed.stdout
+    assert dataset_files(cut) == dataset_files(whole)
+
+
+def test_split_is_disjoint_by_pile(tmp_path):
+    out = tmp_path / "split"
+    result = run("--config", TINY, "--count", "10", "--split", "train=0.8,val=0.2", "--out",
+                 str(out))
+    assert result.returncode == 0, result.stderr
+    splits = {}
+    for name in ("train", "val"):
+        with open(out / name / "annotations.json") as file:
+            splits[name] = json.load(file)["images"]
+    assert len(splits["train"]) == 8 and len(splits["val"]) == 2
+    assert {image["stackgen"]["generator_id"] for image in splits["train"]} == {0}
+    assert {image["stackgen"]["generator_id"] for image in splits["val"]} == {1}
+    piles = [{image["stackgen"]["seed"] for image in images} for images in splits.values()]
+    assert not piles[0] & piles[1]
+
+
+def test_bad_arguments_make_nothing(tmp_path):
+    out = tmp_path / "none"
+    for args, text in [
+            (["--count", "99999999999999999999"], "--count must be a whole number in 1..99,999,999"),
+            (["--count", "0"], "--count must be"),
+            (["--format", "yolo"], "--format must be coco, bop or both"),
+            (["--split", "train=0.5,val=0.2"], "--split: the fractions add up to 0.7, not 1"),
+            (["--split", "Train=1"], "--split: 'Train=1' is not NAME=FRACTION"),
+            (["--resume"], "--resume: %s does not exist" % out)]:
+        result = run(*args, "--out", str(out))
+        assert result.returncode == 2, (args, result.stderr)
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and text in lines[0], (args, result.stderr)
+        assert not out.exists()

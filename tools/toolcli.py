@@ -11,6 +11,8 @@ class Parser(argparse.ArgumentParser):
     """argparse, with its errors as one line "PROGRAM: error: ... (see --help)" and exit 2."""
 
     def __init__(self, program, **kwargs):
+        # "--iteration 5" is not "--iterations 5": no abbreviations
+        kwargs.setdefault("allow_abbrev", False)
         super().__init__(**kwargs)
         self.program = program
 

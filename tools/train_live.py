@@ -33,8 +33,8 @@ PROGRAM = "train-live"
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 # settings recorded beside a log and taken again by --replay
-REPLAYED = ("workers", "batch_size", "seed", "reuse", "reuse_buffer", "augment", "gray",
-            "backbone", "num_classes", "rois", "lr", "threads", "min_visib_fract")
+REPLAYED = ("iterations", "workers", "batch_size", "seed", "reuse", "reuse_buffer", "augment",
+            "gray", "backbone", "num_classes", "rois", "lr", "threads", "min_visib_fract")
 
 
 def fail(message):
@@ -185,6 +185,8 @@ def main(argv):
 
     import stackgen
     import stackgen.torch as sgt
+
+    stackgen.set_program_name(PROGRAM)
 
     # --replay takes the recorded run's settings unless given again
     if args.replay:

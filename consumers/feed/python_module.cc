@@ -8,6 +8,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <cerrno>
 #include <chrono>
 #include <cstring>
 #include <memory>
@@ -517,4 +518,21 @@ PYBIND11_MODULE(_native, m) {
   m.def("resolve_lcm_url", &ResolveLcmUrl, py::arg("url"),
         "The URL a stream uses: `url` when not empty, else $STACKGEN_LCM_URL, else the default.");
   m.attr("DEFAULT_LCM_URL") = kDefaultLcmUrl;
+
+  // the bus's warnings start with the program's name (glibc's program_invocation_short_name):
+  // in Python that is the interpreter's, "python3"; "stackgen" until the program names itself
+  static std::string program_name = "stackgen";
+  program_invocation_short_name = program_name.data();
+  m.def(
+      "set_program_name",
+      [](const std::string& name) {
+        if (name.empty() || name.find('\n') != std::string::npos) {
+          throw py::value_error("a program name must be one non-empty line");
+        }
+        program_name = name;
+        program_invocation_short_name = program_name.data();
+      },
+      py::arg("name"),
+      "Names the program in the stream's warnings on stderr (\"NAME: warning: ...\"); default "
+      "\"stackgen\".");
 }

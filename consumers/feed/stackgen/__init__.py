@@ -25,7 +25,8 @@ import numpy as _np
 # the LCM message types, as lcm-gen's package __init__ binds them
 from ._lcmtypes import *  # noqa: F401,F403
 from . import _native
-from ._native import DEFAULT_LCM_URL, StreamError, StreamTimeout, decode_rle, resolve_lcm_url
+from ._native import (DEFAULT_LCM_URL, StreamError, StreamTimeout, decode_rle, resolve_lcm_url,
+                      set_program_name)
 
 SCENE_CHANNEL = "STACKGEN_SCENE"
 STATUS_CHANNEL = "STACKGEN_STATUS"
@@ -274,5 +275,5 @@ class LogRecorder:
 
 
 __all__ = ["Stream", "Scene", "Instance", "StatusMonitor", "LogRecorder", "StreamError",
-           "StreamTimeout", "decode_rle", "resolve_lcm_url", "DEFAULT_LCM_URL", "SCENE_CHANNEL",
-           "STATUS_CHANNEL"]
+           "StreamTimeout", "decode_rle", "resolve_lcm_url", "set_program_name", "DEFAULT_LCM_URL",
+           "SCENE_CHANNEL", "STATUS_CHANNEL"]

@@ -36,7 +36,9 @@ def test_live_training_lowers_the_loss_and_replays_bit_for_bit(tmp_path):
     assert len(curve) == 24
     assert np.mean(curve[-8:]) < 0.8 * np.mean(curve[:8]), curve
 
-    replay = train_live("--replay", log, "--iterations", 24, "--loss-csv", tmp_path / "replay.csv")
+    # the command as train-live prints it: the recorded settings, --iterations included
+    assert "train on it again: tools/train-live --replay %s" % log in live.stdout
+    replay = train_live("--replay", log, "--loss-csv", tmp_path / "replay.csv")
     assert replay.returncode == 0, replay.stderr
     assert losses(tmp_path / "replay.csv") == losses(tmp_path / "live.csv")
 
@@ -47,6 +49,9 @@ def test_bad_command_lines(tmp_path):
     assert result.returncode == 2
     assert result.stderr.startswith("train-live: error: argument --iterations") and \
         result.stderr.count("\n") == 1
+    # no abbreviations: "--iteration" is not "--iterations"
+    result = train_live("--iteration", 5)
+    assert result.returncode == 2 and "unrecognized arguments: --iteration 5" in result.stderr
     result = train_live("--replay", tmp_path / "missing.lcmlog")
     assert result.returncode == 1
     assert "missing.lcmlog" in result.stderr and result.stderr.count("\n") == 1

@@ -7,8 +7,9 @@ build="$root/build"
 # configures (once) and builds the given targets (all when none) into build/.
 build_targets() {
   if [ ! -f "$build/CMakeCache.txt" ]; then
-    cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release >"$build.configure.log" 2>&1 || {
-      cat "$build.configure.log" >&2
+    mkdir -p "$build"
+    cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release >"$build/configure.log" 2>&1 || {
+      cat "$build/configure.log" >&2
       echo "stackgen: cmake configure failed (log above)" >&2
       return 1
     }

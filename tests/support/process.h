@@ -14,6 +14,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -58,9 +59,25 @@ inline std::string FreeMulticastUrl() {
 
 /// A new empty folder under $TMPDIR (or /tmp).
 inline std::string MakeTempDir(const std::string& prefix) {
+  // every folder made here is removed, with what it holds, when the test program exits: a
+  // suite leaves nothing in /tmp (a folder a test needs gone sooner is a ScratchDir)
+  struct Made {
+    std::mutex mutex;
+    std::vector<std::string> paths;
+    ~Made() {
+      // a forked child that did not exec leaves the parent's folders alone
+      if (getpid() != owner) return;
+      std::error_code error;
+      for (const std::string& path : paths) std::filesystem::remove_all(path, error);
+    }
+    pid_t owner = getpid();
+  };
+  static Made made;
   const char* tmp = std::getenv("TMPDIR");
   std::string pattern = std::string(tmp != nullptr ? tmp : "/tmp") + "/" + prefix + ".XXXXXX";
   if (mkdtemp(pattern.data()) == nullptr) throw std::runtime_error("mkdtemp failed");
+  const std::lock_guard<std::mutex> lock(made.mutex);
+  made.paths.push_back(pattern);
   return pattern;
 }
 

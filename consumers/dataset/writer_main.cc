@@ -87,6 +87,17 @@ bool CheckOutputFolder(const WriterProgram& program, const WriterFlags& flags) {
                              "): continue it with --resume, or choose an empty or new --out "
                              "folder");
   }
+  // another writer's dataset is named as such: it is continued by its own program
+  const std::pair<const char*, const char*> journals[] = {{"annotations.journal", "stackgen-coco"},
+                                                          {"bop.journal", "stackgen-bop"}};
+  for (const auto& [other_journal, other_program] : journals) {
+    if (!journal && names.count(other_journal) != 0) {
+      throw std::runtime_error(flags.out + " holds a " + other_program + " dataset (" +
+                               other_journal + "), not a " + program.name + " one: " +
+                               (flags.resume ? "resume it with " + std::string(other_program)
+                                             : "write into an empty or new --out folder"));
+    }
+  }
   if (!journal) {
     throw std::runtime_error(flags.out + " is not empty (it holds " + first + ") and holds no " +
                              program.name + " dataset (no " + program.journal + "): " +

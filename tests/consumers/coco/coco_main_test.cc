@@ -81,6 +81,28 @@ TEST(CocoMainTest, RefusesExistingDataset) {
   EXPECT_EQ(testing::ReadFile(dir + "/annotations.json"), "{}");
 }
 
+// A BOP dataset's folder is named as one, with or without --resume: stackgen-coco never writes
+// into another writer's dataset.
+TEST(CocoMainTest, RefusesABopDataset) {
+  const testing::ScopedTempDir scratch("coco-main");
+  const std::string dir = scratch.path();
+  { std::ofstream(dir + "/bop.journal") << ""; }
+  for (const bool resume : {false, true}) {
+    std::vector<std::string> args = {"--out", dir, "--lcm-url", testing::FreeMulticastUrl()};
+    if (resume) args.push_back("--resume");
+    std::string out, err;
+    EXPECT_EQ(RunToEnd(args, dir + "/run", &out, &err), 1);
+    EXPECT_NE(err.find(dir +
+                       " holds a stackgen-bop dataset (bop.journal), not a stackgen-coco "
+                       "one: " +
+                       (resume ? "resume it with stackgen-bop"
+                               : "write into an empty or new --out folder")),
+              std::string::npos)
+        << err;
+    EXPECT_EQ(testing::ReadFile(dir + "/bop.journal"), "");
+  }
+}
+
 // A bus or log that cannot be opened, and a journal that is not one, get one line naming the
 // URL or the journal line, exit 1, and leave nothing behind: no dataset folder, no images/, the
 // journal as it was.

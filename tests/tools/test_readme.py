@@ -1,7 +1,8 @@
-"""The README's ten-line PyTorch loop, run as printed: offline (nothing downloaded), against a
-real generator of the tiny config on a bus of its own (given as $STACKGEN_LCM_URL, which the
-loop reads), with the one change that `count=1000` becomes `count=2` so that it ends after one
-step.
+"""The README's Python snippets, run as printed and offline (nothing downloaded), against a real
+generator of the tiny config on a bus of its own (given as $STACKGEN_LCM_URL, which they read):
+the scene stream; the ten-line PyTorch loop followed by the scores of its model on a COCO folder
+(made by stackgen-coco from the fixture log). The only changes: the counts (`count=100` and
+`count=1000` become 2, so that they end soon) and the COCO folder's name ("testset").
 
 CTest runs this file with Debian's /usr/bin/python3 -m pytest; PYTHONPATH is the build's
 python/ folder."""
@@ -13,47 +14,73 @@ import socket
 import subprocess
 import sys
 
+import pytest
+
 SOURCE = os.environ.get("STACKGEN_SOURCE_DIR",
                         os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
                             __file__)))))
 BIN = os.environ.get("STACKGEN_BIN_DIR", os.path.join(SOURCE, "build", "bin"))
 TINY = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.pbtxt")
+TINY_LOG = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.lcmlog")
 
 
-def snippet(heading):
-    """The first ```python block after `heading` in the README."""
+def snippet(after):
+    """The first ```python block after the line `after` in the README."""
     with open(os.path.join(SOURCE, "README.md")) as file:
         text = file.read()
-    start = text.index("\n" + heading + "\n")
-    match = re.compile(r"```python\n(.*?)```", re.S).search(text, start)
-    return match.group(1)
+    start = text.index("\n" + after + "\n")
+    return re.compile(r"```python\n(.*?)```", re.S).search(text, start).group(1)
 
 
-def test_ten_line_loop_runs_as_printed(tmp_path):
-    code = snippet("### A PyTorch dataset, in ten lines")
-    assert code.count("count=1000") == 1
-    code = code.replace("count=1000", "count=2") + "\nprint('loss', float(loss))\n"
+def replaced(code, old, new):
+    assert code.count(old) == 1, old
+    return code.replace(old, new)
+
+
+def run_with_generator(code, tmp_path):
+    """Runs `code` in Debian's Python while a generator of the tiny config publishes until
+    stopped (the code takes its scenes from whenever its stream joins); returns its stdout."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
         probe.bind(("", 0))
         url = "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % probe.getsockname()[1]
     env = dict(os.environ, STACKGEN_LCM_URL=url, OMP_WAIT_POLICY="PASSIVE",
-               # no network: a download would fail here, not hang
+               # no network: a download fails at once here
                http_proxy="http://0.0.0.0:9", https_proxy="http://0.0.0.0:9",
                TORCH_HOME=str(tmp_path / "torch"))
-    (tmp_path / "loop.py").write_text(code)
-    # a generator that runs until stopped: the loop takes its first two scenes from whenever
-    # its stream joins (after the model is built)
+    (tmp_path / "snippet.py").write_text(code)
     generator = subprocess.Popen([os.path.join(BIN, "stackgen"), "--config", TINY, "--lcm-url",
                                   url, "--cache-dir", str(tmp_path / "cache")],
                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        learner = subprocess.run([sys.executable, str(tmp_path / "loop.py")], env=env,
-                                 capture_output=True, text=True, timeout=600)
+        result = subprocess.run([sys.executable, str(tmp_path / "snippet.py")], env=env,
+                                capture_output=True, text=True, timeout=600, cwd=tmp_path)
     finally:
         generator.send_signal(signal.SIGINT)
         generator_err = generator.communicate(timeout=60)[1]
-    assert learner.returncode == 0, learner.stderr
+    assert result.returncode == 0, result.stderr
     assert generator.returncode == 0, generator_err
-    out = learner.stdout
+    assert not os.path.exists(tmp_path / "torch"), "the snippet downloaded weights"
+    return result.stdout
+
+
+def test_scene_stream_runs_as_printed(tmp_path):
+    code = replaced(snippet("### A scene stream"), "count=100", "count=2")
+    out = run_with_generator(code + "\n        print('scene', scene.seq, len(scene.instances))\n",
+                             tmp_path)
+    assert len(re.findall(r"^scene \d+ 6$", out, re.M)) == 2, out
+
+
+def test_ten_line_loop_and_its_scores_run_as_printed(tmp_path):
+    made = subprocess.run([os.path.join(BIN, "stackgen-coco"), "--lcm-url",
+                           "file://%s?speed=0" % TINY_LOG, "--open-bus", "--out",
+                           str(tmp_path / "testset")], capture_output=True, text=True,
+                          timeout=120)
+    assert made.returncode == 0, made.stderr
+    loop = replaced(snippet("### A PyTorch dataset, in ten lines"), "count=1000", "count=2")
+    scores = snippet("In Python, the same scores for any training loop (`tools.test_readme` runs "
+                     "this after the\nten-line loop of [A PyTorch dataset]"
+                     "(#a-pytorch-dataset-in-ten-lines), on a COCO folder of the\nfixture "
+                     "scenes):")
+    out = run_with_generator(loop + "print('loss', float(loss))\n" + scores, tmp_path)
     assert re.search(r"^loss \d+\.\d+", out, re.M), out
-    assert not os.path.exists(tmp_path / "torch"), "the loop downloaded weights"
+    assert "'images': 4" in out and "'miou': " in out, out

@@ -1,8 +1,9 @@
-"""The README's Python snippets, run as printed and offline (nothing downloaded), against a real
-generator of the tiny config on a bus of its own (given as $STACKGEN_LCM_URL, which they read):
-the scene stream; the ten-line PyTorch loop followed by the scores of its model on a COCO folder
-(made by stackgen-coco from the fixture log). The only changes: the counts (`count=100` and
-`count=1000` become 2, so that they end soon) and the COCO folder's name ("testset").
+"""The README's snippets, run as printed and offline (nothing downloaded). Python: against a real
+generator of the tiny config on a bus of its own (given as $STACKGEN_LCM_URL, which they read),
+the scene stream and the ten-line PyTorch loop followed by the scores of its model on a COCO
+folder (made by stackgen-coco from the fixture log); the only changes are the counts
+(`count=100` and `count=1000` become 2, so that they end soon). Shell: every ```sh block but
+the two commands (what CI runs), unchanged. Blocks of ```text are synopses, not run.
 
 CTest runs this file with Debian's /usr/bin/python3 -m pytest; PYTHONPATH is the build's
 python/ folder."""
@@ -84,3 +85,23 @@ def test_ten_line_loop_and_its_scores_run_as_printed(tmp_path):
     out = run_with_generator(loop + "print('loss', float(loss))\n" + scores, tmp_path)
     assert re.search(r"^loss \d+\.\d+", out, re.M), out
     assert "'images': 4" in out and "'miou': " in out, out
+
+
+def test_shell_snippets_run_as_printed(tmp_path):
+    """Every ```sh block but the first (the two commands, tools/run and tools/test, are what CI
+    runs on a clean clone) runs as printed with bash -e, in a folder that looks like the
+    repository's root (tools, build, config, tests linked) so that its out/ is the test's."""
+    with open(os.path.join(SOURCE, "README.md")) as file:
+        blocks = re.findall(r"^```sh\n(.*?)^```", file.read(), re.S | re.M)
+    assert len(blocks) >= 4
+    root = tmp_path / "root"
+    root.mkdir()
+    for name in ("tools", "build", "config", "tests"):
+        os.symlink(os.path.join(SOURCE, name), root / name)
+    for block in blocks[1:]:
+        result = subprocess.run(["bash", "-e", "-c", block], cwd=root, capture_output=True,
+                                text=True, timeout=600)
+        assert result.returncode == 0, (block, result.stdout[-2000:], result.stderr[-2000:])
+    # what the blocks say they make
+    assert (root / "out" / "yolo" / "data.yaml").is_file()
+    assert (root / "stats2" / "cumulative.png").is_file()

@@ -17,7 +17,8 @@ matters). An object whose visible mask falls into several pieces (a part seen on
 another) or has holes (the connector's bolt holes) becomes one outline: pieces and holes joined
 by zero-width cuts, as Ultralytics' own COCO converter joins pieces. Filled back (cv2.fillPoly,
 as Ultralytics does) an outline gives the mask again, holes open, plus the pixels along the cuts
-between pieces (a small part in three pieces: IoU 0.84; on the fixture scenes 0.99 on average). Classes are numbered 0, 1, ... in the order of their COCO category ids.
+between pieces (a small part in three pieces: IoU 0.84; on the fixture scenes 0.99 on average).
+Classes are numbered 0, 1, ... in the order of their COCO category ids.
 Everything is written under a temporary name and renamed when whole.
 """
 

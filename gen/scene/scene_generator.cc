@@ -115,7 +115,7 @@ std::string PixelsText(double pixels) {
   return text.str();
 }
 
-// "80 x 40 x 10 mm, 142 px across at 450 mm": a part's size, and the longest side's length in
+// "80.0 x 40.0 x 10.0 mm, 142 px across at 450 mm": a part's size, and the longest side's length in
 // the image at the camera's nominal distance.
 std::string PartSizeText(const TriangleMesh& mesh, const config::CameraConfig& camera) {
   Eigen::Vector3d sides = Bounds(mesh).sizes();

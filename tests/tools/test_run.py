@@ -90,7 +90,8 @@ def test_split_is_disjoint_by_pile(tmp_path):
 def test_bad_arguments_make_nothing(tmp_path):
     out = tmp_path / "none"
     for args, text in [
-            (["--count", "99999999999999999999"], "--count must be a whole number in 1..99,999,999"),
+            (["--count", "99999999999999999999"],
+             "--count must be a whole number in 1..99,999,999"),
             (["--count", "0"], "--count must be"),
             (["--format", "yolo"], "--format must be coco, bop or both"),
             (["--split", "train=0.5,val=0.2"], "--split: the fractions add up to 0.7, not 1"),

@@ -10,7 +10,9 @@ format straight from the bus (or a log), for a live training loop.
         losses = model(list(images), [sgt.without_ignore_regions(t) for t in targets])
 
 Each DataLoader worker opens its own stream and takes one shard of the seqs (seq % workers), so no
-scene reaches two workers; a reliable stream misses none. See StreamDataset for the target.
+scene reaches two workers; a reliable stream misses none. Under torch.distributed (DDP) every
+rank takes its own shards (rank x workers), so no scene reaches two ranks either. See
+StreamDataset for the target.
 """
 
 import os
@@ -25,8 +27,27 @@ from stackgen.augment import Augment, exact_labels
 
 __all__ = ["StreamDataset", "collate", "without_ignore_regions", "ReuseMeter", "Augment"]
 
-# the most workers one stream splits between (bus/delivery.h kMaxShards)
+# the most shards (ranks x workers) the seqs split into (bus/delivery.h kMaxShards)
 MAX_WORKERS = 256
+
+
+def _rank_and_world(rank, world_size):
+    """(rank, world size): the arguments when given, else torch.distributed's when it is
+    initialised, else (0, 1)."""
+    if (rank is None) != (world_size is None):
+        raise ValueError("rank and world_size come together (or neither: torch.distributed's)")
+    if rank is not None:
+        for name, value in (("rank", rank), ("world_size", world_size)):
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ValueError("%s must be a whole number, got %r" % (name, value))
+        if not 0 <= rank < world_size:
+            raise ValueError("rank must be in 0..world_size-1, got rank %d of %d" %
+                             (rank, world_size))
+        return rank, world_size
+    distributed = torch.distributed
+    if distributed.is_available() and distributed.is_initialized():
+        return distributed.get_rank(), distributed.get_world_size()
+    return 0, 1
 
 _SEED_MASK = (1 << 64) - 1
 
@@ -113,6 +134,12 @@ class StreamDataset(IterableDataset):
     bus_key_file, open_bus: the bus key, as for stackgen.Stream (default: this user's key; the
         recording is signed with it too).
 
+    rank, world_size: this process's share under distributed training. None (default): from
+        torch.distributed when it is initialised (DDP, torchrun), else the only process. Rank r
+        of n with k DataLoader workers takes shards r * k .. r * k + k - 1 of n * k (seq % (n *
+        k)), so no scene reaches two ranks and, reliable, none is missed; `count` is split
+        between all shards. Every rank needs the same number of workers.
+
     Usable with DataLoader(num_workers=k) (k <= 256): each worker opens its own stream on one
     shard of the seqs. Raises stackgen.StreamError as the stream does, ValueError for bad
     arguments.
@@ -122,8 +149,9 @@ class StreamDataset(IterableDataset):
                  timeout=None, count=0, reuse=1, reuse_buffer=32, grayscale=False, augment=None,
                  min_visib_fract=0.3, seed=0, record=None, replay=False, depth=False, queue=16,
                  decode_threads=None, fault_drop=0.0, name=None, bus_key_file=None,
-                 open_bus=False):
+                 open_bus=False, rank=None, world_size=None):
         super().__init__()
+        _rank_and_world(rank, world_size)  # arguments checked now
         if isinstance(reuse, bool) or not isinstance(reuse, int) or reuse < 1:
             raise ValueError("reuse must be a whole number >= 1, got %r" % (reuse,))
         if isinstance(reuse_buffer, bool) or not isinstance(reuse_buffer, int) or reuse_buffer < 1:
@@ -181,11 +209,13 @@ class StreamDataset(IterableDataset):
         self.name = name
         self.bus_key_file = bus_key_file
         self.open_bus = bool(open_bus)
+        self.rank = rank
+        self.world_size = world_size
 
     def _open(self, worker, workers):
         if workers > MAX_WORKERS:
             raise stackgen.StreamError(
-                "a stream splits between at most %d DataLoader workers, not %d" %
+                "a stream splits between at most %d shards (ranks x DataLoader workers), not %d" %
                 (MAX_WORKERS, workers))
         count = 0
         if self.count > 0:
@@ -218,6 +248,13 @@ class StreamDataset(IterableDataset):
         if info is not None:
             # one core per worker: no thread pools fighting over it
             cv2.setNumThreads(1)
+        # this rank's workers take shards rank * workers + worker of world * workers (one rank:
+        # the shard is the worker, as before)
+        rank, world = _rank_and_world(self.rank, self.world_size)
+        if self.record and world > 1:
+            raise stackgen.StreamError("record: one file cannot take the samples of %d ranks; "
+                                       "record with one process" % world)
+        worker, workers = rank * workers + worker, world * workers
         stream = self._open(worker, workers)
         if stream is None:
             return

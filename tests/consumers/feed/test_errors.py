@@ -209,7 +209,7 @@ def test_bad_arguments(tmp_path):
         assert name in one_line(error)
     with pytest.raises(stackgen.StreamError) as error:
         sgt.StreamDataset(URL)._open(0, 300)
-    assert "at most 256 DataLoader workers, not 300" in one_line(error)
+    assert "at most 256 shards (ranks x DataLoader workers), not 300" in one_line(error)
     with pytest.raises(ValueError):
         sgt.StreamDataset(free_url(), replay=True)
     existing = tmp_path / "taken.lcmlog"

@@ -133,6 +133,52 @@ def test_two_workers_never_see_the_same_scene(tmp_path, processes):
     assert sorted(keys) == [(0, seq) for seq in range(count)]
 
 
+# two ranks of a torch.distributed job (gloo on the CPU, two real processes, each with two
+# DataLoader workers) take disjoint shards of one generator: rank r's workers the seqs with
+# seq % 4 in {2r, 2r + 1}, found from torch.distributed without being told; and the explicit
+# rank/world_size arguments are checked
+RANK_SCRIPT = """
+import json, os, sys
+import torch.distributed as dist
+from torch.utils.data import DataLoader
+import stackgen.torch as sgt
+dist.init_process_group("gloo", init_method="file://" + sys.argv[2], rank=int(sys.argv[3]),
+                        world_size=2)
+dataset = sgt.StreamDataset(sys.argv[1], count=16, timeout=60, window=4)
+loader = DataLoader(dataset, batch_size=1, num_workers=2, collate_fn=sgt.collate)
+keys = [target["scene"][:2].tolist() for _, targets in loader for target in targets]
+json.dump(keys, open(sys.argv[4], "w"))
+dist.barrier()
+"""
+
+
+def test_ranks_never_see_the_same_scene(tmp_path, processes):
+    import subprocess
+    import sys
+
+    url = free_url()
+    # a generator that runs until stopped: each rank's streams take their shards from the scene
+    # they first hear on
+    generator = processes(generator_argv(url, 0, tmp_path / "cache"), "stackgen")
+    (tmp_path / "rank.py").write_text(RANK_SCRIPT)
+    ranks = [subprocess.Popen([sys.executable, str(tmp_path / "rank.py"), url,
+                               str(tmp_path / "rendezvous"), str(rank),
+                               str(tmp_path / ("rank%d.json" % rank))],
+                              stderr=subprocess.PIPE, text=True) for rank in (0, 1)]
+    for rank in ranks:
+        assert rank.wait(timeout=300) == 0, rank.stderr.read()
+    generator.popen.send_signal(__import__("signal").SIGINT)
+    assert generator.wait(60) == 0, generator.stderr()
+    keys = [json.loads((tmp_path / ("rank%d.json" % rank)).read_text()) for rank in (0, 1)]
+    for rank, taken in enumerate(keys):
+        assert len(taken) == 8 and len({tuple(key) for key in taken}) == 8, taken
+        assert {seq % 4 for _, seq in taken} <= {2 * rank, 2 * rank + 1}, (rank, taken)
+    assert not {tuple(key) for key in keys[0]} & {tuple(key) for key in keys[1]}
+    for bad in (dict(rank=1), dict(rank=2, world_size=2), dict(rank=0, world_size=True)):
+        with pytest.raises(ValueError):
+            sgt.StreamDataset(url, **bad)
+
+
 # with reuse, a learner faster than the generator uses scenes again while it waits for new ones:
 # each scene at most `reuse` times, its uses numbered 0, 1, ..., and the factor above 1
 def test_reuse_keeps_a_fast_learner_busy(tmp_path, processes):

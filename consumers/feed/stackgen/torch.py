@@ -134,6 +134,9 @@ class StreamDataset(IterableDataset):
     bus_key_file, open_bus: the bus key, as for stackgen.Stream (default: this user's key; the
         recording is signed with it too).
 
+    transforms: a callable (image, target) -> (image, target) applied to every sample after
+        stackgen's own augmentation (torchvision's detection references style), e.g. a
+        normalisation or your own photometric changes; None (default): none.
     rank, world_size: this process's share under distributed training. None (default): from
         torch.distributed when it is initialised (DDP, torchrun), else the only process. Rank r
         of n with k DataLoader workers takes shards r * k .. r * k + k - 1 of n * k (seq % (n *
@@ -149,8 +152,11 @@ class StreamDataset(IterableDataset):
                  timeout=None, count=0, reuse=1, reuse_buffer=32, grayscale=False, augment=None,
                  min_visib_fract=0.3, seed=0, record=None, replay=False, depth=False, queue=16,
                  decode_threads=None, fault_drop=0.0, name=None, bus_key_file=None,
-                 open_bus=False, rank=None, world_size=None):
+                 open_bus=False, rank=None, world_size=None, transforms=None):
         super().__init__()
+        if transforms is not None and not callable(transforms):
+            raise ValueError("transforms must be a callable (image, target) -> (image, target), "
+                             "got %r" % (transforms,))
         _rank_and_world(rank, world_size)  # arguments checked now
         if isinstance(reuse, bool) or not isinstance(reuse, int) or reuse < 1:
             raise ValueError("reuse must be a whole number >= 1, got %r" % (reuse,))
@@ -211,6 +217,7 @@ class StreamDataset(IterableDataset):
         self.open_bus = bool(open_bus)
         self.rank = rank
         self.world_size = world_size
+        self.transforms = transforms
 
     def _open(self, worker, workers):
         if workers > MAX_WORKERS:
@@ -293,7 +300,10 @@ class StreamDataset(IterableDataset):
                     entry[1] += 1
                 if recorder is not None:
                     recorder.append(scene)
-                yield self.sample(scene, use)
+                image, target = self.sample(scene, use)
+                if self.transforms is not None:
+                    image, target = self.transforms(image, target)
+                yield image, target
         finally:
             stream.close()
 

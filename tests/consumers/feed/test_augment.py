@@ -147,6 +147,25 @@ def test_same_log_and_seed_give_identical_batches():
     assert not same(first, batches(seed=8, workers=2))
 
 
+# a user's transforms run on every sample after stackgen's augmentation, through DataLoader
+# workers too; a transforms that is not callable is refused
+def test_transforms_run_on_every_sample():
+    def darker(image, target):
+        target = dict(target, seen=torch.tensor(1))
+        return image * 0.5, target
+
+    plain = [image for image, _ in sgt.StreamDataset(URL, **OPEN)]
+    dataset = sgt.StreamDataset(URL, transforms=darker, **OPEN)
+    loader = DataLoader(dataset, batch_size=1, num_workers=2, collate_fn=sgt.collate)
+    changed = sorted(((t["scene"][1].item(), images[0]) for images, targets in loader
+                      for t in targets if t["seen"].item() == 1), key=lambda item: item[0])
+    assert len(changed) == len(plain) == 4
+    for (_, image), before in zip(changed, plain):
+        assert torch.equal(image, before * 0.5)
+    with pytest.raises(ValueError):
+        sgt.StreamDataset(URL, transforms="darker", **OPEN)
+
+
 # a gray image: one channel in [0, 1]; the default replicates a gray camera to three channels
 def test_grayscale_option():
     dataset = sgt.StreamDataset(URL, grayscale=True, **OPEN)

@@ -23,6 +23,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "bus/bounded_decode.h"
+#include "bus/rle.h"
 #include "bus/scene_contract.h"
 #include "consumers/dataset/files.h"
 #include "consumers/dataset/images.h"
@@ -50,6 +51,35 @@ constexpr const char* kJournalFile = "annotations.journal";
 constexpr const char* kImagesFolder = "images";
 constexpr const char* kShardsFolder = "shards";
 constexpr std::string_view kTemporarySuffix = ".tmp";
+
+// The polygons of a visible mask (CV_8UC1), as CocoWriterOptions::polygons says: one per outer
+// contour, through boundary pixel centres; a piece of one or two pixels as the square around them.
+json MaskPolygons(const cv::Mat& mask) {
+  std::vector<std::vector<cv::Point>> contours;
+  cv::findContours(mask.clone(), contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
+  json polygons = json::array();
+  for (const std::vector<cv::Point>& contour : contours) {
+    std::vector<double> points;
+    if (contour.size() >= 3) {
+      for (const cv::Point& point : contour) {
+        points.push_back(point.x + 0.5);
+        points.push_back(point.y + 0.5);
+      }
+    } else {
+      const cv::Rect box = cv::boundingRect(contour);
+      points = {static_cast<double>(box.x),
+                static_cast<double>(box.y),
+                static_cast<double>(box.x + box.width),
+                static_cast<double>(box.y),
+                static_cast<double>(box.x + box.width),
+                static_cast<double>(box.y + box.height),
+                static_cast<double>(box.x),
+                static_cast<double>(box.y + box.height)};
+    }
+    polygons.push_back(std::move(points));
+  }
+  return polygons;
+}
 
 // a journal line: {"image":IMAGE,"annotations":[ANNOTATIONS],"scene":SCENE}\n (see the header)
 // version 2: image ids generator_id * 1e8 + seq + 1 (version 1: * 1e9)
@@ -325,6 +355,12 @@ void CocoWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64
       throw corrupt("written with min_visib_fract " + min_visib_fract.dump() +
                     ", this writer has " + own.dump() + " (resume with the same min_visib_fract)");
     }
+    const bool polygons = scene.contains("polygons") && scene.at("polygons") == true;
+    if (polygons != options_.polygons) {
+      throw corrupt(std::string("written ") + (polygons ? "with" : "without") +
+                    " --polygons, this writer " + (options_.polygons ? "with" : "without") +
+                    " (resume with the same choice)");
+    }
 
     // categories agree with every other line's
     for (const json& category : scene.at("categories")) {
@@ -532,12 +568,18 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
     }
     const stackgen::pose& camera_from_object = instance->camera_from_object;
     const stackgen::pose& world_from_object = instance->world_from_object;
+    json segmentation = {{"size", {camera.height, camera.width}},
+                         {"counts", instance->mask_visib_rle}};
+    if (options_.polygons && !crowd) {
+      cv::Mat mask(camera.height, camera.width, CV_8UC1, cv::Scalar(0));
+      DecodeRleInto(instance->mask_visib_rle, camera.height, camera.width, mask.data);
+      segmentation = MaskPolygons(mask);
+    }
     const json annotation = {
         {"id", AnnotationId(image_id, instance->instance_id)},
         {"image_id", image_id},
         {"category_id", instance->class_id},
-        {"segmentation",
-         {{"size", {camera.height, camera.width}}, {"counts", instance->mask_visib_rle}}},
+        {"segmentation", std::move(segmentation)},
         {"area", instance->px_count_visib},
         {"bbox", std::vector<int32_t>(instance->bbox_visib, instance->bbox_visib + 4)},
         {"iscrowd", crowd ? 1 : 0},
@@ -589,6 +631,7 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
                         options_.min_visib_fract ? json(*options_.min_visib_fract) : json(nullptr)},
                        {"image_length", image_text.size()},
                        {"annotations_length", annotations.size()}};
+  if (options_.polygons) scene_record["polygons"] = true;
   const auto run = runs_.find(scene.header.generator_id);
   if (run != runs_.end()) scene_record["run"] = run->second;
   std::string line;

@@ -25,6 +25,13 @@ struct CocoWriterOptions {
   /// below it are dropped as well, a stricter filter than the generator's; it never brings back
   /// an instance the generator did not annotate, and does not touch ignore regions.
   std::optional<double> min_visib_fract;
+  /// False (the default): every segmentation is compressed RLE. True: an annotation's (iscrowd
+  /// 0) is a list of polygons instead, one per piece of its visible mask, through the centres of
+  /// the piece's boundary pixels (x + 0.5, y + 0.5 in COCO's pixel coordinates; straight runs as
+  /// their two ends); holes are filled, as COCO polygons cannot hold them, and a piece of one
+  /// or two pixels becomes the square around them. Ignore regions (iscrowd 1) stay RLE, as COCO
+  /// keeps crowd regions. Recorded in the journal: a dataset is resumed with the same choice.
+  bool polygons = false;
   /// The dataset's info.description.
   std::string description = "stackgen: synthetic images of parts piled in a bin";
   /// False (the default): start a new dataset; a folder that already holds one (a non-empty

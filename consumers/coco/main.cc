@@ -18,13 +18,14 @@ struct Flags {
   stackgen::WriterFlags writer;
   std::optional<double> min_visib_fract;  // unset: follow the generator's labels
   int64_t shards = 0;
+  bool polygons = false;
 };
 
 void PrintHelp() {
   std::printf(
       "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL]\n"
       "       [--bus-key-file FILE | --open-bus] [--replay]\n"
-      "       [--min-visib-fract F] [--shards N] [--window N] [--group-commit N]\n"
+      "       [--min-visib-fract F] [--polygons] [--shards N] [--window N] [--group-commit N]\n"
       "       [--fault-drop F]\n"
       "\n"
       "Writes every scene published on %s into a COCO instances dataset:\n"
@@ -57,6 +58,10 @@ void PrintHelp() {
       "                        annotation.min_visib_fract; it never adds objects the generator\n"
       "                        did not annotate and leaves ignore regions alone (default: none,\n"
       "                        follow the generator).\n"
+      "  --polygons            iscrowd-0 segmentations as polygons (one per piece of the\n"
+      "                        visible mask, through its boundary pixels' centres; holes\n"
+      "                        filled) for loaders that want them (torchvision's references,\n"
+      "                        DETR); ignore regions stay RLE (default: RLE for all).\n"
       "  --shards N            also write webdataset tar shards of at most N images, 1..1000:\n"
       "                        DIR/shards/shard-ID.tar, each image's KEY.png and KEY.json\n"
       "                        ({\"annotations\": [...], \"image\": {...}}, the records of\n"
@@ -84,6 +89,7 @@ int main(int argc, char** argv) {
   stackgen::AddWriterFlags(&parser, &flags.writer);
   parser.Double("--min-visib-fract", &flags.min_visib_fract, stackgen::Interval::Closed(0, 1));
   parser.Int("--shards", &flags.shards, 0, 1000);
+  parser.Switch("--polygons", &flags.polygons);
   parser.ParseOrExit(argc, argv, PrintHelp);
 
   stackgen::WriterProgram program;
@@ -95,6 +101,7 @@ int main(int argc, char** argv) {
     options.resume = writer_flags.resume;
     options.group_commit = writer_flags.group_commit > 1;
     options.shard_images = static_cast<int>(flags.shards);
+    options.polygons = flags.polygons;
     return std::make_unique<stackgen::CocoWriter>(writer_flags.out, options);
   };
   program.summary = [&](const stackgen::DatasetSink& sink) {

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <array>
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -23,6 +24,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "bus/scene_contract.h"
 #include "tests/consumers/coco/coco_test_scenes.h"
@@ -521,6 +523,86 @@ TEST(CocoWriterTest, IgnoredInstancesAreCrowdRegions) {
   EXPECT_EQ(crowd["amodal_segmentation"]["counts"], testing::SceneD().instances[1].mask_obj_rle);
   EXPECT_EQ(crowd["world_R_m2w"].size(), 9u);
   for (const json& annotation : annotations) ExpectAmodalFields(annotation);
+}
+
+// With polygons, an annotation's visible mask in two pieces, one with a hole, becomes two
+// polygons through the boundary pixel centres; filled back (holes filled, as COCO polygons
+// have none) they cover the mask and its hole exactly; a one-pixel piece is its square; ignore
+// regions stay RLE; a dataset written without polygons is not resumed with them.
+TEST(CocoWriterTest, PolygonsFillBackToTheMask) {
+  const testing::ScopedTempDir scratch("coco-writer");
+  const std::string dir = scratch.path();
+  stackgen::scene scene = testing::SceneD();
+  // instance 1: a ring (columns 0..3, rows 0..3, hole at 1..2 x 1..2), a bar (columns 5..7,
+  // row 5) and one pixel (7, 1)
+  cv::Mat mask = cv::Mat::zeros(testing::kSceneHeight, testing::kSceneWidth, CV_8UC1);
+  mask(cv::Rect(0, 0, 4, 4)).setTo(255);
+  mask(cv::Rect(1, 1, 2, 2)).setTo(0);
+  mask(cv::Rect(5, 5, 3, 1)).setTo(255);
+  mask.at<uint8_t>(1, 7) = 255;
+  stackgen::instance& ring = scene.instances[0];
+  ring.mask_visib_rle = EncodeRle(mask);
+  ring.mask_obj_rle = EncodeRle(cv::Mat(mask.size(), CV_8UC1, cv::Scalar(255)));
+  ring.px_count_visib = cv::countNonZero(mask);
+  ring.px_count_all = mask.total();
+  ring.visib_fract = static_cast<double>(ring.px_count_visib) / ring.px_count_all;
+  const cv::Rect box = cv::boundingRect(mask);
+  std::copy_n(std::array<int32_t, 4>{box.x, box.y, box.width, box.height}.data(), 4,
+              ring.bbox_visib);
+  std::copy_n(std::array<int32_t, 4>{0, 0, testing::kSceneWidth, testing::kSceneHeight}.data(), 4,
+              ring.bbox_obj);
+  CocoWriterOptions options;
+  options.polygons = true;
+  {
+    CocoWriter writer(dir + "/polygons", options);
+    ASSERT_TRUE(writer.Add(scene));
+    writer.Finish();
+  }
+  const json annotations = ReadDataset(dir + "/polygons")["annotations"];
+  ASSERT_EQ(annotations.size(), 2u);
+  const json& polygons = annotations[0]["segmentation"];
+  ASSERT_TRUE(polygons.is_array()) << polygons.dump();
+  ASSERT_EQ(polygons.size(), 3u) << polygons.dump();
+  // filled back: the centres' polygons shifted back to pixel indices, the squares' corners
+  // drawn as their pixels
+  cv::Mat filled = cv::Mat::zeros(mask.size(), CV_8UC1);
+  for (const json& polygon : polygons) {
+    const std::vector<double> values = polygon.get<std::vector<double>>();
+    ASSERT_EQ(values.size() % 2, 0u);
+    std::vector<cv::Point> points;
+    const bool square = values.size() == 8 && values[0] == std::floor(values[0]);
+    for (size_t k = 0; k < values.size(); k += 2) {
+      points.emplace_back(static_cast<int>(std::lround(values[k] - 0.5)),
+                          static_cast<int>(std::lround(values[k + 1] - 0.5)));
+    }
+    if (square) {
+      filled(cv::Rect(static_cast<int>(values[0]), static_cast<int>(values[1]),
+                      static_cast<int>(values[2] - values[0]),
+                      static_cast<int>(values[5] - values[1])))
+          .setTo(255);
+    } else {
+      cv::fillPoly(filled, std::vector<std::vector<cv::Point>>{points}, cv::Scalar(255));
+    }
+  }
+  cv::Mat expected = mask.clone();
+  expected(cv::Rect(1, 1, 2, 2)).setTo(255);  // the hole, filled
+  EXPECT_EQ(cv::countNonZero(filled != expected), 0);
+  EXPECT_TRUE(annotations[1]["segmentation"].is_object());  // the ignore region: RLE
+  EXPECT_EQ(annotations[1]["iscrowd"], 1);
+
+  // a dataset without polygons is not continued with them
+  {
+    CocoWriter writer(dir + "/rle");
+    ASSERT_TRUE(writer.Add(testing::SceneD()));
+  }
+  options.resume = true;
+  try {
+    CocoWriter writer(dir + "/rle", options);
+    FAIL() << "a resume with polygons continued an RLE dataset";
+  } catch (const std::runtime_error& error) {
+    EXPECT_NE(std::string(error.what()).find("written without --polygons"), std::string::npos)
+        << error.what();
+  }
 }
 
 // A min_visib_fract of the writer's own drops annotated instances below it, but brings back

@@ -22,7 +22,6 @@ Classes are numbered 0, 1, ... in the order of their COCO category ids.
 Everything is written under a temporary name and renamed when whole.
 """
 
-import argparse
 import json
 import os
 import shutil

@@ -15,7 +15,6 @@ import socket
 import subprocess
 import sys
 
-import pytest
 
 SOURCE = os.environ.get("STACKGEN_SOURCE_DIR",
                         os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(

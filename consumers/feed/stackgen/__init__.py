@@ -18,7 +18,11 @@ The stream runs in C++ (`stackgen._native`): the same bounded decoding, credits 
 the C++ dataset writers, in a thread of its own, outside the GIL.
 """
 
+from __future__ import annotations
+
 import os as _os
+from typing import Any as _Any, Dict as _Dict, Iterator as _Iterator, List as _List
+from typing import Optional as _Optional, Sequence as _Sequence, Tuple as _Tuple
 
 import numpy as _np
 
@@ -86,11 +90,11 @@ class Instance:
         self.annotated = bool(scene.annotated[index])
         self.ignored = bool(scene.ignored[index])
 
-    def mask_visib(self):
+    def mask_visib(self) -> _np.ndarray:
         """(H, W) uint8 0/1: the visible pixels (decoded from the message's RLE)."""
         return self._scene.masks_visib([self.index])[0]
 
-    def mask_obj(self):
+    def mask_obj(self) -> _np.ndarray:
         """(H, W) uint8 0/1: the pixels the object would cover with nothing in front (amodal)."""
         return self._scene.masks_obj([self.index])[0]
 
@@ -158,10 +162,15 @@ class Stream:
     `counters["bad_messages"]`, with a line on stderr for the first ten.
     """
 
-    def __init__(self, lcm_url=None, reliable=True, window=8, generator_ids=None, timeout=None,
-                 count=0, shard=(0, 1), queue=16, instance_map=True, depth=False, repeats=False,
-                 decode_threads=2, channel=SCENE_CHANNEL, name=None, fault_drop=0.0,
-                 status=True, bus_key_file=None, open_bus=False, replay=False):
+    def __init__(self, lcm_url: _Optional[str] = None, reliable: bool = True, window: int = 8,
+                 generator_ids: _Optional[_Sequence[int]] = None,
+                 timeout: _Optional[float] = None, count: int = 0,
+                 shard: _Tuple[int, int] = (0, 1), queue: int = 16, instance_map: bool = True,
+                 depth: bool = False, repeats: bool = False, decode_threads: int = 2,
+                 channel: str = SCENE_CHANNEL, name: _Optional[str] = None,
+                 fault_drop: float = 0.0, status: bool = True,
+                 bus_key_file: _Optional[str] = None, open_bus: bool = False,
+                 replay: bool = False) -> None:
         if lcm_url is not None and (not isinstance(lcm_url, str) or lcm_url == ""):
             raise ValueError("lcm_url must be a non-empty URL string or None, got %r" % (lcm_url,))
         if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
@@ -192,47 +201,47 @@ class Stream:
             fault_drop=float(fault_drop), publish_status=bool(status),
             bus_key_file=bus_key_file or "", open_bus=bool(open_bus), replay=bool(replay))
 
-    def __iter__(self):
+    def __iter__(self) -> _Iterator[Scene]:
         return self
 
-    def __next__(self):
+    def __next__(self) -> Scene:
         scene = self._native.next(self.timeout)
         if scene is None:
             raise StopIteration
         return scene
 
-    def next(self, timeout=None):
+    def next(self, timeout: _Optional[float] = None) -> Scene:
         """The next scene, waiting up to `timeout` seconds (None: as long as it takes); None once
         the stream has ended. Raises StreamTimeout when the time runs out."""
         return self._native.next(timeout)
 
-    def close(self):
+    def close(self) -> None:
         """Stops reading; a reliable stream tells the generators it is leaving."""
         self._native.close()
 
-    def __enter__(self):
+    def __enter__(self) -> "Stream":
         return self
 
     def __exit__(self, *exc):
         self.close()
 
     @property
-    def counters(self):
+    def counters(self) -> _Dict[str, int]:
         """dict: received, handed, duplicates, lost, reasked, bad_messages, dropped_behind,
         fault_dropped, queued. On a live bus the delivery counts (lost, reasked, fault_dropped)
         are refreshed every 20 ms, and are final once the stream is closed."""
         return self._native.counters
 
     @property
-    def url(self):
+    def url(self) -> str:
         return self._native.url
 
     @property
-    def name(self):
+    def name(self) -> str:
         return self._native.name
 
     @property
-    def is_log(self):
+    def is_log(self) -> bool:
         return self._native.is_log
 
 
@@ -241,12 +250,13 @@ class StatusMonitor:
     held_back_s, ...), heard in a thread of its own. Sends nothing but the liveness check of the
     bus key (bus_key_file and open_bus as for Stream)."""
 
-    def __init__(self, lcm_url=None, bus_key_file=None, open_bus=False):
+    def __init__(self, lcm_url: _Optional[str] = None, bus_key_file: _Optional[str] = None,
+                 open_bus: bool = False) -> None:
         if bus_key_file is not None and open_bus:
             raise ValueError("bus_key_file and open_bus=True exclude each other")
         self._native = _native.StatusMonitor(lcm_url or "", bus_key_file or "", bool(open_bus))
 
-    def latest(self, process=None):
+    def latest(self, process: _Optional[str] = None) -> _List[_Dict[str, _Any]]:
         """A list of status dicts, one per process heard (only those named `process`, e.g.
         "stackgen" for generators, when given). Keys: process, name, generator_id, next_seq (a
         generator's next seq; -1 for consumers), scenes_held (a consumer's scenes; -1 for
@@ -262,13 +272,14 @@ class LogRecorder:
     Each event is signed with the bus key (bus_key_file and open_bus as for Stream), so the log
     is read back with the same key."""
 
-    def __init__(self, path, channel=SCENE_CHANNEL, bus_key_file=None, open_bus=False):
+    def __init__(self, path: str, channel: str = SCENE_CHANNEL,
+                 bus_key_file: _Optional[str] = None, open_bus: bool = False) -> None:
         if bus_key_file is not None and open_bus:
             raise ValueError("bus_key_file and open_bus=True exclude each other")
         self._native = _native.LogAppender(_os.fspath(path), bus_key_file or "", bool(open_bus))
         self.channel = channel
 
-    def append(self, scene, utime=None):
+    def append(self, scene: Scene, utime: _Optional[int] = None) -> None:
         import time
         self._native.append(self.channel, scene.encoded(),
                             int(time.time() * 1e6) if utime is None else int(utime))

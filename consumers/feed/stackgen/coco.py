@@ -7,6 +7,7 @@ RLE count lists, or polygons.
 
 import json
 import os
+from typing import Tuple, Union
 
 import cv2
 import numpy as np
@@ -16,7 +17,8 @@ from ._native import decode_rle
 __all__ = ["CocoDataset", "decode_segmentation"]
 
 
-def decode_segmentation(segmentation, height, width):
+def decode_segmentation(segmentation: Union[dict, list], height: int,
+                        width: int) -> np.ndarray:
     """(height, width) uint8 0/1 mask of one COCO segmentation: an RLE dict (counts a compressed
     string or a list of run lengths, column-major, zeros first) or a list of polygons."""
     if isinstance(segmentation, dict):
@@ -46,7 +48,7 @@ class CocoDataset:
     folder: holds annotations.json; image files are looked up in folder/images, then folder.
     Raises ValueError naming the file when annotations.json is missing or not COCO."""
 
-    def __init__(self, folder):
+    def __init__(self, folder: str) -> None:
         self.folder = folder
         path = os.path.join(folder, "annotations.json")
         try:
@@ -68,13 +70,13 @@ class CocoDataset:
     def __len__(self):
         return len(self.images)
 
-    def image_path(self, index):
+    def image_path(self, index: int) -> str:
         """stackgen-coco's file names are relative to folder/images, other tools' to folder."""
         name = self.images[index]["file_name"]
         path = os.path.join(self._base, name)
         return path if os.path.exists(path) else os.path.join(self.folder, name)
 
-    def image(self, index):
+    def image(self, index: int) -> np.ndarray:
         """(H, W, 3) uint8 RGB (a gray image repeated in three channels)."""
         path = self.image_path(index)
         bgr = cv2.imread(path, cv2.IMREAD_COLOR)
@@ -82,7 +84,7 @@ class CocoDataset:
             raise ValueError("%s: cannot read the image" % path)
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
-    def target(self, index):
+    def target(self, index: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
         """masks (K, H, W) uint8 0/1, labels (K) category ids, iscrowd (K) bool."""
         image = self.images[index]
         height, width = image["height"], image["width"]

@@ -15,6 +15,8 @@
 Masks are boolean or 0/1 arrays (numpy, or anything np.asarray takes, such as CPU tensors).
 """
 
+from typing import Dict, Optional
+
 import numpy as np
 
 __all__ = ["mask_iou", "DetectionScores", "PAPER_IOU", "COCO_IOUS"]
@@ -23,7 +25,8 @@ PAPER_IOU = 0.6
 COCO_IOUS = np.linspace(0.5, 0.95, 10)
 
 
-def mask_iou(predicted, truth, crowd=None):
+def mask_iou(predicted: np.ndarray, truth: np.ndarray,
+             crowd: Optional[np.ndarray] = None) -> np.ndarray:
     """(N, M) IoU of N predicted and M ground-truth masks, each (K, H, W). For a ground truth
     marked in `crowd` (M booleans) the value is the intersection over the prediction's area, as
     cocoapi does for iscrowd regions."""
@@ -93,7 +96,8 @@ class DetectionScores:
     score_threshold: predictions below it do not count for the paper's score (they do for AP,
     as in COCO). max_detections: the highest-scoring ones kept per image (COCO's 100)."""
 
-    def __init__(self, paper_iou=PAPER_IOU, score_threshold=0.5, max_detections=100):
+    def __init__(self, paper_iou: float = PAPER_IOU, score_threshold: float = 0.5,
+                 max_detections: int = 100) -> None:
         if not 0 < paper_iou < 1:
             raise ValueError("paper_iou wants a number in (0, 1), got %r" % paper_iou)
         self.paper_iou = paper_iou
@@ -106,7 +110,8 @@ class DetectionScores:
         self._matched = [[] for _ in COCO_IOUS]  # per threshold: per detection, a true positive
         self._ignored = [[] for _ in COCO_IOUS]  # per threshold: per detection, on a crowd region
 
-    def update(self, scores, masks, truth_masks, truth_crowd=None):
+    def update(self, scores: np.ndarray, masks: np.ndarray, truth_masks: np.ndarray,
+               truth_crowd: Optional[np.ndarray] = None) -> None:
         """One image: predicted `scores` (N) and `masks` (N, H, W, booleans or probabilities
         already thresholded), ground-truth `truth_masks` (M, H, W) and `truth_crowd` (M booleans,
         iscrowd; default none)."""
@@ -164,7 +169,7 @@ class DetectionScores:
         read = np.array([precision[i] if i < len(precision) else 0.0 for i in indices])
         return float(read.mean())
 
-    def result(self):
+    def result(self) -> Dict[str, float]:
         """A dict: miou (the paper's TP / (TP + FP + FN)), tp, fp, fn, ap, ap50, ap75 (NaN
         when no image had a real ground truth), images."""
         counted = self.tp + self.fp + self.fn

@@ -15,7 +15,10 @@ rank takes its own shards (rank x workers), so no scene reaches two ranks either
 StreamDataset for the target.
 """
 
+from __future__ import annotations
+
 import os
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import cv2
 import numpy as np
@@ -52,12 +55,13 @@ def _rank_and_world(rank, world_size):
 _SEED_MASK = (1 << 64) - 1
 
 
-def collate(batch):
+def collate(batch: List[Tuple[torch.Tensor, Dict[str, torch.Tensor]]]
+            ) -> Tuple[Tuple[torch.Tensor, ...], Tuple[Dict[str, torch.Tensor], ...]]:
     """The detection collate: a tuple of images and a tuple of targets (sizes may differ)."""
     return tuple(zip(*batch))
 
 
-def without_ignore_regions(target):
+def without_ignore_regions(target: Dict[str, torch.Tensor]) -> Dict[str, torch.Tensor]:
     """The target without its ignore regions (iscrowd 1), as torchvision's detection models
     want it for training: they have no notion of an ignore region."""
     keep = target["iscrowd"] == 0
@@ -148,11 +152,18 @@ class StreamDataset(IterableDataset):
     arguments.
     """
 
-    def __init__(self, lcm_url=None, *, reliable=True, window=8, generator_ids=None,
-                 timeout=None, count=0, reuse=1, reuse_buffer=32, grayscale=False, augment=None,
-                 min_visib_fract=0.3, seed=0, record=None, replay=False, depth=False, queue=16,
-                 decode_threads=None, fault_drop=0.0, name=None, bus_key_file=None,
-                 open_bus=False, rank=None, world_size=None, transforms=None):
+    def __init__(self, lcm_url: Optional[str] = None, *, reliable: bool = True, window: int = 8,
+                 generator_ids: Optional[Sequence[int]] = None, timeout: Optional[float] = None,
+                 count: int = 0, reuse: int = 1, reuse_buffer: int = 32, grayscale: bool = False,
+                 augment: Union[None, bool, Augment] = None, min_visib_fract: float = 0.3,
+                 seed: int = 0, record: Optional[Union[str, os.PathLike]] = None,
+                 replay: bool = False, depth: bool = False, queue: int = 16,
+                 decode_threads: Optional[int] = None, fault_drop: float = 0.0,
+                 name: Optional[str] = None, bus_key_file: Optional[str] = None,
+                 open_bus: bool = False, rank: Optional[int] = None,
+                 world_size: Optional[int] = None,
+                 transforms: Optional[Callable[[torch.Tensor, Dict[str, torch.Tensor]],
+                                               Tuple[Any, Any]]] = None) -> None:
         super().__init__()
         if transforms is not None and not callable(transforms):
             raise ValueError("transforms must be a callable (image, target) -> (image, target), "
@@ -325,7 +336,8 @@ class StreamDataset(IterableDataset):
             "iscrowd": (~good).astype(np.int64),
         }
 
-    def sample(self, scene, use=0):
+    def sample(self, scene: stackgen.Scene, use: int = 0
+               ) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
         """The (image, target) pair of `scene` for its use number `use` (augmented with the
         draws of (seed, generator_id, seq, use, scene seed))."""
         rng = np.random.default_rng(

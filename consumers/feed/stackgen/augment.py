@@ -69,13 +69,14 @@ def _check_fraction(name, value):
 
 
 def exact_labels(instance_map, instance_ids, px_count_all, annotated, ignored, min_visib_fract,
-                 regions=None):
+                 regions=None, min_visible_px=1):
     """Labels of the candidate instances (those the generator annotated or ignored) computed from
     an instance map: returns a dict with `keep` (indices into the inputs of the instances that
     have a visible pixel), `masks` (K, H, W) uint8 visible masks, `boxes` (K, 4) float32 XYXY,
     `px_count_visib` (K,), `px_count_all` (K,), `visib_fract` (K,) float64 (px_count_visib /
-    px_count_all) and `iscrowd` (K,) int64 (0: annotated and at least min_visib_fract visible,
-    1: an ignore region). `regions` (N, 4) x0, y0, x1, y1 (exclusive) bound where each
+    px_count_all) and `iscrowd` (K,) int64 (0: annotated, at least min_visib_fract visible and
+    at least min_visible_px pixels, as the generator's annotation.min_visible_px; 1: an ignore
+    region). `regions` (N, 4) x0, y0, x1, y1 (exclusive) bound where each
     instance's pixels can be (Augment gives them); without them the whole map is searched."""
     height, width = instance_map.shape
     count = len(instance_ids)
@@ -100,7 +101,8 @@ def exact_labels(instance_map, instance_ids, px_count_all, annotated, ignored, m
     px_all = np.asarray(px_count_all, dtype=np.int64)[keep]
     visib = np.where(px_all > 0, counts[keep] / np.maximum(px_all, 1), 0.0)
     # an object the generator annotated stays annotated while visible enough
-    good = np.asarray(annotated, dtype=bool)[keep] & (visib >= min_visib_fract)
+    good = (np.asarray(annotated, dtype=bool)[keep] & (visib >= min_visib_fract) &
+            (counts[keep] >= max(1, min_visible_px)))
     return {
         "keep": keep,
         "masks": masks,

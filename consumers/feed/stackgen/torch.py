@@ -127,6 +127,8 @@ class StreamDataset(IterableDataset):
     augment: None or False (default): none; True: Augment() with its defaults; or an Augment.
     min_visib_fract: an annotated object less visible than this after augmentation becomes an
         ignore region (default 0.3, the paper's threshold).
+    min_visible_px: so does one with fewer visible pixels (default 16, as the generator's
+        annotation.min_visible_px: a zoom or crop can shrink a part below it).
     seed: augmentation is drawn from (seed, generator_id, seq, use, scene seed): the same log
         and seed give the same samples, whichever worker makes them.
     record: a path: every sample's scene is appended to this LCM log (STACKGEN_SCENE, one event
@@ -156,6 +158,7 @@ class StreamDataset(IterableDataset):
                  generator_ids: Optional[Sequence[int]] = None, timeout: Optional[float] = None,
                  count: int = 0, reuse: int = 1, reuse_buffer: int = 32, grayscale: bool = False,
                  augment: Union[None, bool, Augment] = None, min_visib_fract: float = 0.3,
+                 min_visible_px: int = 16,
                  seed: int = 0, record: Optional[Union[str, os.PathLike]] = None,
                  replay: bool = False, depth: bool = False, queue: int = 16,
                  decode_threads: Optional[int] = None, fault_drop: float = 0.0,
@@ -175,6 +178,10 @@ class StreamDataset(IterableDataset):
             raise ValueError("reuse_buffer must be a whole number >= 1, got %r" % (reuse_buffer,))
         if not isinstance(min_visib_fract, (int, float)) or not 0 <= min_visib_fract <= 1:
             raise ValueError("min_visib_fract must be in [0, 1], got %r" % (min_visib_fract,))
+        if (isinstance(min_visible_px, bool) or not isinstance(min_visible_px, int) or
+                min_visible_px < 1):
+            raise ValueError("min_visible_px must be a whole number >= 1, got %r" %
+                             (min_visible_px,))
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
             raise ValueError("seed must be a whole number >= 0, got %r" % (seed,))
         if augment is True:
@@ -216,6 +223,7 @@ class StreamDataset(IterableDataset):
         self.grayscale = grayscale
         self.augment = augment
         self.min_visib_fract = float(min_visib_fract)
+        self.min_visible_px = min_visible_px
         self.seed = seed
         self.record = record
         self.replay = bool(replay)
@@ -325,7 +333,8 @@ class StreamDataset(IterableDataset):
         chosen = candidates[keep]
         x, y, w, h = scene.bbox_visib[chosen].T.astype(np.float32)
         visib = scene.visib_fract[chosen]
-        good = scene.annotated[chosen] & (visib >= self.min_visib_fract)
+        good = (scene.annotated[chosen] & (visib >= self.min_visib_fract) &
+                (scene.px_count_visib[chosen] >= max(1, self.min_visible_px)))
         return {
             "keep": keep,
             "masks": scene.masks_visib(chosen.tolist()),
@@ -367,7 +376,7 @@ class StreamDataset(IterableDataset):
             sample = self.augment(sample, rng)
             labels = exact_labels(sample["instance_map"], sample["instance_ids"],
                                   sample["px_count_all"], sample["annotated"], sample["ignored"],
-                                  self.min_visib_fract, sample["regions"])
+                                  self.min_visib_fract, sample["regions"], self.min_visible_px)
         else:
             labels = self._scene_labels(scene, candidates)
         chosen = candidates[labels["keep"]]

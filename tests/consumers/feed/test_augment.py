@@ -147,6 +147,29 @@ def test_same_log_and_seed_give_identical_batches():
     assert not same(first, batches(seed=8, workers=2))
 
 
+# fewer visible pixels than min_visible_px make an annotated object an ignore region, as the
+# generator's annotation.min_visible_px does: in exact_labels (after augmentation) and in the
+# scene's own labels (without)
+def test_too_few_pixels_become_ignore_regions():
+    from stackgen.augment import exact_labels
+
+    instance_map = np.zeros((20, 20), dtype=np.uint16)
+    instance_map[2:12, 2:12] = 1   # 100 pixels
+    instance_map[15:17, 15:20] = 2  # 10 pixels
+    args = (instance_map, np.array([1, 2]), np.array([100, 10]), np.array([True, True]),
+            np.array([False, False]), 0.3)
+    assert exact_labels(*args)["iscrowd"].tolist() == [0, 0]
+    assert exact_labels(*args, None, 16)["iscrowd"].tolist() == [0, 1]
+    assert exact_labels(*args, None, 101)["iscrowd"].tolist() == [1, 1]
+    scene = scenes()[0]
+    for least, crowd in ((1, scene.ignored), (10 ** 6, scene.annotated | scene.ignored)):
+        _, target = sgt.StreamDataset(URL, min_visible_px=least, **OPEN).sample(scene)
+        candidates = np.flatnonzero(scene.annotated | scene.ignored)
+        assert target["iscrowd"].tolist() == crowd[candidates].astype(int).tolist()
+    with pytest.raises(ValueError):
+        sgt.StreamDataset(URL, min_visible_px=0, **OPEN)
+
+
 # a user's transforms run on every sample after stackgen's augmentation, through DataLoader
 # workers too; a transforms that is not callable is refused
 def test_transforms_run_on_every_sample():

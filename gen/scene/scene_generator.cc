@@ -115,15 +115,12 @@ std::string PixelsText(double pixels) {
   return text.str();
 }
 
-// "80.0 x 40.0 x 10.0 mm, 142 px across at 450 mm": a part's size, and the longest side's length in
-// the image at the camera's nominal distance.
-std::string PartSizeText(const TriangleMesh& mesh, const config::CameraConfig& camera) {
-  Eigen::Vector3d sides = Bounds(mesh).sizes();
-  std::sort(sides.data(), sides.data() + 3);
+// "80.0 x 40.0 x 10.0 mm, 142 px across at 450 mm": a part's sides (shortest first) and its
+// longest side's length in the image, `pixels`, at the camera's nominal distance.
+std::string PartSizeText(const Eigen::Vector3d& sides, double pixels, double distance_mm) {
   std::ostringstream text;
   text << std::fixed << std::setprecision(1) << sides[2] << " x " << sides[1] << " x " << sides[0]
-       << " mm, " << std::setprecision(0) << camera.fx() * sides[2] / camera.height_mm()
-       << " px across at " << camera.height_mm() << " mm";
+       << " mm, " << std::setprecision(0) << pixels << " px across at " << distance_mm << " mm";
   return text.str();
 }
 
@@ -330,6 +327,7 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   const double bin_volume = bin.inner_length_mm() * bin.inner_width_mm() * bin.inner_height_mm();
   double parts_volume = 0;
   std::ostringstream parts_text;
+  std::vector<std::string> size_texts;  // for the description below
   for (size_t t = 0; t < types.size(); ++t) {
     const config::PartConfig& part = config.config.part(static_cast<int>(t));
     const Eigen::Vector3d sizes = Bounds(types[t].mesh).sizes();
@@ -338,6 +336,7 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
     const Eigen::Vector3d sides(extent[0], extent[1], extent[2]);
     const double pixels =
         config.config.camera().fx() * extent[2] / config.config.camera().height_mm();
+    size_texts.push_back(PartSizeText(sides, pixels, config.config.camera().height_mm()));
     if (pixels < kMinPartPixels || extent[2] * kMinPartFractionOfBin < floor_short) {
       std::ostringstream text;
       text << config.path << ": part[" << t << "] (" << config.Resolve(part.mesh()) << ") is "
@@ -439,7 +438,7 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
                         : std::to_string(mesh.materials.size()) + " file material(s), " +
                               std::to_string(textured) + " textured")
                 << ", " << impl_->simulator->CollisionDescription(static_cast<int>(t)) << ", "
-                << PartSizeText(mesh, config.config.camera()) << "\n";
+                << size_texts[t] << "\n";
   }
   // a box bin collides as boxes (exact, fast) and is drawn from the same sizes
   impl_->bin_mesh_id = impl_->renderer->AddMesh(

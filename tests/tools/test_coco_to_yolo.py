@@ -14,15 +14,10 @@ import sys
 import cv2
 import numpy as np
 
+from conftest import BIN, SOURCE, TINY_LOG
 from stackgen.coco import CocoDataset
 
-SOURCE = os.environ.get("STACKGEN_SOURCE_DIR",
-                        os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
-                            __file__)))))
-BIN = os.environ.get("STACKGEN_BIN_DIR", os.path.join(SOURCE, "build", "bin"))
 CONVERT = os.path.join(SOURCE, "tools", "coco_to_yolo.py")
-# 4 scenes of the tiny config (160 x 120, ignore regions kept), recorded by tools/make-fixture-logs
-TINY_LOG = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.lcmlog")
 
 
 def convert(*args):

@@ -15,13 +15,7 @@ import socket
 import subprocess
 import sys
 
-
-SOURCE = os.environ.get("STACKGEN_SOURCE_DIR",
-                        os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
-                            __file__)))))
-BIN = os.environ.get("STACKGEN_BIN_DIR", os.path.join(SOURCE, "build", "bin"))
-TINY = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.pbtxt")
-TINY_LOG = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.lcmlog")
+from conftest import BIN, SOURCE, TINY, TINY_LOG
 
 
 def snippet(after):

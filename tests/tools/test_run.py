@@ -12,12 +12,9 @@ import signal
 import subprocess
 import time
 
-SOURCE = os.environ.get("STACKGEN_SOURCE_DIR",
-                        os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
-                            __file__)))))
+from conftest import SOURCE, TINY
+
 RUN = os.path.join(SOURCE, "tools", "run")
-# 6 connectors, 160 x 120: small and quick scenes
-TINY = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.pbtxt")
 
 
 def run(*args):

@@ -70,7 +70,7 @@ std::string FaceShares(const std::vector<std::map<int, int64_t>>& faces, bool se
 }
 
 int Run(int argc, char** argv) {
-  std::string config_path = STACKGEN_DEFAULT_CONFIG;
+  std::string config_path = stackgen::DefaultConfigPath(STACKGEN_DEFAULT_CONFIG);
   int64_t count = 20, seed = 0;
   int generator_id = 0;
   std::string cache_dir = stackgen::DefaultCacheDir();

@@ -555,4 +555,13 @@ Eigen::Vector2d PrincipalPoint(const config::CameraConfig& camera) {
           camera.cy() >= 0 ? camera.cy() : (camera.height() - 1) / 2.0};
 }
 
+std::string DefaultConfigPath(const std::string& built_in) {
+  std::error_code error;
+  const std::filesystem::path program = std::filesystem::read_symlink("/proc/self/exe", error);
+  if (error) return built_in;
+  const std::filesystem::path installed =
+      program.parent_path().parent_path() / "share/stackgen/config/default.pbtxt";
+  return std::filesystem::exists(installed, error) ? installed.string() : built_in;
+}
+
 }  // namespace stackgen

@@ -37,6 +37,11 @@ LoadedConfig LoadConfig(const std::string& path);
 LoadedConfig ParseConfig(const std::string& text, const std::string& name,
                          const std::string& base_dir);
 
+/// The config a program reads when no --config is given: share/stackgen/config/default.pbtxt
+/// beside an installed program (<prefix>/bin/../share/...: `cmake --install`, the .deb, or one
+/// unpacked anywhere), else `built_in`, the source tree's, for programs run from a build folder.
+std::string DefaultConfigPath(const std::string& built_in);
+
 /// The whole config with every default written out, as protobuf text.
 std::string EffectiveConfigText(const config::GeneratorConfig& config);
 

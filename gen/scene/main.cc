@@ -165,7 +165,7 @@ class Worker {
 
 int Run(int argc, char** argv) {
   // flags.
-  std::string config_path = STACKGEN_DEFAULT_CONFIG;
+  std::string config_path = DefaultConfigPath(STACKGEN_DEFAULT_CONFIG);
   int64_t count = 0;
   int64_t seed_flag = 0;
   int generator_id = 0;
@@ -191,7 +191,8 @@ int Run(int argc, char** argv) {
   parser.Int("--consumer-timeout", &consumer_timeout, 1, 86400);
   parser.Int("--resend-ring", &ring_size, 1, 10000);
   parser.FaultDrop(&bus_options.drop_receive_fraction);
-  parser.ParseOrExit(argc, argv, [] { std::printf(kUsage, STACKGEN_DEFAULT_CONFIG); });
+  parser.ParseOrExit(
+      argc, argv, [] { std::printf(kUsage, DefaultConfigPath(STACKGEN_DEFAULT_CONFIG).c_str()); });
   const uint64_t seed = static_cast<uint64_t>(seed_flag);
   const double consumer_timeout_s = static_cast<double>(consumer_timeout);
   bus_options.fault_seed = 0x57AC0000u + static_cast<uint64_t>(generator_id);

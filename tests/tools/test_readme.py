@@ -83,18 +83,25 @@ def test_ten_line_loop_and_its_scores_run_as_printed(tmp_path):
 def test_shell_snippets_run_as_printed(tmp_path):
     """Every ```sh block but the first (the two commands, tools/run and tools/test, are what CI
     runs on a clean clone) runs as printed with bash -e, in a folder that looks like the
-    repository's root (tools, build, config, tests linked) so that its out/ is the test's."""
+    repository's root (tools, build, config, tests, consumers linked) so that its out/ and
+    .venv/ are the test's."""
     with open(os.path.join(SOURCE, "README.md")) as file:
         blocks = re.findall(r"^```sh\n(.*?)^```", file.read(), re.S | re.M)
     assert len(blocks) >= 4
     root = tmp_path / "root"
     root.mkdir()
-    for name in ("tools", "build", "config", "tests"):
+    for name in ("tools", "build", "config", "tests", "consumers"):
         os.symlink(os.path.join(SOURCE, name), root / name)
+    # as a user's shell has it: the build's python/ folder only where a block says so
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     for block in blocks[1:]:
         result = subprocess.run(["bash", "-e", "-c", block], cwd=root, capture_output=True,
-                                text=True, timeout=600)
+                                text=True, timeout=600, env=env)
         assert result.returncode == 0, (block, result.stdout[-2000:], result.stderr[-2000:])
+        if ".venv/bin/python -c" in block:  # the venv's python imports the venv's package
+            assert "/.venv/lib/python3" in result.stdout, result.stdout
     # what the blocks say they make
     assert (root / "out" / "yolo" / "data.yaml").is_file()
     assert (root / "stats2" / "cumulative.png").is_file()
+    assert len(list((root / "out" / "deb").glob("stackgen_*_amd64.deb"))) == 1
+    assert list((root / ".venv" / "lib").glob("python3*/site-packages/stackgen/_native.*.so"))

@@ -230,21 +230,9 @@ def train(args, dataset, name):
 
 
 def evaluate(args, model, dataset):
-    import torch
-    from stackgen.metrics import DetectionScores
+    import stackgen.torch as sgt
 
-    device = torch.device(args.device)
-    model.eval()
-    scores = DetectionScores(score_threshold=args.score_threshold)
-    with torch.no_grad():
-        for index in range(len(dataset)):
-            image = dataset.image(index)
-            truth, _, crowd = dataset.target(index)
-            tensor = torch.from_numpy(image).permute(2, 0, 1).float().div(255).to(device)
-            output = model([tensor])[0]
-            masks = (output["masks"][:, 0] > 0.5).cpu().numpy()
-            scores.update(output["scores"].cpu().numpy(), masks, truth.astype(bool), crowd)
-    return scores.result()
+    return sgt.evaluate(model, dataset, device=args.device, score_threshold=args.score_threshold)
 
 
 def main(argv):

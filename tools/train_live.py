@@ -7,7 +7,12 @@ to running ones), reads their scenes through stackgen.torch.StreamDataset in Dat
 scenes per second the generators produce and the learner consumes, and the reuse factor.
 --record LOG keeps every sample's scene, in order, in an LCM log (and the run's settings in
 LOG.train.json); --replay LOG trains again on exactly those samples, with the same batches and,
-on the same machine and device, the same losses.
+on the same machine and device, the same losses. --mix DIR mixes labelled real images in at
+--mix-fraction; --eval DIR scores the model (the paper's MIoU, COCO mask AP) every
+--eval-every iterations and at the end. --nproc N trains with N processes under
+torch.distributed (DDP; gloo on the CPU, NCCL on CUDA), each rank on its own share of the scenes,
+as torchrun would start them (the script also runs under torchrun itself: it reads RANK,
+WORLD_SIZE, MASTER_ADDR and MASTER_PORT).
 """
 
 import argparse
@@ -34,7 +39,8 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 # settings recorded beside a log and taken again by --replay
 REPLAYED = ("iterations", "workers", "batch_size", "seed", "reuse", "reuse_buffer", "augment",
-            "gray", "backbone", "num_classes", "rois", "lr", "threads", "min_visib_fract")
+            "gray", "backbone", "num_classes", "rois", "lr", "threads", "min_visib_fract", "mix",
+            "mix_fraction")
 
 
 def fail(message):
@@ -52,6 +58,16 @@ def positive_float(text):
         raise argparse.ArgumentTypeError("wants a number, got %r" % text) from None
     if not (value > 0 and math.isfinite(value)):
         raise argparse.ArgumentTypeError("wants a number > 0, got %r" % text)
+    return value
+
+
+def fraction_below_one(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("wants a number in [0, 1), got %r" % text) from None
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError("wants a number in [0, 1), got %r" % text)
     return value
 
 
@@ -122,6 +138,15 @@ def parse_args(argv):
                           help="SGD learning rate after a linear warm-up (default 0.01)")
     training.add_argument("--seed", type=non_negative_int, default=0,
                           help="model init and augmentation seed (default 0)")
+    training.add_argument("--mix", metavar="DIR",
+                          help="mix labelled real images in: a COCO folder (annotations.json) "
+                               "or labelme files, augmented as the scenes")
+    training.add_argument("--mix-fraction", type=fraction_below_one, default=None,
+                          help="the share of real images among the samples, in [0, 1) "
+                               "(default 0.1 with --mix)")
+    training.add_argument("--nproc", type=positive_int, default=1,
+                          help="training processes (DDP ranks), each with --workers workers on "
+                               "its own share of the scenes (default 1)")
     training.add_argument("--device", default="cpu", help="cpu (default), cuda, cuda:1, ...")
     training.add_argument("--threads", type=positive_int, default=os.cpu_count() or 1,
                           help="torch CPU threads (default: the cores)")
@@ -132,6 +157,12 @@ def parse_args(argv):
                         help="write per step: iteration, loss, a CRC-32 of the batch (images, "
                              "boxes, labels, masks) and each loss term, to FILE")
     output.add_argument("--save", metavar="FILE", help="save the model's state_dict at the end")
+    output.add_argument("--eval", metavar="DIR",
+                        help="score the model on a labelled folder (COCO or labelme) held out "
+                             "from training: the paper's MIoU and COCO mask AP")
+    output.add_argument("--eval-every", type=positive_int, default=None, metavar="N",
+                        help="with --eval: every N iterations, and at the end (default: at the "
+                             "end only)")
     args = parser.parse_args(argv)
     given = {action.dest for action in parser._actions
              if any(option in argv or any(a.startswith(option + "=") for a in argv)
@@ -144,6 +175,13 @@ def parse_args(argv):
         parser.error("--replay and --attach exclude each other")
     if not args.attach and not args.replay and args.generators == 0:
         parser.error("--generators 0 needs --attach")
+    if args.mix_fraction is not None and not args.mix:
+        parser.error("--mix-fraction needs --mix DIR")
+    if args.eval_every is not None and not args.eval:
+        parser.error("--eval-every needs --eval DIR")
+    if args.nproc > 1 and (args.record or args.replay):
+        parser.error("--%s takes one process: one log cannot hold the samples of %d ranks" %
+                     ("record" if args.record else "replay", args.nproc))
     if not 0 <= args.min_visib_fract <= 1:
         parser.error("--min-visib-fract wants a number in [0, 1], got %r" % args.min_visib_fract)
     return args, given
@@ -177,6 +215,121 @@ def build_model(args, channels, height, width):
     return model
 
 
+def start_generators(args, url, logs):
+    """The generators train-live runs itself (none with --replay or --attach): (process, log)."""
+    generators = []
+    for generator_id in range(0 if args.replay or args.attach else args.generators):
+        log = open(os.path.join(logs, "stackgen%d.log" % generator_id), "w")
+        generators.append((subprocess.Popen(
+            [args.stackgen, "--config", args.config, "--seed", str(args.scene_seed),
+             "--generator-id", str(generator_id), "--lcm-url", url] +
+            (["--open-bus"] if args.open_bus else
+             ["--bus-key-file", args.bus_key_file] if args.bus_key_file else []),
+            stdout=log, stderr=subprocess.STDOUT), log.name))
+    return generators
+
+
+def check_generators(generators):
+    """Fails, with the last line of its log, when a generator stopped."""
+    for process, log in generators:
+        if process.poll() is not None:
+            with open(log) as file:
+                lines = file.read().strip().splitlines()
+            fail("a generator stopped (exit %d): %s" % (process.returncode,
+                                                        lines[-1] if lines else log))
+
+
+def stop(processes):
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    for process in processes:
+        try:
+            process.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+def distributed():
+    """(rank, world size, local rank) from torch.distributed's environment (torchrun's, or
+    --nproc's); (0, 1, 0) without one."""
+    try:
+        world = int(os.environ.get("WORLD_SIZE", "1"))
+        rank = int(os.environ.get("RANK", "0"))
+        local = int(os.environ.get("LOCAL_RANK", str(rank)))
+    except ValueError:
+        fail("WORLD_SIZE, RANK and LOCAL_RANK must be whole numbers, got %r, %r, %r" % (
+            os.environ.get("WORLD_SIZE"), os.environ.get("RANK"), os.environ.get("LOCAL_RANK")))
+    if world > 1 and not 0 <= rank < world:
+        fail("RANK %d is not one of WORLD_SIZE %d" % (rank, world))
+    return rank, world, local
+
+
+def without_flag(argv, flag):
+    """argv without `flag` and its value (as "--flag V" or "--flag=V")."""
+    out, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg == flag:
+            skip = True
+        elif not arg.startswith(flag + "="):
+            out.append(arg)
+    return out
+
+
+def run_ranks(args, argv, url, generators, logs):
+    """--nproc N: this script N times, as ranks 0..N-1 of one job (torchrun's environment:
+    RANK, LOCAL_RANK, WORLD_SIZE, MASTER_ADDR, MASTER_PORT), attached to the generators on
+    `url`. Rank 0 prints; the others write logs, shown when one fails. Returns the exit status."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    child = without_flag(argv, "--nproc") + ["--attach", "--lcm-url", url]
+    ranks = []
+    for rank in range(args.nproc):
+        env = dict(os.environ, RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(args.nproc),
+                   LOCAL_WORLD_SIZE=str(args.nproc), MASTER_ADDR="127.0.0.1",
+                   MASTER_PORT=str(port))
+        log = None if rank == 0 else os.path.join(logs, "rank%d.log" % rank)
+        out = open(log, "w") if log else None
+        ranks.append((subprocess.Popen([sys.executable, os.path.abspath(__file__)] + child,
+                                       env=env, stdout=out, stderr=subprocess.STDOUT if out else
+                                       None), log))
+    try:
+        while True:
+            check_generators(generators)
+            for rank, (process, log) in enumerate(ranks):
+                if process.poll() not in (None, 0):
+                    stop([p for p, _ in ranks])
+                    tail = ""
+                    if log:
+                        with open(log) as file:
+                            lines = file.read().strip().splitlines()
+                        tail = ": " + " | ".join(lines[-3:]) if lines else ""
+                    fail("rank %d of %d stopped (exit %d)%s" % (rank, args.nproc,
+                                                               process.returncode, tail))
+            if all(process.poll() == 0 for process, _ in ranks):
+                return 0
+            time.sleep(0.2)
+    finally:
+        stop([p for p, _ in ranks])
+
+
+def run_eval(args, model, eval_set, device, iteration):
+    import stackgen.torch as sgt
+
+    start = time.monotonic()
+    result = sgt.evaluate(model, eval_set, device=device, grayscale=args.gray)
+    print("%s: eval at iteration %d on %s (%d images): MIoU %.3f (TP %d, FP %d, FN %d), mask AP "
+          "%.3f, AP50 %.3f, AP75 %.3f (%.1f s)" % (
+              PROGRAM, iteration, args.eval, result["images"], result["miou"], result["tp"],
+              result["fp"], result["fn"], result["ap"], result["ap50"], result["ap75"],
+              time.monotonic() - start), flush=True)
+    return result
+
+
 def main(argv):
     args, given = parse_args(argv)
     import numpy as np
@@ -185,6 +338,7 @@ def main(argv):
 
     import stackgen
     import stackgen.torch as sgt
+    from stackgen.coco import open_labelled_folder
 
     stackgen.set_program_name(PROGRAM)
 
@@ -203,13 +357,30 @@ def main(argv):
                                                      getattr(args, key), recorded[key]))
                 elif key not in given:
                     setattr(args, key, recorded[key])
+    rank, world, local_rank = distributed()
+    if args.nproc > 1 and world > 1:
+        fail("--nproc %d under torchrun (WORLD_SIZE %d): let one of them start the ranks" % (
+            args.nproc, world))
     if args.device.startswith("cuda") and not torch.cuda.is_available():
         fail("--device %s: torch has no CUDA device here (torch %s)" % (args.device,
                                                                        torch.__version__))
     try:
         device = torch.device(args.device)
+        if world > 1 and device.type == "cuda" and device.index is None:
+            device = torch.device("cuda", local_rank)
     except RuntimeError as error:
         fail("--device %s: %s" % (args.device, error))
+    mix_set = eval_set = None
+    if args.mix:
+        try:
+            mix_set = open_labelled_folder(args.mix)
+        except ValueError as error:
+            fail("--mix: %s" % error)
+    if args.eval:
+        try:
+            eval_set = open_labelled_folder(args.eval)
+        except ValueError as error:
+            fail("--eval: %s" % error)
     torch.set_num_threads(args.threads)
     torch.use_deterministic_algorithms(True, warn_only=True)
 
@@ -228,34 +399,48 @@ def main(argv):
         url = stackgen.resolve_lcm_url(url or "")
 
         augment = sgt.Augment() if args.augment else None
-        dataset = sgt.StreamDataset(
-            url, reliable=not args.best_effort, window=args.window, reuse=1 if args.replay else
-            args.reuse, reuse_buffer=args.reuse_buffer, grayscale=args.gray, augment=augment,
-            min_visib_fract=args.min_visib_fract, seed=args.seed, record=args.record,
-            replay=bool(args.replay), timeout=None if args.replay else 120,
-            name="train-live", bus_key_file=args.bus_key_file, open_bus=args.open_bus)
+        if world > 1:
+            torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
+        try:
+            dataset = sgt.StreamDataset(
+                url, reliable=not args.best_effort, window=args.window, reuse=1 if args.replay
+                else args.reuse, reuse_buffer=args.reuse_buffer, grayscale=args.gray,
+                augment=augment, min_visib_fract=args.min_visib_fract, seed=args.seed,
+                record=args.record, replay=bool(args.replay),
+                timeout=None if args.replay else 120, name="train-live",
+                bus_key_file=args.bus_key_file, open_bus=args.open_bus,
+                mix=mix_set, mix_fraction=args.mix_fraction)
+        except ValueError as error:
+            fail(str(error))
         if args.record:
             settings = {key: getattr(args, key) for key in REPLAYED}
             with open(args.record + ".train.json", "w") as file:
                 json.dump(settings, file, indent=1, sort_keys=True)
 
         # the generators, after the bus and the record file were found good
-        for generator_id in range(0 if args.replay or args.attach else args.generators):
-            log = open(os.path.join(logs, "stackgen%d.log" % generator_id), "w")
-            generators.append((subprocess.Popen(
-                [args.stackgen, "--config", args.config, "--seed", str(args.scene_seed),
-                 "--generator-id", str(generator_id), "--lcm-url", url] +
-                (["--open-bus"] if args.open_bus else
-                 ["--bus-key-file", args.bus_key_file] if args.bus_key_file else []),
-                stdout=log, stderr=subprocess.STDOUT), log.name))
-        monitor = None if args.replay else stackgen.StatusMonitor(
+        generators = start_generators(args, url, logs)
+        if args.nproc > 1:
+            print("%s: %d ranks (DDP, %s), %s" % (
+                PROGRAM, args.nproc, "nccl" if device.type == "cuda" else "gloo",
+                "%d generators on %s" % (len(generators), url) if generators else
+                "attached to " + url), flush=True)
+            return run_ranks(args, argv, url, generators, logs)
+        monitor = None if args.replay or rank > 0 else stackgen.StatusMonitor(
             url, bus_key_file=args.bus_key_file, open_bus=args.open_bus)
-        print("%s: %s, %s stream, %d workers, batch %d, reuse up to %d, %s, %s backbone, %s" % (
-            PROGRAM, "replaying " + args.replay if args.replay else "%d generators on %s" % (
-                len(generators), url) if generators else "attached to " + url,
-            "best-effort" if args.best_effort else "reliable", args.workers, args.batch_size,
-            1 if args.replay else args.reuse, "augmented" if augment else "not augmented",
-            args.backbone, "gray" if args.gray else "rgb"), flush=True)
+        if rank == 0:
+            print("%s: %s, %s stream, %d workers, batch %d, reuse up to %d, %s, %s backbone, "
+                  "%s%s%s" % (
+                      PROGRAM, "replaying " + args.replay if args.replay else
+                      "%d generators on %s" % (len(generators), url) if generators else
+                      "attached to " + url,
+                      "best-effort" if args.best_effort else "reliable", args.workers,
+                      args.batch_size, 1 if args.replay else args.reuse,
+                      "augmented" if augment else "not augmented", args.backbone,
+                      "gray" if args.gray else "rgb",
+                      ", mixing %.0f %% real images from %s (%d)" % (
+                          100 * dataset.mix_fraction, args.mix, len(dataset.mix))
+                      if args.mix else "",
+                      ", rank 0 of %d" % world if world > 1 else ""), flush=True)
 
         loader = DataLoader(dataset, batch_size=args.batch_size, num_workers=args.workers,
                             collate_fn=sgt.collate,
@@ -263,19 +448,14 @@ def main(argv):
         meter = sgt.ReuseMeter()
         model = optimizer = None
         losses = []
-        csv = open(args.loss_csv, "w") if args.loss_csv else None
+        csv = open(args.loss_csv, "w") if args.loss_csv and rank == 0 else None
         start = last_time = time.monotonic()
         last_scenes = 0
         last_produced = None
         warmup = min(50, args.iterations)
         iteration = 0
         for images, targets in loader:
-            for process, log in generators:
-                if process.poll() is not None:
-                    with open(log) as file:
-                        lines = file.read().strip().splitlines()
-                    fail("a generator stopped (exit %d): %s" % (process.returncode,
-                                                                lines[-1] if lines else log))
+            check_generators(generators)
             meter.update(targets)
             targets = [sgt.without_ignore_regions(t) for t in targets]
             for target in targets:
@@ -286,6 +466,9 @@ def main(argv):
                 channels, height, width = images[0].shape
                 model = build_model(args, channels, height, width).to(device)
                 model.train()
+                if world > 1:
+                    model = torch.nn.parallel.DistributedDataParallel(
+                        model, device_ids=[device.index] if device.type == "cuda" else None)
                 parameters = [p for p in model.parameters() if p.requires_grad]
                 optimizer = torch.optim.SGD(parameters, lr=args.lr, momentum=0.9,
                                             weight_decay=1e-4)
@@ -316,7 +499,7 @@ def main(argv):
             if csv:
                 csv.write("%d,%.9g,%08x,%s\n" % (iteration, value, digest, ",".join(
                     "%s=%.9g" % (k, float(v)) for k, v in sorted(loss_dict.items()))))
-            if iteration % args.print_every == 0 or iteration == args.iterations:
+            if rank == 0 and (iteration % args.print_every == 0 or iteration == args.iterations):
                 now = time.monotonic()
                 seconds = max(now - last_time, 1e-9)
                 produced = ""
@@ -332,6 +515,9 @@ def main(argv):
                                        (meter.scenes - last_scenes) / seconds, meter.factor,
                                        seconds / args.print_every), flush=True)
                 last_time, last_scenes = now, meter.scenes
+            if (rank == 0 and eval_set is not None and args.eval_every and
+                    iteration % args.eval_every == 0 and iteration < args.iterations):
+                run_eval(args, getattr(model, "module", model), eval_set, device, iteration)
             if iteration >= args.iterations:
                 break
         if csv:
@@ -341,15 +527,38 @@ def main(argv):
         elapsed = time.monotonic() - start
         first = losses[:10]
         last = losses[-10:]
-        print("%s: %d iterations in %.1f s; %d samples of %d distinct scenes (reuse %.2f); "
-              "loss first %d mean %.4f, last %d mean %.4f" % (
-                  PROGRAM, iteration, elapsed, meter.samples, meter.scenes, meter.factor,
-                  len(first), float(np.mean(first)), len(last), float(np.mean(last))), flush=True)
-        if args.record:
-            print("%s: recorded %s; train on it again: tools/train-live --replay %s" %
-                  (PROGRAM, args.record, args.record))
-        if args.save:
-            torch.save(model.state_dict(), args.save)
+        if world > 1:
+            # what every rank took: their scenes are disjoint, and DDP kept the models equal
+            shares = [None] * world
+            torch.distributed.all_gather_object(shares, (
+                meter.samples, meter.real, sorted(meter.seen), zlib.crc32(b"".join(
+                    p.detach().cpu().numpy().tobytes() for p in model.parameters()))))
+            if rank == 0:
+                seen = [set(map(tuple, share[2])) for share in shares]
+                union = set().union(*seen)
+                print("%s: %d ranks: %d samples of %d distinct scenes, %s; parameters %s" % (
+                    PROGRAM, world, sum(share[0] for share in shares), len(union),
+                    "none on two ranks" if len(union) == sum(map(len, seen)) else
+                    "%d on two ranks or more" % (sum(map(len, seen)) - len(union)),
+                    "equal on every rank" if len({share[3] for share in shares}) == 1 else
+                    "DIFFER between ranks"), flush=True)
+        if rank == 0:
+            print("%s: %d iterations in %.1f s; %d samples of %d distinct scenes (reuse %.2f)%s; "
+                  "loss first %d mean %.4f, last %d mean %.4f" % (
+                      PROGRAM, iteration, elapsed, meter.samples, meter.scenes, meter.factor,
+                      ", %d real images" % meter.real if args.mix else "",
+                      len(first), float(np.mean(first)), len(last), float(np.mean(last))),
+                  flush=True)
+            if eval_set is not None:
+                run_eval(args, getattr(model, "module", model), eval_set, device, iteration)
+            if args.record:
+                print("%s: recorded %s; train on it again: tools/train-live --replay %s" %
+                      (PROGRAM, args.record, args.record))
+            if args.save:
+                torch.save(getattr(model, "module", model).state_dict(), args.save)
+        if world > 1:
+            torch.distributed.barrier()
+            torch.distributed.destroy_process_group()
         return 0
     except stackgen.StreamError as error:
         fail(str(error))
@@ -357,14 +566,7 @@ def main(argv):
         print("%s: interrupted" % PROGRAM)
         return 1
     finally:
-        for process, _ in generators:
-            if process.poll() is None:
-                process.send_signal(signal.SIGINT)
-        for process, _ in generators:
-            try:
-                process.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                process.kill()
+        stop([process for process, _ in generators])
         shutil.rmtree(logs, ignore_errors=True)
 
 

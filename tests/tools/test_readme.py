@@ -1,9 +1,9 @@
 """The README's snippets, run as printed and offline (nothing downloaded). Python: against a real
 generator of the tiny config on a bus of its own (given as $STACKGEN_LCM_URL, which they read),
-the scene stream and the ten-line PyTorch loop followed by the scores of its model on a COCO
-folder (made by stackgen-coco from the fixture log); the only changes are the counts
-(`count=100` and `count=1000` become 2, so that they end soon). Shell: every ```sh block but
-the two commands (what CI runs), unchanged. Blocks of ```text are synopses, not run.
+the scene stream and the ten-line PyTorch loop followed by real photos mixed in and the scores of
+its model on a COCO folder (made by stackgen-coco from the fixture log, the photos too); the
+only changes are the counts (`count=100` and `count=1000` become 2, so that they end soon).
+Shell: every ```sh block but the two commands (what CI runs), unchanged. Blocks of ```text are synopses, not run.
 
 CTest runs this file with Debian's /usr/bin/python3 -m pytest; PYTHONPATH is the build's
 python/ folder."""
@@ -70,14 +70,21 @@ def test_ten_line_loop_and_its_scores_run_as_printed(tmp_path):
                            str(tmp_path / "testset")], capture_output=True, text=True,
                           timeout=120)
     assert made.returncode == 0, made.stderr
+    os.symlink("testset", tmp_path / "photos")
     loop = replaced(snippet("### A PyTorch dataset, in ten lines"), "count=1000", "count=2")
+    mixed = replaced(snippet("Real photos and scores in the loop above (`tools.test_readme` runs "
+                             "this after it, with a COCO\nfolder of the fixture scenes as both "
+                             "folders):"), "count=1000", "count=2")
     scores = snippet("In Python, the same scores for any training loop (`tools.test_readme` runs "
                      "this after the\nten-line loop of [A PyTorch dataset]"
                      "(#a-pytorch-dataset-in-ten-lines), on a COCO folder of the\nfixture "
                      "scenes):")
-    out = run_with_generator(loop + "print('loss', float(loss))\n" + scores, tmp_path)
+    out = run_with_generator(loop + "print('loss', float(loss))\n" + mixed + scores, tmp_path)
     assert re.search(r"^loss \d+\.\d+", out, re.M), out
-    assert "'images': 4" in out and "'miou': " in out, out
+    # sgt.evaluate's scores, then DetectionScores' in a loop of one's own: the same
+    results = re.findall(r"^\{'miou'.*\}$", out, re.M)
+    assert len(results) == 2 and results[0] == results[1], out
+    assert "'images': 4" in results[0], out
 
 
 def test_shell_snippets_run_as_printed(tmp_path):

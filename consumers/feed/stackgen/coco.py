@@ -1,20 +1,21 @@
-"""COCO instance-segmentation datasets on disk (stackgen.coco): what stackgen-coco writes, or any
-COCO folder with an annotations.json, read as images and masks for training and evaluation.
-
-Masks may be compressed RLE strings (cocoapi's form, which stackgen-coco writes), uncompressed
-RLE count lists, or polygons.
+"""Labelled image folders on disk (stackgen.coco), read as images and masks for training and
+evaluation: COCO instance segmentation (what stackgen-coco writes, or any folder with an
+annotations.json: masks as compressed RLE strings, cocoapi's form, uncompressed RLE count lists,
+or polygons) and labelme (one X.json per image: polygons and rectangles), the usual output of
+labelling a few photos by hand. open_labelled_folder picks the reader.
 """
 
+import glob
 import json
 import os
-from typing import Tuple, Union
+from typing import Dict, Optional, Tuple, Union
 
 import cv2
 import numpy as np
 
 from ._native import decode_rle
 
-__all__ = ["CocoDataset", "decode_segmentation"]
+__all__ = ["CocoDataset", "LabelmeDataset", "open_labelled_folder", "decode_segmentation"]
 
 
 def decode_segmentation(segmentation: Union[dict, list], height: int,
@@ -100,3 +101,109 @@ class CocoDataset:
         labels = np.array([a.get("category_id", 1) for a in annotations], dtype=np.int64)
         iscrowd = np.array([bool(a.get("iscrowd", 0)) for a in annotations], dtype=bool)
         return masks, labels, iscrowd
+
+
+class LabelmeDataset:
+    """The images of a folder of labelme files (X.json, each naming its image in imagePath, a
+    path relative to the file), in file-name order, with the same methods as CocoDataset.
+
+    Shapes of type polygon and rectangle become masks; shapes with the same label and a
+    group_id are one instance (labelme's convention), every other shape an instance of its own.
+    Labels become class ids through class_ids ({label: id}); without it the folder must use
+    one label, which becomes class 1 (one part, as stackgen's default config).
+    Raises ValueError naming the file and shape for anything else."""
+
+    def __init__(self, folder: str, class_ids: Optional[Dict[str, int]] = None) -> None:
+        self.folder = folder
+        paths = sorted(glob.glob(os.path.join(folder, "*.json")))
+        if not paths:
+            raise ValueError("%s: no labelme .json files" % folder)
+        self._records = []
+        labels = set()
+        for path in paths:
+            try:
+                with open(path) as file:
+                    record = json.load(file)
+                shapes = record["shapes"]
+                image_path = record["imagePath"]
+                height, width = int(record["imageHeight"]), int(record["imageWidth"])
+            except (OSError, ValueError, KeyError, TypeError) as error:
+                raise ValueError("%s: not a labelme file: %s" % (path, error)) from None
+            for index, shape in enumerate(shapes):
+                kind = shape.get("shape_type") or "polygon"
+                if kind not in ("polygon", "rectangle"):
+                    raise ValueError("%s: shape %d (%s): a %s, not a polygon or rectangle" %
+                                     (path, index, shape.get("label"), kind))
+                labels.add(shape.get("label"))
+            self._records.append((path, os.path.join(os.path.dirname(path), image_path),
+                                  height, width, shapes))
+        if class_ids is None:
+            if len(labels) > 1:
+                raise ValueError("%s: labels %s: give class_ids={label: id} for more than one" %
+                                 (folder, sorted(labels)))
+            class_ids = {label: 1 for label in labels}
+        unknown = sorted(labels - set(class_ids))
+        if unknown:
+            raise ValueError("%s: labels %s have no class id in class_ids" % (folder, unknown))
+        self.class_ids = dict(class_ids)
+        self.categories = {v: k for k, v in self.class_ids.items()}
+
+    def __len__(self):
+        return len(self._records)
+
+    def image_path(self, index: int) -> str:
+        return self._records[index][1]
+
+    def image(self, index: int) -> np.ndarray:
+        """(H, W, 3) uint8 RGB (a gray image repeated in three channels)."""
+        path, image_path, height, width, _ = self._records[index]
+        bgr = cv2.imread(image_path, cv2.IMREAD_COLOR)
+        if bgr is None:
+            raise ValueError("%s: cannot read the image %s" % (path, image_path))
+        if bgr.shape[:2] != (height, width):
+            raise ValueError("%s: the image %s is %dx%d, the file says %dx%d" % (
+                path, image_path, bgr.shape[1], bgr.shape[0], width, height))
+        return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+    def target(self, index: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """masks (K, H, W) uint8 0/1, labels (K) class ids, iscrowd (K) bool (all False)."""
+        path, _, height, width, shapes = self._records[index]
+        instances = {}  # key -> (label, [shapes])
+        for number, shape in enumerate(shapes):
+            group = shape.get("group_id")
+            key = (shape["label"], group) if group is not None else ("", number)
+            instances.setdefault(key, (shape["label"], []))[1].append((number, shape))
+        masks = np.zeros((len(instances), height, width), dtype=np.uint8)
+        labels = np.zeros(len(instances), dtype=np.int64)
+        for k, (label, members) in enumerate(instances.values()):
+            labels[k] = self.class_ids[label]
+            for number, shape in members:
+                try:
+                    points = np.asarray(shape["points"], dtype=np.float64).reshape(-1, 2)
+                except (KeyError, ValueError, TypeError) as error:
+                    raise ValueError("%s: shape %d: points: %s" % (path, number, error)) from None
+                if shape.get("shape_type") == "rectangle":
+                    if len(points) != 2:
+                        raise ValueError("%s: shape %d: a rectangle needs 2 points, not %d" %
+                                         (path, number, len(points)))
+                    (x0, y0), (x1, y1) = points.min(axis=0), points.max(axis=0)
+                    points = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+                elif len(points) < 3:
+                    raise ValueError("%s: shape %d: a polygon needs 3 points or more, not %d" %
+                                     (path, number, len(points)))
+                cv2.fillPoly(masks[k], [np.round(points).astype(np.int32)], 1)
+        return masks, labels, np.zeros(len(instances), dtype=bool)
+
+
+def open_labelled_folder(folder: str, class_ids: Optional[Dict[str, int]] = None
+                         ) -> Union[CocoDataset, LabelmeDataset]:
+    """The reader for `folder`: CocoDataset when it holds annotations.json, else LabelmeDataset
+    (class_ids as there). Raises ValueError naming the folder when it is neither."""
+    if not os.path.isdir(folder):
+        raise ValueError("%s: no such folder" % folder)
+    if os.path.exists(os.path.join(folder, "annotations.json")):
+        return CocoDataset(folder)
+    if glob.glob(os.path.join(folder, "*.json")):
+        return LabelmeDataset(folder, class_ids)
+    raise ValueError("%s: neither a COCO folder (annotations.json) nor labelme files (*.json)" %
+                     folder)

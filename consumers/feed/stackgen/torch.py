@@ -17,6 +17,7 @@ StreamDataset for the target.
 
 from __future__ import annotations
 
+import math
 import os
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
@@ -27,8 +28,10 @@ from torch.utils.data import IterableDataset, get_worker_info
 
 import stackgen
 from stackgen.augment import Augment, exact_labels
+from stackgen.coco import open_labelled_folder
 
-__all__ = ["StreamDataset", "collate", "without_ignore_regions", "ReuseMeter", "Augment"]
+__all__ = ["StreamDataset", "collate", "without_ignore_regions", "ReuseMeter", "Augment",
+           "evaluate"]
 
 # the most shards (ranks x workers) the seqs split into (bus/delivery.h kMaxShards)
 MAX_WORKERS = 256
@@ -53,6 +56,8 @@ def _rank_and_world(rank, world_size):
     return 0, 1
 
 _SEED_MASK = (1 << 64) - 1
+# marks the draws of real images (StreamDataset's mix) apart from the scenes'
+_REAL_TAG = 0x8EA1
 
 
 def collate(batch: List[Tuple[torch.Tensor, Dict[str, torch.Tensor]]]
@@ -76,23 +81,73 @@ def _per_instance(key):
     return key in _PER_INSTANCE
 
 
+def evaluate(model: torch.nn.Module, dataset: Union[str, os.PathLike, Any],
+             device: Union[str, torch.device] = "cpu", score_threshold: float = 0.5,
+             grayscale: bool = False) -> Dict[str, float]:
+    """Scores a torchvision instance-segmentation model (Mask R-CNN and the like: a list of
+    images in, dicts with scores and masks out) on labelled images.
+
+    Args:
+        model: the model; put in eval mode for the scoring and back in the mode it was in.
+        dataset: a labelled folder (COCO or labelme: stackgen.coco.open_labelled_folder) or a
+            dataset object with len(), image(i) and target(i) (stackgen.coco.CocoDataset).
+        device: where the images go (the model's device).
+        score_threshold: predictions below it do not count for the paper's score.
+        grayscale: the model takes one channel (the images are converted).
+
+    Returns:
+        stackgen.metrics.DetectionScores.result(): miou, tp, fp, fn, ap, ap50, ap75, images.
+    """
+    from stackgen.metrics import DetectionScores
+
+    if isinstance(dataset, (str, os.PathLike)):
+        dataset = open_labelled_folder(os.fspath(dataset))
+    scores = DetectionScores(score_threshold=score_threshold)
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            for index in range(len(dataset)):
+                image = dataset.image(index)
+                truth, _, crowd = dataset.target(index)
+                if grayscale:
+                    image = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)[:, :, None]
+                tensor = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)
+                output = model([tensor.float().div(255).to(device)])[0]
+                masks = (output["masks"][:, 0] > 0.5).cpu().numpy()
+                scores.update(output["scores"].cpu().numpy(), masks, truth.astype(bool), crowd)
+    finally:
+        model.train(was_training)
+    return scores.result()
+
+
 class ReuseMeter:
-    """Counts what a training loop took: samples, distinct scenes, and the reuse factor achieved
-    (samples per distinct scene). Feed it each batch's targets."""
+    """Counts what a training loop took: samples of scenes, distinct scenes, and the reuse factor
+    achieved (samples per distinct scene); real images mixed in (StreamDataset's mix) are
+    counted apart, in `real`. Feed it each batch's targets."""
 
     def __init__(self):
         self.samples = 0
+        self.real = 0
         self._scenes = set()
 
     def update(self, targets):
         for target in targets:
             generator_id, seq, _ = (int(v) for v in target["scene"])
+            if generator_id < 0:
+                self.real += 1
+                continue
             self.samples += 1
             self._scenes.add((generator_id, seq))
 
     @property
     def scenes(self):
         return len(self._scenes)
+
+    @property
+    def seen(self):
+        """The (generator_id, seq) of every distinct scene taken."""
+        return frozenset(self._scenes)
 
     @property
     def factor(self):
@@ -143,6 +198,20 @@ class StreamDataset(IterableDataset):
     transforms: a callable (image, target) -> (image, target) applied to every sample after
         stackgen's own augmentation (torchvision's detection references style), e.g. a
         normalisation or your own photometric changes; None (default): none.
+    mix: real labelled images to mix into the stream: a folder (COCO with annotations.json, or
+        labelme files: stackgen.coco.open_labelled_folder), or a dataset object with len(),
+        image(i) (H, W, 3) uint8 RGB and target(i) -> (masks, class ids, iscrowd), such as
+        stackgen.coco.CocoDataset or LabelmeDataset(folder, class_ids). None (default): none.
+    mix_fraction: the share of real images among all samples, in [0, 1) (default 0.1 with
+        `mix`). Sample n of a worker is real when floor((n + 1) f + p) > floor(n f + p), p drawn
+        once from (seed, shard): over any N samples the count of real ones is within 1 of N f.
+        Each worker goes through the real images in an order of its own, drawn from (seed,
+        shard, pass), and augments them as scenes (the same Augment, min_visib_fract,
+        min_visible_px, grayscale and transforms), drawn from (seed, image index, use). A real
+        sample's target has what a photo's labels give: visible masks, boxes, labels, iscrowd,
+        area; the whole object counts as visible (visib_fract 1 until augmentation cuts it),
+        K and the poses are NaN, image_id is -(index + 1), scene is (-1, index, use). The
+        stream's `count` counts scenes; the real samples come on top.
     rank, world_size: this process's share under distributed training. None (default): from
         torch.distributed when it is initialised (DDP, torchrun), else the only process. Rank r
         of n with k DataLoader workers takes shards r * k .. r * k + k - 1 of n * k (seq % (n *
@@ -166,8 +235,25 @@ class StreamDataset(IterableDataset):
                  open_bus: bool = False, rank: Optional[int] = None,
                  world_size: Optional[int] = None,
                  transforms: Optional[Callable[[torch.Tensor, Dict[str, torch.Tensor]],
-                                               Tuple[Any, Any]]] = None) -> None:
+                                               Tuple[Any, Any]]] = None,
+                 mix: Union[None, str, os.PathLike, Any] = None,
+                 mix_fraction: Optional[float] = None) -> None:
         super().__init__()
+        if mix is None:
+            if mix_fraction is not None:
+                raise ValueError("mix_fraction needs mix: the real images to mix in")
+        else:
+            if isinstance(mix, (str, os.PathLike)):
+                mix = open_labelled_folder(os.fspath(mix))
+            elif not all(hasattr(mix, name) for name in ("__len__", "image", "target")):
+                raise ValueError("mix must be a folder or a dataset with len(), image(i) and "
+                                 "target(i), got %r" % (mix,))
+            if len(mix) == 0:
+                raise ValueError("mix: %s holds no images" % getattr(mix, "folder", mix))
+            mix_fraction = 0.1 if mix_fraction is None else mix_fraction
+            if (isinstance(mix_fraction, bool) or not isinstance(mix_fraction, (int, float)) or
+                    not 0 <= mix_fraction < 1):
+                raise ValueError("mix_fraction must be in [0, 1), got %r" % (mix_fraction,))
         if transforms is not None and not callable(transforms):
             raise ValueError("transforms must be a callable (image, target) -> (image, target), "
                              "got %r" % (transforms,))
@@ -237,6 +323,8 @@ class StreamDataset(IterableDataset):
         self.rank = rank
         self.world_size = world_size
         self.transforms = transforms
+        self.mix = mix
+        self.mix_fraction = float(mix_fraction) if mix is not None else 0.0
 
     def _open(self, worker, workers):
         if workers > MAX_WORKERS:
@@ -288,10 +376,13 @@ class StreamDataset(IterableDataset):
         recorder = stackgen.LogRecorder(self.record, bus_key_file=self.bus_key_file,
                                         open_bus=self.open_bus) if self.record else None
         picker = np.random.default_rng([self.seed, worker, 0x5EED])
+        mixer = _RealMixer(self, worker) if self.mix_fraction > 0 else None
         buffer = []  # [scene, uses] of recent scenes, oldest first
         ended = False
         try:
             while True:
+                while mixer is not None and mixer.next_is_real():
+                    yield self._finish(*mixer.sample())
                 fresh = None
                 if not ended:
                     reusable = self.reuse > 1 and any(uses < self.reuse for _, uses in buffer)
@@ -319,12 +410,16 @@ class StreamDataset(IterableDataset):
                     entry[1] += 1
                 if recorder is not None:
                     recorder.append(scene)
-                image, target = self.sample(scene, use)
-                if self.transforms is not None:
-                    image, target = self.transforms(image, target)
-                yield image, target
+                if mixer is not None:
+                    mixer.count_synthetic()
+                yield self._finish(*self.sample(scene, use))
         finally:
             stream.close()
+
+    def _finish(self, image, target):
+        if self.transforms is not None:
+            image, target = self.transforms(image, target)
+        return image, target
 
     def _scene_labels(self, scene, candidates):
         # not augmented: the scene's own labels, the masks decoded from its RLE (as exact_labels
@@ -380,31 +475,131 @@ class StreamDataset(IterableDataset):
         else:
             labels = self._scene_labels(scene, candidates)
         chosen = candidates[labels["keep"]]
+        depth = None
+        if self.depth:
+            depth = sample["depth"].astype(np.float32) * np.float32(scene.depth_scale_mm)
+        return self._pack(sample["image"], labels, scene.class_ids[chosen],
+                          scene.instance_ids[chosen], scene.camera_from_object[chosen],
+                          scene.world_from_object[chosen], sample["K"],
+                          scene.generator_id * 100000000 + scene.seq + 1,
+                          (scene.generator_id, scene.seq, use), depth)
 
+    def sample_real(self, index: int, use: int = 0
+                    ) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
+        """The (image, target) pair of real image `index` of `mix` for its use number `use`
+        (augmented with the draws of (seed, index, use)); see `mix` for its target."""
+        rng = np.random.default_rng([self.seed, _REAL_TAG, index, use])
+        image = self.mix.image(index)
+        masks, class_ids, iscrowd = self.mix.target(index)
+        height, width = image.shape[:2]
+        if self.grayscale:
+            image = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)[:, :, None]
+        count = len(masks)
+        # the masks as an instance map (a pixel two masks claim goes to the later one), so
+        # that augmentation and labels work as for a scene
+        instance_map = np.zeros((height, width), dtype=np.uint16)
+        for k in range(count):
+            instance_map[np.asarray(masks[k]) > 0] = k + 1
+        instance_ids = np.arange(1, count + 1, dtype=np.uint16)
+        boxes = np.zeros((count, 4), dtype=np.int32)
+        px_count = np.zeros(count, dtype=np.int64)
+        for k in range(count):
+            mask = np.equal(instance_map, k + 1).view(np.uint8)
+            px_count[k] = cv2.countNonZero(mask)
+            if px_count[k]:
+                boxes[k] = cv2.boundingRect(mask)
+        iscrowd = np.asarray(iscrowd, dtype=bool)
+        sample = {
+            "image": image,
+            "instance_map": instance_map,
+            "depth": None,
+            "K": np.full((3, 3), np.nan),
+            "instance_ids": instance_ids,
+            "px_count_all": px_count,  # a photo's labels are what is visible: all of it
+            "annotated": ~iscrowd,
+            "ignored": iscrowd,
+            "bbox_obj": boxes,
+            "bbox_visib": boxes,
+            "boxed_masks_obj": lambda: [
+                np.equal(instance_map[y:y + h, x:x + w], k + 1).view(np.uint8)
+                for k, (x, y, w, h) in enumerate(boxes)],
+        }
+        if self.augment is not None:
+            sample = self.augment(sample, rng)
+            regions = sample["regions"]
+        else:
+            regions = np.array([(x, y, x + w, y + h) for x, y, w, h in boxes],
+                               dtype=np.int64).reshape(-1, 4)
+        labels = exact_labels(sample["instance_map"], instance_ids, sample["px_count_all"],
+                              ~iscrowd, iscrowd, self.min_visib_fract, regions,
+                              self.min_visible_px)
+        keep = labels["keep"]
+        unknown = np.full((len(keep), 4, 4), np.nan)
+        depth = np.zeros((height, width), dtype=np.float32) if self.depth else None
+        return self._pack(sample["image"], labels, np.asarray(class_ids)[keep],
+                          instance_ids[keep], unknown, unknown.copy(), sample["K"], -(index + 1),
+                          (-1, index, use), depth)
+
+    def _pack(self, image, labels, class_ids, instance_ids, camera_from_object,
+              world_from_object, K, image_id, scene, depth_mm):
+        """The (image, target) pair in torch tensors."""
         # (C, H, W) float32 in [0, 1], in one pass (a new array: the scene's image stays as is)
         image = torch.from_numpy(
-            np.ascontiguousarray(sample["image"].transpose(2, 0, 1), dtype=np.float32))
+            np.ascontiguousarray(image.transpose(2, 0, 1), dtype=np.float32))
         image.div_(255.0)
         if not self.grayscale and image.shape[0] == 1:
             image = image.expand(3, -1, -1).contiguous()
         target = {
             "boxes": torch.from_numpy(labels["boxes"]),
-            "labels": torch.from_numpy(scene.class_ids[chosen].astype(np.int64)),
+            "labels": torch.from_numpy(np.asarray(class_ids).astype(np.int64)),
             "masks": torch.from_numpy(labels["masks"]),
             "iscrowd": torch.from_numpy(labels["iscrowd"]),
             "area": torch.from_numpy(labels["px_count_visib"].astype(np.float32)),
             "visib_fract": torch.from_numpy(labels["visib_fract"].astype(np.float32)),
             "px_count_all": torch.from_numpy(labels["px_count_all"]),
             "px_count_visib": torch.from_numpy(labels["px_count_visib"]),
-            "instance_ids": torch.from_numpy(scene.instance_ids[chosen].astype(np.int64)),
-            "camera_from_object": torch.from_numpy(scene.camera_from_object[chosen]),
-            "world_from_object": torch.from_numpy(scene.world_from_object[chosen]),
-            "K": torch.from_numpy(np.asarray(sample["K"], dtype=np.float64)),
-            "image_id": torch.tensor(scene.generator_id * 100000000 + scene.seq + 1,
-                                     dtype=torch.int64),
-            "scene": torch.tensor([scene.generator_id, scene.seq, use], dtype=torch.int64),
+            "instance_ids": torch.from_numpy(np.asarray(instance_ids).astype(np.int64)),
+            "camera_from_object": torch.from_numpy(camera_from_object),
+            "world_from_object": torch.from_numpy(world_from_object),
+            "K": torch.from_numpy(np.asarray(K, dtype=np.float64)),
+            "image_id": torch.tensor(image_id, dtype=torch.int64),
+            "scene": torch.tensor(scene, dtype=torch.int64),
         }
-        if self.depth:
-            depth = sample["depth"].astype(np.float32) * np.float32(scene.depth_scale_mm)
-            target["depth_mm"] = torch.from_numpy(depth)
+        if depth_mm is not None:
+            target["depth_mm"] = torch.from_numpy(depth_mm)
         return image, target
+
+
+class _RealMixer:
+    """Where a worker's real samples go and which real image each is (StreamDataset's mix)."""
+
+    def __init__(self, dataset, shard):
+        self.dataset = dataset
+        self.fraction = dataset.mix_fraction
+        self.shard = shard
+        self.phase = float(np.random.default_rng([dataset.seed, shard, _REAL_TAG]).random())
+        self.position = 0  # samples handed out, real and synthetic
+        self.order = []
+        self.passes = 0
+        self.uses = {}
+
+    def _slot_is_real(self, n):
+        return (math.floor((n + 1) * self.fraction + self.phase) >
+                math.floor(n * self.fraction + self.phase))
+
+    def next_is_real(self):
+        return self._slot_is_real(self.position)
+
+    def count_synthetic(self):
+        self.position += 1
+
+    def sample(self):
+        if not self.order:
+            rng = np.random.default_rng([self.dataset.seed, self.shard, _REAL_TAG, self.passes])
+            self.order = list(rng.permutation(len(self.dataset.mix)))
+            self.passes += 1
+        index = int(self.order.pop(0))
+        use = self.uses.get(index, 0)
+        self.uses[index] = use + 1
+        self.position += 1
+        return self.dataset.sample_real(index, use)

@@ -2,7 +2,6 @@
 lcm-gen Python types shipped in the package decode what the generator writes."""
 
 import multiprocessing
-import os
 import struct
 
 import pytest

@@ -7,7 +7,6 @@ import os
 import numpy as np
 import pytest
 
-import stackgen
 from stackgen.coco import CocoDataset, decode_segmentation
 from stackgen.metrics import DetectionScores, mask_iou
 

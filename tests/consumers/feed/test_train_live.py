@@ -2,6 +2,7 @@
 its recording; and its bad command lines."""
 
 import os
+import shlex
 import subprocess
 import sys
 
@@ -65,3 +66,43 @@ def test_bad_command_lines(tmp_path):
     if not torch.cuda.is_available():
         result = train_live("--replay", TINY_LOG, "--device", "cuda")
         assert result.returncode == 1 and "no CUDA device" in result.stderr
+    for argv, status, text in (
+            (("--mix-fraction", 0.2), 2, "--mix-fraction needs --mix DIR"),
+            (("--mix", tmp_path, "--mix-fraction", 1), 2, "argument --mix-fraction: wants a "
+             "number in [0, 1), got '1'"),
+            (("--eval-every", 5), 2, "--eval-every needs --eval DIR"),
+            (("--nproc", 2, "--record", tmp_path / "y.lcmlog"), 2, "--record takes one process"),
+            (("--mix", tmp_path / "none"), 1, "--mix: %s: no such folder" % (tmp_path / "none")),
+            (("--eval", tmp_path), 1, "--eval: %s: neither a COCO folder" % tmp_path)):
+        result = train_live("--config", TINY_CONFIG, *argv)
+        assert result.returncode == status and text in result.stderr, (argv, result.stderr)
+        assert result.stderr.count("\n") == 1, result.stderr
+
+
+# the README's command for several processes, real photos and scores (with the tiny config, a
+# small backbone and three steps): two DDP ranks (gloo, on the CPU) train on disjoint scenes and
+# end with the same parameters; real images are mixed in, and the model is scored at the end
+def test_readme_command_two_ranks_real_images_and_scores(tmp_path):
+    with open(os.path.join(SOURCE, "README.md")) as file:
+        command = [line for line in file.read().splitlines()
+                   if line.startswith("tools/train-live --nproc 2 ")]
+    assert len(command) == 1
+    made = subprocess.run([os.path.join(BIN, "stackgen-coco"), "--lcm-url",
+                           "file://%s?speed=0" % TINY_LOG, "--open-bus", "--out",
+                           str(tmp_path / "testset")], capture_output=True, text=True,
+                          timeout=120)
+    assert made.returncode == 0, made.stderr
+    os.symlink("testset", tmp_path / "photos")
+    run = subprocess.run(
+        [sys.executable, TRAIN_LIVE, "--stackgen", os.path.join(BIN, "stackgen")] +
+        shlex.split(command[0])[1:] +
+        ["--config", TINY_CONFIG, "--backbone", "resnet18", "--iterations", "3", "--workers",
+         "0", "--reuse", "1", "--mix-fraction", "0.5"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "train-live: 2 ranks (DDP, gloo)" in run.stdout
+    # rank 0's 6 samples: 3 scenes and 3 photos; 6 scenes over both ranks, none on two
+    assert "2 ranks: 6 samples of 6 distinct scenes, none on two ranks; parameters equal on " \
+        "every rank" in run.stdout, run.stdout
+    assert "3 samples of 3 distinct scenes (reuse 1.00), 3 real images" in run.stdout, run.stdout
+    assert "eval at iteration 3 on testset (4 images): MIoU " in run.stdout, run.stdout

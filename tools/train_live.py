@@ -323,10 +323,10 @@ def run_eval(args, model, eval_set, device, iteration):
     start = time.monotonic()
     result = sgt.evaluate(model, eval_set, device=device, grayscale=args.gray)
     print("%s: eval at iteration %d on %s (%d images): MIoU %.3f (TP %d, FP %d, FN %d), mask AP "
-          "%.3f, AP50 %.3f, AP75 %.3f (%.1f s)" % (
+          "%.3f, AP50 %.3f, AP75 %.3f, box AP %.3f (%.1f s)" % (
               PROGRAM, iteration, args.eval, result["images"], result["miou"], result["tp"],
               result["fp"], result["fn"], result["ap"], result["ap50"], result["ap75"],
-              time.monotonic() - start), flush=True)
+              result["box_ap"], time.monotonic() - start), flush=True)
     return result
 
 

@@ -12,6 +12,10 @@
   precision made monotone and read at 101 recall points; AP is the mean over thresholds, AP50 and
   AP75 single thresholds.
 
+- COCO box AP the same way on boxes (cocoapi's bbox IoU: XYXY, no pixel added; a crowd region
+  again by intersection over the detection's box), when the predictions' boxes are given; the
+  ground truth's boxes are the extents of its masks unless given.
+
 Masks are boolean or 0/1 arrays (numpy, or anything np.asarray takes, such as CPU tensors).
 """
 
@@ -19,7 +23,7 @@ from typing import Dict, Optional
 
 import numpy as np
 
-__all__ = ["mask_iou", "DetectionScores", "PAPER_IOU", "COCO_IOUS"]
+__all__ = ["mask_iou", "box_iou", "mask_boxes", "DetectionScores", "PAPER_IOU", "COCO_IOUS"]
 
 PAPER_IOU = 0.6
 COCO_IOUS = np.linspace(0.5, 0.95, 10)
@@ -50,6 +54,43 @@ def mask_iou(predicted: np.ndarray, truth: np.ndarray,
                             where=p_area > 0)
         iou[:, crowd] = covered[:, crowd]
     return iou.astype(np.float64)
+
+
+def box_iou(predicted: np.ndarray, truth: np.ndarray,
+            crowd: Optional[np.ndarray] = None) -> np.ndarray:
+    """(N, M) IoU of N predicted and M ground-truth boxes, each (K, 4) XYXY, as cocoapi computes
+    it (areas (x1 - x0) (y1 - y0)); for a ground truth marked in `crowd` the intersection over
+    the prediction's area."""
+    p = np.asarray(predicted, dtype=np.float64).reshape(-1, 4)
+    t = np.asarray(truth, dtype=np.float64).reshape(-1, 4)
+    if len(p) == 0 or len(t) == 0:
+        return np.zeros((len(p), len(t)))
+    width = np.clip(np.minimum(p[:, None, 2], t[None, :, 2]) -
+                    np.maximum(p[:, None, 0], t[None, :, 0]), 0, None)
+    height = np.clip(np.minimum(p[:, None, 3], t[None, :, 3]) -
+                     np.maximum(p[:, None, 1], t[None, :, 1]), 0, None)
+    intersection = width * height
+    p_area = ((p[:, 2] - p[:, 0]) * (p[:, 3] - p[:, 1]))[:, None]
+    t_area = ((t[:, 2] - t[:, 0]) * (t[:, 3] - t[:, 1]))[None, :]
+    union = p_area + t_area - intersection
+    iou = np.divide(intersection, union, out=np.zeros_like(intersection), where=union > 0)
+    if crowd is not None:
+        crowd = np.asarray(crowd, dtype=bool)
+        covered = np.divide(intersection, np.broadcast_to(p_area, intersection.shape),
+                            out=np.zeros_like(intersection), where=p_area > 0)
+        iou[:, crowd] = covered[:, crowd]
+    return iou
+
+
+def mask_boxes(masks: np.ndarray) -> np.ndarray:
+    """(K, 4) float64 XYXY extents (pixel edges) of K masks (K, H, W); zeros for an empty one."""
+    masks = np.asarray(masks).astype(bool)
+    boxes = np.zeros((len(masks), 4))
+    for k, mask in enumerate(masks):
+        ys, xs = np.nonzero(mask)
+        if len(xs):
+            boxes[k] = [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
+    return boxes
 
 
 def _match(iou, crowd, threshold, strict):
@@ -91,10 +132,15 @@ def _match(iou, crowd, threshold, strict):
 
 class DetectionScores:
     """Accumulates predictions and ground truth image by image; result() gives the paper's MIoU
-    (with its TP, FP, FN) and COCO mask AP, AP50, AP75.
+    (with its TP, FP, FN), COCO mask AP, AP50, AP75 and, when every image's predicted boxes were
+    given, COCO box AP.
 
-    score_threshold: predictions below it do not count for the paper's score (they do for AP,
-    as in COCO). max_detections: the highest-scoring ones kept per image (COCO's 100)."""
+    Args:
+        paper_iou: the paper's match threshold (a match needs mask IoU above it; 0.6).
+        score_threshold: predictions below it do not count for the paper's score (they do for
+            AP, as in COCO).
+        max_detections: the highest-scoring predictions kept per image (COCO's 100).
+    """
 
     def __init__(self, paper_iou: float = PAPER_IOU, score_threshold: float = 0.5,
                  max_detections: int = 100) -> None:
@@ -109,17 +155,41 @@ class DetectionScores:
         self._scores = []
         self._matched = [[] for _ in COCO_IOUS]  # per threshold: per detection, a true positive
         self._ignored = [[] for _ in COCO_IOUS]  # per threshold: per detection, on a crowd region
+        self._box_images = 0
+        self._box_matched = [[] for _ in COCO_IOUS]
+        self._box_ignored = [[] for _ in COCO_IOUS]
 
     def update(self, scores: np.ndarray, masks: np.ndarray, truth_masks: np.ndarray,
-               truth_crowd: Optional[np.ndarray] = None) -> None:
-        """One image: predicted `scores` (N) and `masks` (N, H, W, booleans or probabilities
-        already thresholded), ground-truth `truth_masks` (M, H, W) and `truth_crowd` (M booleans,
-        iscrowd; default none)."""
+               truth_crowd: Optional[np.ndarray] = None, boxes: Optional[np.ndarray] = None,
+               truth_boxes: Optional[np.ndarray] = None) -> None:
+        """Adds one image.
+
+        Args:
+            scores: (N) the predictions' scores.
+            masks: (N, H, W) their masks, booleans or probabilities already thresholded.
+            truth_masks: (M, H, W) the ground truth's visible masks.
+            truth_crowd: (M) booleans, iscrowd (ignore regions); default none.
+            boxes: (N, 4) XYXY, the predictions' boxes, for box AP; default none.
+            truth_boxes: (M, 4) XYXY, the ground truth's boxes; default the masks' extents.
+
+        Raises:
+            ValueError: the counts or image sizes do not agree.
+        """
         scores = np.asarray(scores, dtype=np.float64).reshape(-1)
         masks = np.asarray(masks)
         truth_masks = np.asarray(truth_masks)
         if len(masks) != len(scores):
             raise ValueError("%d masks for %d scores" % (len(masks), len(scores)))
+        if boxes is not None:
+            boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
+            if len(boxes) != len(scores):
+                raise ValueError("%d boxes for %d scores" % (len(boxes), len(scores)))
+        if boxes is not None:
+            truth_boxes = (mask_boxes(truth_masks) if truth_boxes is None else
+                           np.asarray(truth_boxes, dtype=np.float64).reshape(-1, 4))
+            if len(truth_boxes) != len(truth_masks):
+                raise ValueError("%d ground-truth boxes for %d masks" % (len(truth_boxes),
+                                                                        len(truth_masks)))
         crowd = (np.zeros(len(truth_masks), dtype=bool) if truth_crowd is None
                  else np.asarray(truth_crowd, dtype=bool).reshape(-1))
         if len(crowd) != len(truth_masks):
@@ -148,14 +218,22 @@ class DetectionScores:
             matched, to_crowd, _ = _match(iou, crowd, threshold, strict=False)
             self._matched[k].append(matched)
             self._ignored[k].append(to_crowd)
+        if boxes is None:
+            return
+        box_iou_matrix = box_iou(boxes[order], truth_boxes, crowd)
+        self._box_images += 1
+        for k, threshold in enumerate(COCO_IOUS):
+            matched, to_crowd, _ = _match(box_iou_matrix, crowd, threshold, strict=False)
+            self._box_matched[k].append(matched)
+            self._box_ignored[k].append(to_crowd)
 
-    def _average_precision(self, k):
+    def _average_precision(self, matched, ignored):
         if self._real_truths == 0:
             return float("nan")
         scores = np.concatenate(self._scores) if self._scores else np.zeros(0)
         order = np.argsort(-scores, kind="mergesort")
-        matched = np.concatenate(self._matched[k])[order] if self._scores else np.zeros(0, bool)
-        ignored = np.concatenate(self._ignored[k])[order] if self._scores else np.zeros(0, bool)
+        matched = np.concatenate(matched)[order] if self._scores else np.zeros(0, bool)
+        ignored = np.concatenate(ignored)[order] if self._scores else np.zeros(0, bool)
         matched = matched[~ignored]
         tp = np.cumsum(matched)
         fp = np.cumsum(~matched)
@@ -170,11 +248,22 @@ class DetectionScores:
         return float(read.mean())
 
     def result(self) -> Dict[str, float]:
-        """A dict: miou (the paper's TP / (TP + FP + FN)), tp, fp, fn, ap, ap50, ap75 (NaN
-        when no image had a real ground truth), images."""
+        """The scores so far.
+
+        Returns:
+            A dict: miou (the paper's TP / (TP + FP + FN)), tp, fp, fn, ap, ap50, ap75 (mask AP;
+            NaN when no image had a real ground truth), images; and box_ap, box_ap50,
+            box_ap75 when every image came with its predicted boxes.
+        """
         counted = self.tp + self.fp + self.fn
-        per_threshold = [self._average_precision(k) for k in range(len(COCO_IOUS))]
-        return {"miou": self.tp / counted if counted else float("nan"),
-                "tp": self.tp, "fp": self.fp, "fn": self.fn,
-                "ap": float(np.mean(per_threshold)), "ap50": per_threshold[0],
-                "ap75": per_threshold[5], "images": self.images}
+        per_threshold = [self._average_precision(self._matched[k], self._ignored[k])
+                         for k in range(len(COCO_IOUS))]
+        result = {"miou": self.tp / counted if counted else float("nan"),
+                  "tp": self.tp, "fp": self.fp, "fn": self.fn,
+                  "ap": float(np.mean(per_threshold)), "ap50": per_threshold[0],
+                  "ap75": per_threshold[5], "images": self.images}
+        if self.images and self._box_images == self.images:
+            boxes = [self._average_precision(self._box_matched[k], self._box_ignored[k])
+                     for k in range(len(COCO_IOUS))]
+            result.update(box_ap=float(np.mean(boxes)), box_ap50=boxes[0], box_ap75=boxes[5])
+        return result

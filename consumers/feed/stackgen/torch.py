@@ -85,7 +85,8 @@ def evaluate(model: torch.nn.Module, dataset: Union[str, os.PathLike, Any],
              device: Union[str, torch.device] = "cpu", score_threshold: float = 0.5,
              grayscale: bool = False) -> Dict[str, float]:
     """Scores a torchvision instance-segmentation model (Mask R-CNN and the like: a list of
-    images in, dicts with scores and masks out) on labelled images.
+    images in, dicts with scores, boxes and masks out) on labelled images: the seed paper's MIoU
+    and COCO mask and box AP.
 
     Args:
         model: the model; put in eval mode for the scoring and back in the mode it was in.
@@ -96,7 +97,8 @@ def evaluate(model: torch.nn.Module, dataset: Union[str, os.PathLike, Any],
         grayscale: the model takes one channel (the images are converted).
 
     Returns:
-        stackgen.metrics.DetectionScores.result(): miou, tp, fp, fn, ap, ap50, ap75, images.
+        stackgen.metrics.DetectionScores.result(): miou, tp, fp, fn, ap, ap50, ap75 (mask AP),
+        box_ap, box_ap50, box_ap75, images.
     """
     from stackgen.metrics import DetectionScores
 
@@ -115,7 +117,8 @@ def evaluate(model: torch.nn.Module, dataset: Union[str, os.PathLike, Any],
                 tensor = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)
                 output = model([tensor.float().div(255).to(device)])[0]
                 masks = (output["masks"][:, 0] > 0.5).cpu().numpy()
-                scores.update(output["scores"].cpu().numpy(), masks, truth.astype(bool), crowd)
+                scores.update(output["scores"].cpu().numpy(), masks, truth.astype(bool), crowd,
+                              boxes=output["boxes"].cpu().numpy())
     finally:
         model.train(was_training)
     return scores.result()

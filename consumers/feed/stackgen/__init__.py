@@ -10,9 +10,10 @@
             scene.camera_from_object, scene.bbox_visib, scene.visib_fract, scene.K, ...
 
 `stackgen.torch.StreamDataset` turns the stream into (image, target) pairs for torchvision's
-detection models, with exact augmentation (`stackgen.augment`). The LCM message types of the bus
-(`stackgen.scene`, `stackgen.status`, ...; made by lcm-gen) are here too, for users who bring
-their own LCM: `stackgen.scene.decode(data)`.
+detection models, with exact augmentation (`stackgen.augment`); `stackgen.metrics` and
+`stackgen.torch.evaluate` score models; `stackgen.coco` reads labelled folders. The LCM message
+types of the bus (made by lcm-gen) are in `stackgen.msg`, for users who bring their own LCM:
+`stackgen.msg.scene.decode(data)`, `stackgen.msg.status`, ...
 
 The stream runs in C++ (`stackgen._native`): the same bounded decoding, credits and resend as
 the C++ dataset writers, in a thread of its own, outside the GIL.
@@ -26,9 +27,7 @@ from typing import Optional as _Optional, Sequence as _Sequence, Tuple as _Tuple
 
 import numpy as _np
 
-# the LCM message types, as lcm-gen's package __init__ binds them
-from ._lcmtypes import *  # noqa: F401,F403
-from . import _native
+from . import _native, msg  # noqa: F401 (msg: the LCM message types, stackgen.msg.scene, ...)
 from ._native import (DEFAULT_LCM_URL, StreamError, StreamTimeout, decode_rle, resolve_lcm_url,
                       set_program_name)
 

@@ -59,10 +59,10 @@ def test_missing_or_junk_log(tmp_path):
 # a log whose scene channel carries another type (or another build's scene) stops the stream
 # with the file, the event and both types named; a log without scenes says what it holds
 def test_scene_type_mismatch_and_log_without_scenes(tmp_path):
-    labels = stackgen.labels()
-    labels.header = stackgen.header()
-    labels.camera = stackgen.camera_info()
-    labels.camera.world_from_camera = stackgen.pose()
+    labels = stackgen.msg.labels()
+    labels.header = stackgen.msg.header()
+    labels.camera = stackgen.msg.camera_info()
+    labels.camera.world_from_camera = stackgen.msg.pose()
     wrong = tmp_path / "wrong.lcmlog"
     stackgen._native.LogAppender(str(wrong)).append("STACKGEN_SCENE", labels.encode(), 0)
     with pytest.raises(stackgen.StreamError) as error:
@@ -218,14 +218,15 @@ def test_bad_arguments(tmp_path):
     assert str(existing) in one_line(error) and "exists" in one_line(error)
 
 
-# the lcm-gen Python types in the package decode the bytes of the recorded log as the C++
-# stream does
+# the lcm-gen Python types in the package (stackgen.msg, apart from the stream's Scene) decode
+# the bytes of the recorded log as the C++ stream does
 def test_python_message_types_decode_the_log():
+    assert not hasattr(stackgen, "scene") and not hasattr(stackgen, "status")
     raw = [data for channel, data in log_events(TINY_LOG) if channel == "STACKGEN_SCENE"]
     streamed = list(stackgen.Stream(URL, **OPEN))
     assert len(raw) == len(streamed) == 4
     for data, scene in zip(raw, streamed):
-        message = stackgen.scene.decode(data)
+        message = stackgen.msg.scene.decode(data)
         assert (message.header.generator_id, message.header.seq) == (scene.generator_id, scene.seq)
         assert message.camera.width == scene.width
         assert [i.instance_id for i in message.instances] == scene.instance_ids.tolist()
@@ -237,7 +238,7 @@ def test_python_message_types_decode_the_log():
 # are handed out in order
 def test_scene_that_does_not_decode_is_skipped(tmp_path, capfd):
     raw = [data for channel, data in log_events(TINY_LOG) if channel == "STACKGEN_SCENE"]
-    broken = stackgen.scene.decode(raw[1])
+    broken = stackgen.msg.scene.decode(raw[1])
     broken.color.data = broken.color.data[:len(broken.color.data) // 2]
     broken.color.size = len(broken.color.data)
     log = tmp_path / "broken.lcmlog"

@@ -267,7 +267,7 @@ def test_bad_copy_does_not_move_where_a_stream_joins(tmp_path, processes):
 
     url = free_url()
     raw = [data for channel, data in log_events(TINY_LOG) if channel == "STACKGEN_SCENE"]
-    stranger = stackgen.scene.decode(raw[0])
+    stranger = stackgen.msg.scene.decode(raw[0])
     stranger.header.generator_id = 5
     stranger.header.seq = 500
     stranger.instances[0].class_id = 0

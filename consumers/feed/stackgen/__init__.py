@@ -69,7 +69,15 @@ Scene.__repr__ = _scene_repr
 
 
 class Instance:
-    """One object instance of a scene (a view: the values come from the scene's arrays)."""
+    """One object instance of a scene.
+
+    A view: the values come from the scene's arrays. `Scene.instances` makes one per labelled
+    object.
+
+    Args:
+        scene: the scene that holds the instance.
+        index: the instance's index in the scene's per-instance arrays.
+    """
 
     def __init__(self, scene, index):
         self._scene = scene
@@ -90,11 +98,19 @@ class Instance:
         self.ignored = bool(scene.ignored[index])
 
     def mask_visib(self) -> _np.ndarray:
-        """(H, W) uint8 0/1: the visible pixels (decoded from the message's RLE)."""
+        """The visible mask of the instance, decoded from the message's RLE.
+
+        Returns:
+            (H, W) uint8 0/1: the visible pixels.
+        """
         return self._scene.masks_visib([self.index])[0]
 
     def mask_obj(self) -> _np.ndarray:
-        """(H, W) uint8 0/1: the pixels the object would cover with nothing in front (amodal)."""
+        """The full (amodal) mask of the instance.
+
+        Returns:
+            (H, W) uint8 0/1: the pixels the object would cover with nothing in front.
+        """
         return self._scene.masks_obj([self.index])[0]
 
     def __repr__(self):
@@ -113,52 +129,61 @@ def _check_int(name, value, low, high):
 class Stream:
     """Scenes from a generator bus or an LCM log, one at a time.
 
-    lcm_url: the bus (udpm://..., memq://) or a log, file://PATH (any ?query is ignored: a log
-        is read in file order, as fast as scenes are taken). None: $STACKGEN_LCM_URL, else
-        stackgen.DEFAULT_LCM_URL.
-    reliable: on a live bus, a reliable consumer: it credits each scene once it has been handed
-        out and asks for the ones it missed, so it misses nothing and holds generators within
-        `window` scenes of what it took; it stores nothing on disk. It takes a generator from
-        seq 0 when it first hears it within its first `window` seqs (they started together),
-        else from the first scene it hears (it joins a running generator without making it
-        resend its history). False: best effort: it sends nothing, never holds a generator back,
-        and keeps only the newest `queue` scenes when the caller falls behind.
-    window: reliable: scenes a generator may run ahead of what was handed out (1..10000).
-    generator_ids: take scenes of these generators only (default: all).
-    timeout: seconds to wait for a scene before StreamTimeout is raised; None: wait forever.
-    count: end after this many scenes (0: no end; a log ends at its end).
-    shard: (index, count): take only the seqs with seq % count == index, so several streams
-        (DataLoader workers) split one bus or log between them without sharing a scene.
-    queue: scenes kept waiting for the caller (best effort drops older ones; a log waits).
-    instance_map, depth: decode these images ahead, beside the colour image (default: the
-        instance map yes, depth no); others are decoded when first asked for.
-    decode_threads: threads that decode images ahead while scenes wait in the queue (1..16,
-        default 2); scenes are handed out in their order all the same.
-    repeats: a log only: hand out repeated events too, with `scene.occurrence` counting them
-        (StreamDataset recordings repeat a scene for each use); False: each scene once.
-    channel, name: the scenes' channel; the consumer's name in credits and status (default
-        "stackgen-feed@<host>:<pid>").
-    fault_drop: drop this fraction of received messages on purpose, [0, 1) (tests, demos).
-    status: publish the stream's counters on STACKGEN_STATUS every second (live bus).
-    bus_key_file: the bus key (see the README, "Trust"): scenes not signed with it are refused
-        and counted (counters "refused_unsigned", "refused_forged", "refused_replayed"), and
-        credits are signed; a log is checked with it too. None: $STACKGEN_BUS_KEY_FILE when set,
-        else this user's key ~/.config/stackgen/bus.key (made on first use), as every stackgen
-        program does.
-    open_bus: no key at all: nothing signed, every sender trusted (an open bus, or a log
-        recorded on one). Excludes bus_key_file.
-    replay: a live bus that carries a recording played back (lcm-logplayer): its scenes are
-        taken without the liveness check that refuses recordings by default. (A file:// log
-        needs no flag.)
+    Iterate over the stream, or call `next`, to take the scenes. A scene that fails its checks
+    (sizes, images, masks, ids) is skipped and counted in `counters["bad_messages"]`, with a
+    line on stderr for the first ten.
 
-    Raises StreamError (one line naming the URL, file or value) for a bus that cannot be opened
-    (a bad URL, no multicast route), a missing log or one that is not an LCM log, a log event on
-    the channel that is not a stackgen.scene of this build, a log without scenes, generators
-    that use another bus key (heard for 2 s, none with this one) or a log whose every scene the
-    key refuses, and a stream used in another process than the one that opened it (a
-    DataLoader worker must open its own).
-    A scene that fails its checks (sizes, images, masks, ids) is skipped and counted in
-    `counters["bad_messages"]`, with a line on stderr for the first ten.
+    Args:
+        lcm_url: the bus (udpm://..., memq://) or a log, file://PATH (any ?query is ignored: a
+            log is read in file order, as fast as scenes are taken). None: $STACKGEN_LCM_URL,
+            else stackgen.DEFAULT_LCM_URL.
+        reliable: on a live bus, a reliable consumer: it credits each scene once it has been
+            handed out and asks for the ones it missed, so it misses nothing and holds
+            generators within `window` scenes of what it took; it stores nothing on disk. It
+            takes a generator from seq 0 when it first hears it within its first `window` seqs
+            (they started together), else from the first scene it hears (it joins a running
+            generator without making it resend its history). False: best effort: it sends
+            nothing, never holds a generator back, and keeps only the newest `queue` scenes when
+            the caller falls behind.
+        window: reliable: scenes a generator may run ahead of what was handed out (1..10000).
+        generator_ids: take scenes of these generators only (default: all).
+        timeout: seconds to wait for a scene before StreamTimeout is raised; None: wait forever.
+        count: end after this many scenes (0: no end; a log ends at its end).
+        shard: (index, count): take only the seqs with seq % count == index, so several streams
+            (DataLoader workers) split one bus or log between them without sharing a scene.
+        queue: scenes kept waiting for the caller (best effort drops older ones; a log waits).
+        instance_map: decode the instance map ahead, beside the colour image (default yes);
+            images not decoded ahead are decoded when first asked for.
+        depth: decode the depth image ahead, beside the colour image (default no).
+        repeats: a log only: hand out repeated events too, with `scene.occurrence` counting
+            them (StreamDataset recordings repeat a scene for each use); False: each scene once.
+        decode_threads: threads that decode images ahead while scenes wait in the queue (1..16,
+            default 2); scenes are handed out in their order all the same.
+        channel: the scenes' channel.
+        name: the consumer's name in credits and status (default
+            "stackgen-feed@<host>:<pid>").
+        fault_drop: drop this fraction of received messages on purpose, [0, 1) (tests, demos).
+        status: publish the stream's counters on STACKGEN_STATUS every second (live bus).
+        bus_key_file: the bus key (see the README, "Trust"): scenes not signed with it are
+            refused and counted (counters "refused_unsigned", "refused_forged",
+            "refused_replayed"), and credits are signed; a log is checked with it too. None:
+            $STACKGEN_BUS_KEY_FILE when set, else this user's key ~/.config/stackgen/bus.key
+            (made on first use), as every stackgen program does.
+        open_bus: no key at all: nothing signed, every sender trusted (an open bus, or a log
+            recorded on one). Excludes bus_key_file.
+        replay: a live bus that carries a recording played back (lcm-logplayer): its scenes are
+            taken without the liveness check that refuses recordings by default. (A file:// log
+            needs no flag.)
+
+    Raises:
+        ValueError: an argument of the wrong type or out of its range, or both bus_key_file and
+            open_bus=True.
+        StreamError: a bus that cannot be opened (a bad URL, no multicast route), a missing
+            log or one that is not an LCM log, a log event on the channel that is not a
+            stackgen.scene of this build, a log without scenes, generators that use another bus
+            key (heard for 2 s, none with this one) or a log whose every scene the key refuses,
+            and a stream used in another process than the one that opened it (a DataLoader
+            worker must open its own). The message is one line naming the URL, file or value.
     """
 
     def __init__(self, lcm_url: _Optional[str] = None, reliable: bool = True, window: int = 8,
@@ -183,7 +208,8 @@ class Stream:
         ids = [] if generator_ids is None else [
             _check_int("generator id", g, 0, 65535) for g in generator_ids]
         if bus_key_file is not None and (not isinstance(bus_key_file, str) or bus_key_file == ""):
-            raise ValueError("bus_key_file must be a non-empty path or None, got %r" % (bus_key_file,))
+            raise ValueError("bus_key_file must be a non-empty path or None, got %r" %
+                             (bus_key_file,))
         if bus_key_file is not None and open_bus:
             raise ValueError("bus_key_file and open_bus=True exclude each other")
         if not isinstance(fault_drop, (int, float)) or not 0 <= fault_drop < 1:
@@ -193,7 +219,8 @@ class Stream:
             url=lcm_url or "", channel=channel, reliable=bool(reliable),
             window=_check_int("window", window, 1, 10000), generator_ids=ids,
             shard_index=shard_index, shard_count=shard_count,
-            count=_check_int("count", count, 0, 2 ** 62), queue=_check_int("queue", queue, 1, 100000),
+            count=_check_int("count", count, 0, 2 ** 62),
+            queue=_check_int("queue", queue, 1, 100000),
             repeats=bool(repeats), decode_instance_map=bool(instance_map),
             decode_depth=bool(depth),
             decode_threads=_check_int("decode_threads", decode_threads, 1, 16), name=name or "",
@@ -210,8 +237,17 @@ class Stream:
         return scene
 
     def next(self, timeout: _Optional[float] = None) -> Scene:
-        """The next scene, waiting up to `timeout` seconds (None: as long as it takes); None once
-        the stream has ended. Raises StreamTimeout when the time runs out."""
+        """Takes the next scene.
+
+        Args:
+            timeout: seconds to wait for it (None: as long as it takes).
+
+        Returns:
+            The next scene; None once the stream has ended.
+
+        Raises:
+            StreamTimeout: the time runs out.
+        """
         return self._native.next(timeout)
 
     def close(self) -> None:
@@ -226,28 +262,45 @@ class Stream:
 
     @property
     def counters(self) -> _Dict[str, int]:
-        """dict: received, handed, duplicates, lost, reasked, bad_messages, dropped_behind,
+        """dict: the stream's counters.
+
+        Keys: received, handed, duplicates, lost, reasked, bad_messages, dropped_behind,
         fault_dropped, queued. On a live bus the delivery counts (lost, reasked, fault_dropped)
-        are refreshed every 20 ms, and are final once the stream is closed."""
+        are refreshed every 20 ms, and are final once the stream is closed.
+        """
         return self._native.counters
 
     @property
     def url(self) -> str:
+        """str: the URL the stream reads (lcm_url, else $STACKGEN_LCM_URL, else the default)."""
         return self._native.url
 
     @property
     def name(self) -> str:
+        """str: the consumer's name in credits and status."""
         return self._native.name
 
     @property
     def is_log(self) -> bool:
+        """bool: whether the stream reads a file:// log rather than a live bus."""
         return self._native.is_log
 
 
 class StatusMonitor:
-    """The latest STACKGEN_STATUS of every process on a bus (generators: rate_hz, scenes,
-    held_back_s, ...), heard in a thread of its own. Sends nothing but the liveness check of the
-    bus key (bus_key_file and open_bus as for Stream)."""
+    """The latest STACKGEN_STATUS of every process on a bus, heard in a thread of its own.
+
+    A generator's status holds rate_hz, scenes, held_back_s, ... The monitor sends nothing but
+    the liveness check of the bus key.
+
+    Args:
+        lcm_url: the bus, as for Stream (None: $STACKGEN_LCM_URL, else
+            stackgen.DEFAULT_LCM_URL).
+        bus_key_file: the bus key, as for Stream.
+        open_bus: no key at all, as for Stream. Excludes bus_key_file.
+
+    Raises:
+        ValueError: both bus_key_file and open_bus=True.
+    """
 
     def __init__(self, lcm_url: _Optional[str] = None, bus_key_file: _Optional[str] = None,
                  open_bus: bool = False) -> None:
@@ -256,20 +309,37 @@ class StatusMonitor:
         self._native = _native.StatusMonitor(lcm_url or "", bus_key_file or "", bool(open_bus))
 
     def latest(self, process: _Optional[str] = None) -> _List[_Dict[str, _Any]]:
-        """A list of status dicts, one per process heard (only those named `process`, e.g.
-        "stackgen" for generators, when given). Keys: process, name, generator_id, next_seq (a
-        generator's next seq; -1 for consumers), scenes_held (a consumer's scenes; -1 for
-        generators), utime, scenes, rate_hz, received, lost, resent, regenerated,
-        reliable_consumers, held_back_s."""
+        """The latest status of each process heard.
+
+        Args:
+            process: when given, only the processes of this name, e.g. "stackgen" for
+                generators.
+
+        Returns:
+            A list of status dicts, one per process heard. Keys: process, name, generator_id,
+            next_seq (a generator's next seq; -1 for consumers), scenes_held (a consumer's
+            scenes; -1 for generators), utime, scenes, rate_hz, received, lost, resent,
+            regenerated, reliable_consumers, held_back_s.
+        """
         return [s for s in self._native.latest() if process is None or s["process"] == process]
 
 
 class LogRecorder:
-    """Appends scenes to an LCM log on STACKGEN_SCENE that several processes may share (one
-    write per event, O_APPEND). The log is what `Stream(lcm_url="file://PATH", repeats=True)`
+    """Appends scenes to an LCM log that several processes may share.
+
+    One write per event, O_APPEND. The log is what `Stream(lcm_url="file://PATH", repeats=True)`
     reads back in the same order, and what stackgen-coco, stackgen-stats and tools/spy read.
-    Each event is signed with the bus key (bus_key_file and open_bus as for Stream), so the log
-    is read back with the same key."""
+    Each event is signed with the bus key, so the log is read back with the same key.
+
+    Args:
+        path: the log file.
+        channel: the channel of the events (default STACKGEN_SCENE).
+        bus_key_file: the bus key, as for Stream.
+        open_bus: no key at all, as for Stream. Excludes bus_key_file.
+
+    Raises:
+        ValueError: both bus_key_file and open_bus=True.
+    """
 
     def __init__(self, path: str, channel: str = SCENE_CHANNEL,
                  bus_key_file: _Optional[str] = None, open_bus: bool = False) -> None:
@@ -279,11 +349,17 @@ class LogRecorder:
         self.channel = channel
 
     def append(self, scene: Scene, utime: _Optional[int] = None) -> None:
+        """Appends one scene to the log as one event.
+
+        Args:
+            scene: the scene, written as its encoded message.
+            utime: the event's timestamp in microseconds; None: now.
+        """
         import time
         self._native.append(self.channel, scene.encoded(),
                             int(time.time() * 1e6) if utime is None else int(utime))
 
 
-__all__ = ["Stream", "Scene", "Instance", "StatusMonitor", "LogRecorder", "StreamError",
+__all__ = ["msg", "Stream", "Scene", "Instance", "StatusMonitor", "LogRecorder", "StreamError",
            "StreamTimeout", "decode_rle", "resolve_lcm_url", "set_program_name", "DEFAULT_LCM_URL",
            "SCENE_CHANNEL", "STATUS_CHANNEL"]

@@ -52,7 +52,8 @@ def _check_range(name, value, low, high):
     except (TypeError, ValueError):
         raise ValueError("%s must be a (min, max) pair, got %r" % (name, value)) from None
     if not (low <= a <= b <= high):
-        raise ValueError("%s must satisfy %g <= min <= max <= %g, got %r" % (name, low, high, value))
+        raise ValueError("%s must satisfy %g <= min <= max <= %g, got %r" %
+                         (name, low, high, value))
     return float(a), float(b)
 
 
@@ -70,14 +71,30 @@ def _check_fraction(name, value):
 
 def exact_labels(instance_map, instance_ids, px_count_all, annotated, ignored, min_visib_fract,
                  regions=None, min_visible_px=1):
-    """Labels of the candidate instances (those the generator annotated or ignored) computed from
-    an instance map: returns a dict with `keep` (indices into the inputs of the instances that
-    have a visible pixel), `masks` (K, H, W) uint8 visible masks, `boxes` (K, 4) float32 XYXY,
-    `px_count_visib` (K,), `px_count_all` (K,), `visib_fract` (K,) float64 (px_count_visib /
-    px_count_all) and `iscrowd` (K,) int64 (0: annotated, at least min_visib_fract visible and
-    at least min_visible_px pixels, as the generator's annotation.min_visible_px; 1: an ignore
-    region). `regions` (N, 4) x0, y0, x1, y1 (exclusive) bound where each
-    instance's pixels can be (Augment gives them); without them the whole map is searched."""
+    """Labels of the candidate instances computed from an instance map.
+
+    The candidates are the instances the generator annotated or ignored.
+
+    Args:
+        instance_map: (H, W) the instance map.
+        instance_ids: (N,) the candidates' ids in the instance map.
+        px_count_all: (N,) the candidates' full (amodal) pixel counts.
+        annotated: (N,) booleans, the candidates the generator annotated.
+        ignored: (N,) booleans, the candidates the generator marked ignored.
+        min_visib_fract: an annotated instance less visible than this is an ignore region.
+        regions: (N, 4) x0, y0, x1, y1 (exclusive) bound where each instance's pixels can be
+            (Augment gives them); without them the whole map is searched.
+        min_visible_px: an annotated instance with fewer visible pixels is an ignore region, as
+            the generator's annotation.min_visible_px (default 1).
+
+    Returns:
+        A dict with `keep` (indices into the inputs of the instances that have a visible
+        pixel), `masks` (K, H, W) uint8 visible masks, `boxes` (K, 4) float32 XYXY,
+        `px_count_visib` (K,), `px_count_all` (K,), `visib_fract` (K,) float64 (px_count_visib
+        / px_count_all) and `iscrowd` (K,) int64 (0: annotated, at least min_visib_fract
+        visible and at least min_visible_px pixels, as the generator's
+        annotation.min_visible_px; 1: an ignore region).
+    """
     height, width = instance_map.shape
     count = len(instance_ids)
     if regions is None:
@@ -131,21 +148,39 @@ def _moved_box(a, box, width, height, clip):
 
 
 class Augment:
-    """The paper's training-time augmentations, applied to image, instance map, depth and masks
-    together, with the labels computed again from the result (see the module text).
+    """The paper's training-time augmentations, with exact labels.
 
-    hflip, vflip: probability of a horizontal / vertical flip (default 0.5 / 0).
-    crop: probability of a crop (default 0.5), crop_scale: its side as a fraction of the image's
-        (default 0.6..1), at a random place, scaled back to the image size (a zoom in).
-    zoom: probability of a zoom about the centre (default 0.5), zoom_range: factor, drawn
-        log-uniformly (default 0.8..1.25; below 1 leaves a black border).
-    affine: probability of an affine transform about the centre (default 0.5): rotation up to
-        rotate_deg (10), shear up to shear_deg (5), translation up to translate (0.05) of the size.
-    erase: probability of a random erasure (default 0.5): a rectangle of erase_area (0.02..0.2)
-        of the image with aspect ratio erase_aspect (0.3..3.3, log-uniform) filled with noise;
-        depth there becomes 0 (no depth) and the instance map background.
-    brightness, contrast: the largest change, each drawn uniformly in +-that (default 0.2: up to
-        +-20 % of full scale, resp. a factor 0.8..1.2 about the mean).
+    Applied to image, instance map, depth and masks together, with the labels computed again
+    from the result (see the module text).
+
+    Args:
+        hflip: probability of a horizontal flip (default 0.5).
+        vflip: probability of a vertical flip (default 0).
+        crop: probability of a crop (default 0.5), at a random place, scaled back to the image
+            size (a zoom in).
+        crop_scale: the crop's side as a fraction of the image's, (min, max) (default 0.6..1).
+        zoom: probability of a zoom about the centre (default 0.5).
+        zoom_range: the zoom factor, (min, max), drawn log-uniformly (default 0.8..1.25; below 1
+            leaves a black border).
+        affine: probability of an affine transform about the centre (default 0.5): rotation,
+            shear and translation.
+        rotate_deg: the largest rotation in degrees (default 10).
+        shear_deg: the largest shear in degrees (default 5).
+        translate: the largest translation as a fraction of the size (default 0.05).
+        erase: probability of a random erasure (default 0.5): a rectangle of the image filled
+            with noise; depth there becomes 0 (no depth) and the instance map background.
+        erase_area: the rectangle's area as a fraction of the image's, (min, max) (default
+            0.02..0.2).
+        erase_aspect: the rectangle's aspect ratio, (min, max), drawn log-uniformly (default
+            0.3..3.3).
+        brightness: the largest brightness change, drawn uniformly in +-that (default 0.2: up
+            to +-20 % of full scale).
+        contrast: the largest contrast change, drawn uniformly in +-that (default 0.2: a factor
+            0.8..1.2 about the mean).
+
+    Raises:
+        ValueError: a probability or change outside [0, 1], a range that is not a (min, max)
+            pair within its bounds, or a number outside its bounds.
     """
 
     def __init__(self, hflip=0.5, vflip=0.0, crop=0.5, crop_scale=(0.6, 1.0), zoom=0.5,
@@ -176,8 +211,18 @@ class Augment:
         return "Augment(%s)" % ", ".join("%s=%r" % (f, getattr(self, f)) for f in fields)
 
     def draw_affine(self, rng, width, height):
-        """The 3x3 matrix A (destination pixel = A @ source pixel, pixel centres at integers)
-        of one draw; 13 draws from `rng` whatever is switched on."""
+        """Draws the geometric part of one augmentation.
+
+        Takes 13 draws from `rng` whatever is switched on.
+
+        Args:
+            rng: the numpy random generator to draw from.
+            width: the image's width in pixels.
+            height: the image's height in pixels.
+
+        Returns:
+            The 3x3 matrix A (destination pixel = A @ source pixel, pixel centres at integers).
+        """
         u = rng.random(13)
         a = np.eye(3)
         cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
@@ -226,12 +271,21 @@ class Augment:
         return map_x, map_y
 
     def __call__(self, sample, rng):
-        """Augments `sample` (a dict: image (H, W, C) uint8, instance_map (H, W) uint16, depth
-        (H, W) uint16 or None, K (3, 3), instance_ids, px_count_all, annotated, ignored,
-        bbox_obj and bbox_visib (K, 4) xywh of the candidate instances, and boxed_masks_obj: a
-        function that returns their full masks, each within its bbox_obj) and returns a new dict with image, instance_map,
-        depth and K transformed, px_count_all recomputed, `regions` (where each object's visible
-        pixels can be now) and `affine` (the 3x3 A). Then exact_labels gives the rest."""
+        """Augments one sample. Then exact_labels gives the rest of the labels.
+
+        Args:
+            sample: a dict: image (H, W, C) uint8, instance_map (H, W) uint16, depth (H, W)
+                uint16 or None, K (3, 3), instance_ids, px_count_all, annotated, ignored,
+                bbox_obj and bbox_visib (K, 4) xywh of the candidate instances, and
+                boxed_masks_obj: a function that returns their full masks, each within its
+                bbox_obj.
+            rng: the numpy random generator every draw comes from.
+
+        Returns:
+            A new dict with image, instance_map, depth and K transformed, px_count_all
+            recomputed, `regions` (where each object's visible pixels can be now) and `affine`
+            (the 3x3 A).
+        """
         image = sample["image"]
         height, width = image.shape[:2]
         a = self.draw_affine(rng, width, height)

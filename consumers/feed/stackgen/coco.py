@@ -20,8 +20,21 @@ __all__ = ["CocoDataset", "LabelmeDataset", "open_labelled_folder", "decode_segm
 
 def decode_segmentation(segmentation: Union[dict, list], height: int,
                         width: int) -> np.ndarray:
-    """(height, width) uint8 0/1 mask of one COCO segmentation: an RLE dict (counts a compressed
-    string or a list of run lengths, column-major, zeros first) or a list of polygons."""
+    """The mask of one COCO segmentation.
+
+    Args:
+        segmentation: an RLE dict (counts a compressed string or a list of run lengths,
+            column-major, zeros first) or a list of polygons.
+        height: the image's height in pixels.
+        width: the image's width in pixels.
+
+    Returns:
+        (height, width) uint8 0/1 mask.
+
+    Raises:
+        ValueError: an RLE whose size is not the image's, or whose counts do not cover the
+            image.
+    """
     if isinstance(segmentation, dict):
         counts = segmentation.get("counts")
         size = segmentation.get("size", [height, width])
@@ -46,8 +59,13 @@ def decode_segmentation(segmentation: Union[dict, list], height: int,
 class CocoDataset:
     """The images of a COCO folder in file-name order, with their instance masks.
 
-    folder: holds annotations.json; image files are looked up in folder/images, then folder.
-    Raises ValueError naming the file when annotations.json is missing or not COCO."""
+    Args:
+        folder: holds annotations.json; image files are looked up in folder/images, then
+            folder.
+
+    Raises:
+        ValueError: annotations.json is missing or not COCO (the message names the file).
+    """
 
     def __init__(self, folder: str) -> None:
         self.folder = folder
@@ -72,13 +90,32 @@ class CocoDataset:
         return len(self.images)
 
     def image_path(self, index: int) -> str:
-        """stackgen-coco's file names are relative to folder/images, other tools' to folder."""
+        """The path of an image file.
+
+        stackgen-coco's file names are relative to folder/images, other tools' to folder.
+
+        Args:
+            index: the image's index.
+
+        Returns:
+            The path of the image file.
+        """
         name = self.images[index]["file_name"]
         path = os.path.join(self._base, name)
         return path if os.path.exists(path) else os.path.join(self.folder, name)
 
     def image(self, index: int) -> np.ndarray:
-        """(H, W, 3) uint8 RGB (a gray image repeated in three channels)."""
+        """Reads an image.
+
+        Args:
+            index: the image's index.
+
+        Returns:
+            (H, W, 3) uint8 RGB (a gray image repeated in three channels).
+
+        Raises:
+            ValueError: the image cannot be read (the message names the file).
+        """
         path = self.image_path(index)
         bgr = cv2.imread(path, cv2.IMREAD_COLOR)
         if bgr is None:
@@ -86,7 +123,19 @@ class CocoDataset:
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
     def target(self, index: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """masks (K, H, W) uint8 0/1, labels (K) category ids, iscrowd (K) bool."""
+        """The instances of an image.
+
+        Args:
+            index: the image's index.
+
+        Returns:
+            (masks, labels, iscrowd): masks (K, H, W) uint8 0/1, labels (K) category ids,
+            iscrowd (K) bool.
+
+        Raises:
+            ValueError: an annotation's segmentation is missing or cannot be decoded (the
+                message names the file and the annotation).
+        """
         image = self.images[index]
         height, width = image["height"], image["width"]
         annotations = self._annotations[image["id"]]
@@ -104,14 +153,23 @@ class CocoDataset:
 
 
 class LabelmeDataset:
-    """The images of a folder of labelme files (X.json, each naming its image in imagePath, a
-    path relative to the file), in file-name order, with the same methods as CocoDataset.
+    """The images of a folder of labelme files, in file-name order, with their instance masks.
 
-    Shapes of type polygon and rectangle become masks; shapes with the same label and a
-    group_id are one instance (labelme's convention), every other shape an instance of its own.
-    Labels become class ids through class_ids ({label: id}); without it the folder must use
-    one label, which becomes class 1 (one part, as stackgen's default config).
-    Raises ValueError naming the file and shape for anything else."""
+    Each file, X.json, names its image in imagePath, a path relative to the file. The dataset
+    has the same methods as CocoDataset. Shapes of type polygon and rectangle become masks;
+    shapes with the same label and a group_id are one instance (labelme's convention), every
+    other shape an instance of its own.
+
+    Args:
+        folder: holds the labelme files.
+        class_ids: turns labels into class ids ({label: id}); without it the folder must use
+            one label, which becomes class 1 (one part, as stackgen's default config).
+
+    Raises:
+        ValueError: for anything else: a shape of another type, a file that is not labelme's,
+            no .json file, more than one label without class_ids, a label without a class id
+            (the message names the file and shape, or the folder).
+    """
 
     def __init__(self, folder: str, class_ids: Optional[Dict[str, int]] = None) -> None:
         self.folder = folder
@@ -152,10 +210,29 @@ class LabelmeDataset:
         return len(self._records)
 
     def image_path(self, index: int) -> str:
+        """The path of an image file.
+
+        Args:
+            index: the image's index.
+
+        Returns:
+            The path of the image file (imagePath, relative to the labelme file's folder).
+        """
         return self._records[index][1]
 
     def image(self, index: int) -> np.ndarray:
-        """(H, W, 3) uint8 RGB (a gray image repeated in three channels)."""
+        """Reads an image.
+
+        Args:
+            index: the image's index.
+
+        Returns:
+            (H, W, 3) uint8 RGB (a gray image repeated in three channels).
+
+        Raises:
+            ValueError: the image cannot be read or its size is not the one the labelme file
+                gives (the message names both files).
+        """
         path, image_path, height, width, _ = self._records[index]
         bgr = cv2.imread(image_path, cv2.IMREAD_COLOR)
         if bgr is None:
@@ -166,7 +243,19 @@ class LabelmeDataset:
         return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
     def target(self, index: int) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """masks (K, H, W) uint8 0/1, labels (K) class ids, iscrowd (K) bool (all False)."""
+        """The instances of an image.
+
+        Args:
+            index: the image's index.
+
+        Returns:
+            (masks, labels, iscrowd): masks (K, H, W) uint8 0/1, labels (K) class ids, iscrowd
+            (K) bool (all False).
+
+        Raises:
+            ValueError: a shape's points are missing, malformed or too few (the message names
+                the file and shape).
+        """
         path, _, height, width, shapes = self._records[index]
         instances = {}  # key -> (label, [shapes])
         for number, shape in enumerate(shapes):
@@ -197,8 +286,19 @@ class LabelmeDataset:
 
 def open_labelled_folder(folder: str, class_ids: Optional[Dict[str, int]] = None
                          ) -> Union[CocoDataset, LabelmeDataset]:
-    """The reader for `folder`: CocoDataset when it holds annotations.json, else LabelmeDataset
-    (class_ids as there). Raises ValueError naming the folder when it is neither."""
+    """The reader for a labelled folder.
+
+    Args:
+        folder: a COCO folder (with annotations.json) or a folder of labelme files.
+        class_ids: as for LabelmeDataset.
+
+    Returns:
+        CocoDataset when the folder holds annotations.json, else LabelmeDataset.
+
+    Raises:
+        ValueError: the folder does not exist or is neither (the message names the folder);
+            or as the readers raise it.
+    """
     if not os.path.isdir(folder):
         raise ValueError("%s: no such folder" % folder)
     if os.path.exists(os.path.join(folder, "annotations.json")):

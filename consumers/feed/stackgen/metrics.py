@@ -31,9 +31,22 @@ COCO_IOUS = np.linspace(0.5, 0.95, 10)
 
 def mask_iou(predicted: np.ndarray, truth: np.ndarray,
              crowd: Optional[np.ndarray] = None) -> np.ndarray:
-    """(N, M) IoU of N predicted and M ground-truth masks, each (K, H, W). For a ground truth
-    marked in `crowd` (M booleans) the value is the intersection over the prediction's area, as
-    cocoapi does for iscrowd regions."""
+    """The IoU of predicted and ground-truth masks.
+
+    For a ground truth marked in `crowd` the value is the intersection over the prediction's
+    area, as cocoapi does for iscrowd regions.
+
+    Args:
+        predicted: (N, H, W) the predicted masks.
+        truth: (M, H, W) the ground-truth masks.
+        crowd: (M) booleans, the ground truths that are iscrowd regions; default none.
+
+    Returns:
+        (N, M) float64 IoU.
+
+    Raises:
+        ValueError: the predicted and ground-truth masks are not the same image size.
+    """
     predicted = np.asarray(predicted).astype(bool)
     truth = np.asarray(truth).astype(bool)
     n, m = len(predicted), len(truth)
@@ -58,9 +71,19 @@ def mask_iou(predicted: np.ndarray, truth: np.ndarray,
 
 def box_iou(predicted: np.ndarray, truth: np.ndarray,
             crowd: Optional[np.ndarray] = None) -> np.ndarray:
-    """(N, M) IoU of N predicted and M ground-truth boxes, each (K, 4) XYXY, as cocoapi computes
-    it (areas (x1 - x0) (y1 - y0)); for a ground truth marked in `crowd` the intersection over
-    the prediction's area."""
+    """The IoU of predicted and ground-truth boxes, as cocoapi computes it.
+
+    Areas are (x1 - x0) (y1 - y0); for a ground truth marked in `crowd` the value is the
+    intersection over the prediction's area.
+
+    Args:
+        predicted: (N, 4) XYXY, the predicted boxes.
+        truth: (M, 4) XYXY, the ground-truth boxes.
+        crowd: (M) booleans, the ground truths that are iscrowd regions; default none.
+
+    Returns:
+        (N, M) float64 IoU.
+    """
     p = np.asarray(predicted, dtype=np.float64).reshape(-1, 4)
     t = np.asarray(truth, dtype=np.float64).reshape(-1, 4)
     if len(p) == 0 or len(t) == 0:
@@ -83,7 +106,14 @@ def box_iou(predicted: np.ndarray, truth: np.ndarray,
 
 
 def mask_boxes(masks: np.ndarray) -> np.ndarray:
-    """(K, 4) float64 XYXY extents (pixel edges) of K masks (K, H, W); zeros for an empty one."""
+    """The extents of masks as boxes.
+
+    Args:
+        masks: (K, H, W) the masks.
+
+    Returns:
+        (K, 4) float64 XYXY extents (pixel edges); zeros for an empty mask.
+    """
     masks = np.asarray(masks).astype(bool)
     boxes = np.zeros((len(masks), 4))
     for k, mask in enumerate(masks):
@@ -140,6 +170,9 @@ class DetectionScores:
         score_threshold: predictions below it do not count for the paper's score (they do for
             AP, as in COCO).
         max_detections: the highest-scoring predictions kept per image (COCO's 100).
+
+    Raises:
+        ValueError: paper_iou is not in (0, 1).
     """
 
     def __init__(self, paper_iou: float = PAPER_IOU, score_threshold: float = 0.5,

@@ -62,13 +62,29 @@ _REAL_TAG = 0x8EA1
 
 def collate(batch: List[Tuple[torch.Tensor, Dict[str, torch.Tensor]]]
             ) -> Tuple[Tuple[torch.Tensor, ...], Tuple[Dict[str, torch.Tensor], ...]]:
-    """The detection collate: a tuple of images and a tuple of targets (sizes may differ)."""
+    """The detection collate: the batch's images and targets as two tuples.
+
+    Args:
+        batch: (image, target) pairs, as StreamDataset yields them.
+
+    Returns:
+        A tuple of images and a tuple of targets (sizes may differ).
+    """
     return tuple(zip(*batch))
 
 
 def without_ignore_regions(target: Dict[str, torch.Tensor]) -> Dict[str, torch.Tensor]:
-    """The target without its ignore regions (iscrowd 1), as torchvision's detection models
-    want it for training: they have no notion of an ignore region."""
+    """The target without its ignore regions (iscrowd 1).
+
+    Torchvision's detection models want it so for training: they have no notion of an ignore
+    region.
+
+    Args:
+        target: a target of StreamDataset.
+
+    Returns:
+        A new dict: the per-instance entries without the ignore regions, the others as they are.
+    """
     keep = target["iscrowd"] == 0
     return {key: (value[keep] if _per_instance(key) else value) for key, value in target.items()}
 
@@ -125,9 +141,15 @@ def evaluate(model: torch.nn.Module, dataset: Union[str, os.PathLike, Any],
 
 
 class ReuseMeter:
-    """Counts what a training loop took: samples of scenes, distinct scenes, and the reuse factor
-    achieved (samples per distinct scene); real images mixed in (StreamDataset's mix) are
-    counted apart, in `real`. Feed it each batch's targets."""
+    """Counts what a training loop took: samples of scenes, distinct scenes, and reuse.
+
+    The reuse factor achieved is samples per distinct scene; real images mixed in
+    (StreamDataset's mix) are counted apart, in `real`. Feed it each batch's targets.
+
+    Attributes:
+        samples: samples of scenes taken.
+        real: real images taken.
+    """
 
     def __init__(self):
         self.samples = 0
@@ -135,6 +157,11 @@ class ReuseMeter:
         self._scenes = set()
 
     def update(self, targets):
+        """Counts one batch.
+
+        Args:
+            targets: the batch's targets (StreamDataset's), each with its "scene" entry.
+        """
         for target in targets:
             generator_id, seq, _ = (int(v) for v in target["scene"])
             if generator_id < 0:
@@ -145,20 +172,25 @@ class ReuseMeter:
 
     @property
     def scenes(self):
+        """int: the distinct scenes taken."""
         return len(self._scenes)
 
     @property
     def seen(self):
-        """The (generator_id, seq) of every distinct scene taken."""
+        """frozenset: the (generator_id, seq) of every distinct scene taken."""
         return frozenset(self._scenes)
 
     @property
     def factor(self):
+        """float: the reuse factor achieved, samples per distinct scene."""
         return self.samples / max(1, len(self._scenes))
 
 
 class StreamDataset(IterableDataset):
     """(image, target) pairs from a live stackgen bus or a log, for torchvision detection models.
+
+    Usable with DataLoader(num_workers=k) (k <= 256): each worker opens its own stream on one
+    shard of the seqs.
 
     image: float32 (3, H, W) in [0, 1] (RGB; a gray camera's image repeated), or (1, H, W) with
         grayscale=True (a colour image converted), the paper's option for monochrome parts.
@@ -173,57 +205,74 @@ class StreamDataset(IterableDataset):
         (generator_id, seq, use); with depth=True also depth_mm (H, W) float32.
     Torchvision's models want the ignore regions out: without_ignore_regions(target).
 
-    lcm_url, reliable, window, generator_ids, timeout, queue, fault_drop, name: as
-        stackgen.Stream.
-    decode_threads: threads that decode PNG images ahead (stackgen.Stream). None (default):
-        one per core in the training process, less one for the augmentation when augmenting (at
-        most 4); one in each DataLoader worker (the workers are the parallelism there). count: scenes in all (split between the workers), 0: no end.
-    reuse: each scene is used up to `reuse` times (default 1: once). A new scene is always taken
-        first; when none is waiting, a scene of the last `reuse_buffer` (default 32) that has
-        been used fewer times is drawn at random instead, so a learner faster than the
-        generators stays busy. The factor achieved: ReuseMeter, or target["scene"][2] (the use).
-    augment: None or False (default): none; True: Augment() with its defaults; or an Augment.
-    min_visib_fract: an annotated object less visible than this after augmentation becomes an
-        ignore region (default 0.3, the paper's threshold).
-    min_visible_px: so does one with fewer visible pixels (default 16, as the generator's
-        annotation.min_visible_px: a zoom or crop can shrink a part below it).
-    seed: augmentation is drawn from (seed, generator_id, seq, use, scene seed): the same log
-        and seed give the same samples, whichever worker makes them.
-    record: a path: every sample's scene is appended to this LCM log (STACKGEN_SCENE, one event
-        per use, in the order each worker hands them out); the file must not exist.
-    replay: the URL is a log made with `record`: every event is one sample, the n-th repeat of
-        a scene its n-th use (reuse must be 1). With the same workers, batch size and seed a
-        training run sees the same batches as the recorded one.
-    depth: add depth_mm to the target.
-    bus_key_file, open_bus: the bus key, as for stackgen.Stream (default: this user's key; the
-        recording is signed with it too).
+    Args:
+        lcm_url: the bus or log, as stackgen.Stream.
+        reliable: a reliable consumer or best effort, as stackgen.Stream.
+        window: as stackgen.Stream.
+        generator_ids: as stackgen.Stream.
+        timeout: as stackgen.Stream.
+        count: scenes in all (split between the workers), 0: no end.
+        reuse: each scene is used up to `reuse` times (default 1: once). A new scene is always
+            taken first; when none is waiting, a scene of the last `reuse_buffer` that has been
+            used fewer times is drawn at random instead, so a learner faster than the
+            generators stays busy. The factor achieved: ReuseMeter, or target["scene"][2] (the
+            use).
+        reuse_buffer: the recent scenes that `reuse` draws from (default 32).
+        grayscale: one-channel images (1, H, W), a colour image converted: the paper's option
+            for monochrome parts.
+        augment: None or False (default): none; True: Augment() with its defaults; or an
+            Augment.
+        min_visib_fract: an annotated object less visible than this after augmentation becomes
+            an ignore region (default 0.3, the paper's threshold).
+        min_visible_px: so does one with fewer visible pixels (default 16, as the generator's
+            annotation.min_visible_px: a zoom or crop can shrink a part below it).
+        seed: augmentation is drawn from (seed, generator_id, seq, use, scene seed): the same
+            log and seed give the same samples, whichever worker makes them.
+        record: a path: every sample's scene is appended to this LCM log (STACKGEN_SCENE, one
+            event per use, in the order each worker hands them out); the file must not exist.
+        replay: the URL is a log made with `record`: every event is one sample, the n-th repeat
+            of a scene its n-th use (reuse must be 1). With the same workers, batch size and
+            seed a training run sees the same batches as the recorded one.
+        depth: add depth_mm to the target.
+        queue: as stackgen.Stream.
+        decode_threads: threads that decode PNG images ahead (stackgen.Stream). None (default):
+            one per core in the training process, less one for the augmentation when augmenting
+            (at most 4); one in each DataLoader worker (the workers are the parallelism there).
+        fault_drop: as stackgen.Stream.
+        name: as stackgen.Stream.
+        bus_key_file: the bus key, as for stackgen.Stream (default: this user's key; the
+            recording is signed with it too).
+        open_bus: no bus key, as for stackgen.Stream.
+        rank: this process's rank under distributed training. None (default): from
+            torch.distributed when it is initialised (DDP, torchrun), else the only process.
+            Rank r of n with k DataLoader workers takes shards r * k .. r * k + k - 1 of n * k
+            (seq % (n * k)), so no scene reaches two ranks and, reliable, none is missed;
+            `count` is split between all shards. Every rank needs the same number of workers.
+        world_size: the number of ranks; given with rank, or both None.
+        transforms: a callable (image, target) -> (image, target) applied to every sample after
+            stackgen's own augmentation (torchvision's detection references style), e.g. a
+            normalisation or your own photometric changes; None (default): none.
+        mix: real labelled images to mix into the stream: a folder (COCO with annotations.json,
+            or labelme files: stackgen.coco.open_labelled_folder), or a dataset object with
+            len(), image(i) (H, W, 3) uint8 RGB and target(i) -> (masks, class ids, iscrowd),
+            such as stackgen.coco.CocoDataset or LabelmeDataset(folder, class_ids). None
+            (default): none.
+        mix_fraction: the share of real images among all samples, in [0, 1) (default 0.1 with
+            `mix`). Sample n of a worker is real when floor((n + 1) f + p) > floor(n f + p), p
+            drawn once from (seed, shard): over any N samples the count of real ones is within
+            1 of N f. Each worker goes through the real images in an order of its own, drawn
+            from (seed, shard, pass), and augments them as scenes (the same Augment,
+            min_visib_fract, min_visible_px, grayscale and transforms), drawn from (seed, image
+            index, use). A real sample's target has what a photo's labels give: visible masks,
+            boxes, labels, iscrowd, area; the whole object counts as visible (visib_fract 1
+            until augmentation cuts it), K and the poses are NaN, image_id is -(index + 1),
+            scene is (-1, index, use). The stream's `count` counts scenes; the real samples
+            come on top.
 
-    transforms: a callable (image, target) -> (image, target) applied to every sample after
-        stackgen's own augmentation (torchvision's detection references style), e.g. a
-        normalisation or your own photometric changes; None (default): none.
-    mix: real labelled images to mix into the stream: a folder (COCO with annotations.json, or
-        labelme files: stackgen.coco.open_labelled_folder), or a dataset object with len(),
-        image(i) (H, W, 3) uint8 RGB and target(i) -> (masks, class ids, iscrowd), such as
-        stackgen.coco.CocoDataset or LabelmeDataset(folder, class_ids). None (default): none.
-    mix_fraction: the share of real images among all samples, in [0, 1) (default 0.1 with
-        `mix`). Sample n of a worker is real when floor((n + 1) f + p) > floor(n f + p), p drawn
-        once from (seed, shard): over any N samples the count of real ones is within 1 of N f.
-        Each worker goes through the real images in an order of its own, drawn from (seed,
-        shard, pass), and augments them as scenes (the same Augment, min_visib_fract,
-        min_visible_px, grayscale and transforms), drawn from (seed, image index, use). A real
-        sample's target has what a photo's labels give: visible masks, boxes, labels, iscrowd,
-        area; the whole object counts as visible (visib_fract 1 until augmentation cuts it),
-        K and the poses are NaN, image_id is -(index + 1), scene is (-1, index, use). The
-        stream's `count` counts scenes; the real samples come on top.
-    rank, world_size: this process's share under distributed training. None (default): from
-        torch.distributed when it is initialised (DDP, torchrun), else the only process. Rank r
-        of n with k DataLoader workers takes shards r * k .. r * k + k - 1 of n * k (seq % (n *
-        k)), so no scene reaches two ranks and, reliable, none is missed; `count` is split
-        between all shards. Every rank needs the same number of workers.
-
-    Usable with DataLoader(num_workers=k) (k <= 256): each worker opens its own stream on one
-    shard of the seqs. Raises stackgen.StreamError as the stream does, ValueError for bad
-    arguments.
+    Raises:
+        stackgen.StreamError: as the stream does; also when the `record` file exists or cannot
+            be created.
+        ValueError: bad arguments.
     """
 
     def __init__(self, lcm_url: Optional[str] = None, *, reliable: bool = True, window: int = 8,
@@ -360,6 +409,11 @@ class StreamDataset(IterableDataset):
         return max(1, min(4, cores - (1 if self.augment is not None else 0)))
 
     def __iter__(self):
+        """Takes this worker's shard of the stream.
+
+        Yields:
+            (image, target) pairs, as the class describes them.
+        """
         info = get_worker_info()
         worker, workers = (info.id, info.num_workers) if info is not None else (0, 1)
         if info is not None:
@@ -445,8 +499,17 @@ class StreamDataset(IterableDataset):
 
     def sample(self, scene: stackgen.Scene, use: int = 0
                ) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
-        """The (image, target) pair of `scene` for its use number `use` (augmented with the
-        draws of (seed, generator_id, seq, use, scene seed))."""
+        """The (image, target) pair of a scene for one use.
+
+        Augmented with the draws of (seed, generator_id, seq, use, scene seed).
+
+        Args:
+            scene: the scene.
+            use: its use number (default 0).
+
+        Returns:
+            The (image, target) pair, as the class describes it.
+        """
         rng = np.random.default_rng(
             [self.seed, scene.generator_id, scene.seq, use, scene.seed & _SEED_MASK])
         annotated = scene.annotated
@@ -489,8 +552,17 @@ class StreamDataset(IterableDataset):
 
     def sample_real(self, index: int, use: int = 0
                     ) -> Tuple[torch.Tensor, Dict[str, torch.Tensor]]:
-        """The (image, target) pair of real image `index` of `mix` for its use number `use`
-        (augmented with the draws of (seed, index, use)); see `mix` for its target."""
+        """The (image, target) pair of a real image of `mix` for one use.
+
+        Augmented with the draws of (seed, index, use).
+
+        Args:
+            index: the image's index in `mix`.
+            use: its use number (default 0).
+
+        Returns:
+            The (image, target) pair; see `mix` for its target.
+        """
         rng = np.random.default_rng([self.seed, _REAL_TAG, index, use])
         image = self.mix.image(index)
         masks, class_ids, iscrowd = self.mix.target(index)

@@ -86,7 +86,7 @@ struct Bus::Impl {
   // what the messages heard on one channel showed of their senders' keys (KeyMismatch)
   struct KeyUse {
     KeyEvidence evidence;
-    std::chrono::steady_clock::time_point first_mismatch;
+    Clock::TimePoint first_mismatch;
   };
 
   std::string url;
@@ -145,6 +145,11 @@ struct Bus::Impl {
     }
   }
 
+  // the time on the bus's clock (BusOptions::clock)
+  Clock::TimePoint Now() const {
+    return (options.clock != nullptr ? *options.clock : SteadyClock()).Now();
+  }
+
   // notes what a message heard on `channel` showed of its sender's key
   void NoteKeyUse(const std::string& channel, const uint8_t* data, size_t size, bool verified) {
     const std::lock_guard<std::mutex> lock(key_use_mutex);
@@ -152,7 +157,7 @@ struct Bus::Impl {
     const int64_t mismatched = use.evidence.mismatched;
     use.evidence.Note(*auth, data, size, verified);
     if (mismatched == 0 && use.evidence.mismatched > 0) {
-      use.first_mismatch = std::chrono::steady_clock::now();
+      use.first_mismatch = Now();
     }
   }
 
@@ -353,7 +358,7 @@ uint64_t Bus::key_id() const { return impl_->auth->key_id(); }
 std::string Bus::KeyMismatch(const std::vector<std::string>& channels, double seconds) const {
   // what was heard on those channels together, since the first mismatch among them
   KeyEvidence all;
-  std::optional<std::chrono::steady_clock::time_point> first;
+  std::optional<Clock::TimePoint> first;
   std::string names;
   {
     const std::lock_guard<std::mutex> lock(impl_->key_use_mutex);
@@ -368,8 +373,7 @@ std::string Bus::KeyMismatch(const std::vector<std::string>& channels, double se
       }
     }
   }
-  if (!first ||
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - *first).count() < seconds) {
+  if (!first || std::chrono::duration<double>(impl_->Now() - *first).count() < seconds) {
     return "";
   }
   return all.Mismatch(*impl_->auth, "the messages on " + names + " of " + impl_->url);

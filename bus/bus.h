@@ -9,6 +9,7 @@
 
 #include "bus/auth.h"
 #include "bus/bounded_decode.h"
+#include "bus/clock.h"
 #include "bus/udpm.h"
 
 namespace stackgen {
@@ -51,6 +52,9 @@ struct BusOptions {
   /// without their sender answering the liveness check (auth.h), whatever their age. A file://
   /// log is always read so.
   bool replay = false;
+  /// The clock KeyMismatch's `seconds` are measured on; null: SteadyClock(). Must outlive the
+  /// bus, and be safe to read from the thread that receives (SteadyClock is).
+  Clock* clock = nullptr;
 };
 
 /// Parses a --fault-drop value: a number in [0, 1). Throws std::invalid_argument naming `flag`.

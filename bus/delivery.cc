@@ -18,7 +18,7 @@
 namespace stackgen {
 namespace {
 
-using Clock = std::chrono::steady_clock;
+using TimePoint = Clock::TimePoint;
 
 // the most seqs one resend request carries
 constexpr int kMaxSeqsPerRequest = 256;
@@ -35,7 +35,7 @@ constexpr double kListeningS = 1.0;
 // tail resends to a consumer that took none of the last back off, doubling up to this
 constexpr double kMaxTailResendIntervalS = 5.0;
 
-double SecondsSince(Clock::time_point then, Clock::time_point now) {
+double SecondsSince(TimePoint then, TimePoint now) {
   return std::chrono::duration<double>(now - then).count();
 }
 
@@ -82,13 +82,13 @@ struct SceneServer::Impl {
     int64_t stored_through = -1;
     int64_t last_received = -1;
     int32_t window = 0;
-    Clock::time_point last_heard;
-    Clock::time_point last_tail_resend;
+    TimePoint last_heard;
+    TimePoint last_tail_resend;
     // when last_received last grew; tail resends since then (each waits twice the one before)
-    Clock::time_point last_progress;
+    TimePoint last_progress;
     int tail_resends = 0;
     // since when it offers no window (window 0), if it does
-    std::optional<Clock::time_point> closed_since;
+    std::optional<TimePoint> closed_since;
   };
   // a published scene kept for resending
   struct Kept {
@@ -98,6 +98,7 @@ struct SceneServer::Impl {
 
   Bus* bus = nullptr;
   SceneServerOptions options;
+  Clock* clock = nullptr;  // options.clock, or the steady clock
   Regenerate regenerate;
   Notice notice;
   std::map<std::string, Consumer> consumers;
@@ -106,9 +107,9 @@ struct SceneServer::Impl {
   std::set<std::string> held_off;
   std::deque<Kept> ring;
   int64_t next_seq = -1;  // one past the last seq published; -1 before the first
-  Clock::time_point last_publish_time;
-  std::set<int64_t> requested;                     // seqs asked for and not served yet
-  std::map<int64_t, Clock::time_point> resent_at;  // when a seq was last published again
+  TimePoint last_publish_time;
+  std::set<int64_t> requested;             // seqs asked for and not served yet
+  std::map<int64_t, TimePoint> resent_at;  // when a seq was last published again
   int64_t resent = 0;
   int64_t regenerated = 0;
   int64_t registrations = 0;
@@ -146,7 +147,7 @@ struct SceneServer::Impl {
              message.consumer + " offers " + std::to_string(message.window));
       return;
     }
-    const Clock::time_point now = Clock::now();
+    const TimePoint now = clock->Now();
     auto found = consumers.find(message.consumer);
     if (message.leaving) {
       held_off.erase(message.consumer);
@@ -240,7 +241,7 @@ struct SceneServer::Impl {
   }
 
   // publishes `seq` again, from the ring or regenerated
-  void Serve(int64_t seq, Clock::time_point now) {
+  void Serve(int64_t seq, TimePoint now) {
     const auto sent = resent_at.find(seq);
     if (sent != resent_at.end() &&
         SecondsSince(sent->second, now) < options.min_resend_interval_s) {
@@ -255,7 +256,7 @@ struct SceneServer::Impl {
       bus->PublishEncoded(kSceneChannel, regenerate(seq));
       ++regenerated;
     }
-    resent_at[seq] = Clock::now();
+    resent_at[seq] = clock->Now();
   }
 };
 
@@ -268,6 +269,7 @@ SceneServer::SceneServer(Bus* bus, const SceneServerOptions& options, Regenerate
   }
   impl_->bus = bus;
   impl_->options = options;
+  impl_->clock = options.clock != nullptr ? options.clock : &SteadyClock();
   impl_->regenerate = std::move(regenerate);
   impl_->notice = std::move(notice);
   Impl* impl = impl_.get();
@@ -287,7 +289,7 @@ void SceneServer::Publish(int64_t seq, std::vector<uint8_t> encoded_scene) {
                            std::to_string(impl_->next_seq - 1));
   }
   impl_->bus->PublishEncoded(kSceneChannel, encoded_scene);
-  impl_->last_publish_time = Clock::now();
+  impl_->last_publish_time = impl_->clock->Now();
   impl_->next_seq = seq + 1;
   impl_->ring.push_back(Impl::Kept{seq, std::move(encoded_scene)});
   while (static_cast<int>(impl_->ring.size()) > impl_->options.ring_size) impl_->ring.pop_front();
@@ -303,7 +305,7 @@ bool SceneServer::MayPublish(int64_t seq) const {
 void SceneServer::Service(int timeout_ms) {
   Impl& impl = *impl_;
   impl.bus->HandleFor(timeout_ms);
-  const Clock::time_point now = Clock::now();
+  const TimePoint now = impl.clock->Now();
 
   // drop consumers that went silent
   for (auto it = impl.consumers.begin(); it != impl.consumers.end();) {
@@ -393,17 +395,18 @@ struct SceneClient::Impl {
     // waiting for its commit, a learner's queue): not missing, never asked for again
     std::set<int64_t> pending;
     int64_t last_received = -1;
-    std::map<int64_t, Clock::time_point> asked;  // missing seq -> when last asked for
+    std::map<int64_t, TimePoint> asked;  // missing seq -> when last asked for
     bool credit_due = true;
     std::string run;  // the RunName its scenes come from ("": unknown)
   };
 
   Bus* bus = nullptr;
   SceneClientOptions options;
+  Clock* clock = nullptr;  // options.clock, or the steady clock
   std::map<int32_t, Stream> streams;
   DeliveryCounters counters;
   int64_t stored_total = 0;  // stored, restored ones included (not skipped ones)
-  Clock::time_point last_credit;
+  TimePoint last_credit;
   bool left = false;
 
   // whether scenes of `generator_id` are tracked at all
@@ -511,7 +514,8 @@ SceneClient::SceneClient(Bus* bus, const SceneClientOptions& options)
   }
   impl_->bus = bus;
   impl_->options = options;
-  impl_->last_credit = Clock::now() - std::chrono::hours(1);
+  impl_->clock = options.clock != nullptr ? options.clock : &SteadyClock();
+  impl_->last_credit = impl_->clock->Now() - std::chrono::hours(1);
   // listed generators are credited from the start (a learner's once heard): no wildcard
   if (!options.join_where_heard) {
     for (const int32_t generator_id : options.generator_ids) impl_->StreamOf(generator_id);
@@ -582,7 +586,7 @@ void SceneClient::Skipped(int32_t generator_id, int64_t seq) {
 void SceneClient::Service() {
   Impl& impl = *impl_;
   if (impl.left) return;
-  const Clock::time_point now = Clock::now();
+  const TimePoint now = impl.clock->Now();
   const bool period_due = SecondsSince(impl.last_credit, now) >= impl.options.credit_period_s;
 
   for (auto& [generator_id, stream] : impl.streams) {

@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "bus/bus.h"
+#include "bus/clock.h"
 
 namespace stackgen {
 
@@ -56,6 +57,8 @@ struct SceneServerOptions {
   /// This generator's RunName; empty: not checked. A credit naming another run (a consumer that
   /// holds scenes of another seed or config) registers nothing and sets run_conflict().
   std::string run;
+  /// The clock every timeout above is measured on; null: SteadyClock(). Must outlive the server.
+  Clock* clock = nullptr;
 };
 
 /// The generator's side: publishes scenes on STACKGEN_SCENE, keeps the recent ones, follows
@@ -157,6 +160,9 @@ struct SceneClientOptions {
   /// generator never makes it resend its history; one first heard at a lower seq started with
   /// the learner and is taken from seq 0.
   bool join_where_heard = false;
+  /// The clock the credit period and the re-asking are measured on; null: SteadyClock(). Must
+  /// outlive the client.
+  Clock* clock = nullptr;
 };
 
 /// The most consumers one stream can be split between (SceneClientOptions::shard_count).

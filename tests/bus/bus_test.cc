@@ -234,12 +234,16 @@ TEST(BusTest, TwoDatagramsOfLcm628DoNotCrashAReceiver) {
 // A keyed consumer that reads scenes but watches the config channel too (Bus::WatchKeys) hears
 // its generator's key in the config announced before the first scene, so a stranger's unsigned
 // messages on the scene channel meanwhile are not all it heard; one that does not watch the
-// config channel has heard only those, and KeyMismatch says that its peers do not sign.
+// config channel has heard only those, and KeyMismatch says that its peers do not sign, once the
+// mismatch is as old as asked (on the bus's clock).
 TEST(BusTest, WatchedChannelsShowTheGeneratorsKeyBeforeItsFirstScene) {
   const std::string url = testing::FreeMulticastUrl();
   const std::vector<std::string> generator_channels = {kSceneChannel, kConfigChannel};
+  ManualClock clock;
+  BusOptions on_clock;
+  on_clock.clock = &clock;
   Bus watching(url);
-  Bus blind(url);
+  Bus blind(url, on_clock);
   for (Bus* consumer : {&watching, &blind}) {
     consumer->Subscribe<status>(kSceneChannel, [](const status&) {});
   }
@@ -261,6 +265,9 @@ TEST(BusTest, WatchedChannelsShowTheGeneratorsKeyBeforeItsFirstScene) {
   }
   EXPECT_GE(blind.auth_counters().unsigned_messages, 5);
   EXPECT_NE(blind.KeyMismatch(generator_channels, 0).find("are not signed"), std::string::npos);
+  EXPECT_EQ(blind.KeyMismatch(generator_channels, 2), "");
+  clock.Advance(2);
+  EXPECT_NE(blind.KeyMismatch(generator_channels, 2).find("are not signed"), std::string::npos);
   EXPECT_GE(watching.auth_counters().unsigned_messages, 5);
   EXPECT_EQ(watching.KeyMismatch(generator_channels, 0), "");
 }

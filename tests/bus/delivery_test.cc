@@ -1,10 +1,8 @@
 #include "bus/delivery.h"
 
-#include <chrono>
 #include <map>
 #include <set>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -14,6 +12,7 @@
 
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "bus/clock.h"
 
 namespace stackgen {
 namespace {
@@ -27,12 +26,16 @@ std::vector<uint8_t> EncodedScene(int32_t generator_id, int64_t seq) {
   return EncodeMessage(message);
 }
 
-// a generator, a reliable consumer and the link between them, all on one memq:// bus. The test
-// decides which scene messages the consumer gets to see (`drop`), like a lossy network would.
+// a generator, a reliable consumer and the link between them, all on one memq:// bus, their
+// timers on one manual clock (time passes when the test says so). The test decides which scene
+// messages the consumer gets to see (`drop`), like a lossy network would.
 class DeliveryFixture : public ::testing::Test {
  protected:
-  void SetUpLink(const SceneServerOptions& server_options, const SceneClientOptions& client_options,
-                 const BusOptions& bus_options = {}) {
+  void SetUpLink(SceneServerOptions server_options, SceneClientOptions client_options,
+                 BusOptions bus_options = {}) {
+    server_options.clock = &clock_;
+    client_options.clock = &clock_;
+    bus_options.clock = &clock_;
     bus_ = std::make_unique<Bus>("memq://", bus_options);
     server_ = std::make_unique<SceneServer>(
         bus_.get(), server_options,
@@ -63,6 +66,7 @@ class DeliveryFixture : public ::testing::Test {
     server_->Service(0);
   }
 
+  ManualClock clock_;
   std::unique_ptr<Bus> bus_;
   std::unique_ptr<SceneServer> server_;
   std::unique_ptr<SceneClient> client_;
@@ -205,7 +209,10 @@ TEST_F(DeliveryFixture, LostTailIsResentByTheGenerator) {
   Exchange();
   EXPECT_EQ(client_->StoredThrough(0), 1);
   EXPECT_FALSE(server_->AllStoredThrough(2));
-  std::this_thread::sleep_for(std::chrono::milliseconds(600));
+  clock_.Advance(0.4);  // not yet: the tail is resent 0.5 s after publication
+  Exchange();
+  EXPECT_EQ(client_->StoredThrough(0), 1);
+  clock_.Advance(0.2);
   Exchange();
   bus_->HandleFor(0);
   Exchange();
@@ -357,10 +364,10 @@ TEST_F(DeliveryFixture, NoWindowHoldsOnlyForTheTimeout) {
   };
   send_credit(0);
   EXPECT_FALSE(server_->MayPublish(0));
-  std::this_thread::sleep_for(std::chrono::milliseconds(30));
+  clock_.Advance(0.03);
   send_credit(0);
   EXPECT_FALSE(server_->MayPublish(0));
-  std::this_thread::sleep_for(std::chrono::milliseconds(40));
+  clock_.Advance(0.04);
   send_credit(0);
   EXPECT_TRUE(server_->MayPublish(0));
   ASSERT_FALSE(notices_.empty());
@@ -374,7 +381,9 @@ TEST_F(DeliveryFixture, NoWindowHoldsOnlyForTheTimeout) {
 
 // a consumer that stops taking scenes (paused: its credits stop) gets no tail resends once it
 // has been silent for a second; one that keeps crediting without receiving gets them ever more
-// rarely (0.01 s, then 0.02, 0.04, ...), not every tail_resend_s.
+// rarely (0.01 s, then 0.02, 0.04, ...), not every tail_resend_s: in 0.3 s, rounds at 0.01, 0.03,
+// 0.07 and 0.15 s (the next is due at 0.31), each of the 2 scenes, 8 resends; at a fixed 0.01 s
+// it would be 30 rounds.
 TEST_F(DeliveryFixture, TailResendsBackOff) {
   SceneServerOptions server_options;
   server_options.tail_resend_s = 0.01;
@@ -385,21 +394,19 @@ TEST_F(DeliveryFixture, TailResendsBackOff) {
   drop_ = {{0, 0}, {0, 1}};
   server_->Publish(0, EncodedScene(0, 0));
   server_->Publish(1, EncodedScene(0, 1));
-  const auto start = std::chrono::steady_clock::now();
-  while (std::chrono::steady_clock::now() - start < std::chrono::milliseconds(300)) {
+  for (int ms = 0; ms < 300; ++ms) {
+    clock_.Advance(0.001);
     client_->Service();
-    server_->Service(1);
+    server_->Service(0);
     drop_ = {{0, 0}, {0, 1}};
   }
-  // at a fixed 0.01 s it would be about 30 rounds of 2 scenes; backing off, 5 or so
-  EXPECT_GE(server_->resent(), 4);
-  EXPECT_LE(server_->resent(), 2 * 7);
+  EXPECT_EQ(server_->resent(), 8);
   // paused: no credit for over a second, then no more tail resends at all
-  std::this_thread::sleep_for(std::chrono::milliseconds(1100));
+  clock_.Advance(1.1);
   const int64_t before = server_->resent();
   for (int round = 0; round < 20; ++round) {
     server_->Service(0);
-    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    clock_.Advance(0.01);
   }
   EXPECT_EQ(server_->resent(), before);
 }
@@ -412,7 +419,10 @@ TEST_F(DeliveryFixture, SilentOrLeavingConsumerIsDropped) {
   SetUpLink(server_options, Client(1));
   Exchange();
   EXPECT_FALSE(server_->MayPublish(1));
-  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  clock_.Advance(0.04);
+  server_->Service(0);
+  EXPECT_FALSE(server_->MayPublish(1));  // 0.04 s of silence: not yet
+  clock_.Advance(0.06);
   server_->Service(0);
   EXPECT_TRUE(server_->MayPublish(1));
   ASSERT_FALSE(notices_.empty());
@@ -469,7 +479,7 @@ TEST_F(DeliveryFixture, EveryoneStoredOnceDespiteLoss) {
       ++next;
     }
     Exchange();
-    if (round % 16 == 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    clock_.Advance(0.001);
   }
   ASSERT_EQ(next, kScenes);
   EXPECT_TRUE(server_->AllStoredThrough(kScenes - 1));

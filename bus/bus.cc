@@ -22,7 +22,6 @@
 #include <stackgen/liveness.hpp>
 
 #include "bus/channels.h"
-#include "bus/flags.h"
 #include "bus/liveness.h"
 #include "bus/splitmix.h"
 #include "bus/udpm.h"
@@ -56,14 +55,6 @@ void CheckMulticastRoute(const std::string& url) {
 }
 
 }  // namespace
-
-double ParseDropFraction(const std::string& flag, const std::string& text) {
-  try {
-    return ParseNumber(flag, text, Interval::ClosedOpen(0, 1));
-  } catch (const UsageError&) {
-    throw std::invalid_argument(flag + " wants a fraction in [0, 1), got \"" + text + "\"");
-  }
-}
 
 std::string ResolveLcmUrl(const std::string& flag_value) {
   if (!flag_value.empty()) return flag_value;

@@ -57,9 +57,6 @@ struct BusOptions {
   Clock* clock = nullptr;
 };
 
-/// Parses a --fault-drop value: a number in [0, 1). Throws std::invalid_argument naming `flag`.
-double ParseDropFraction(const std::string& flag, const std::string& text);
-
 /// The LCM encoding of `message`. Throws std::runtime_error if it cannot be encoded.
 template <typename Message>
 std::vector<uint8_t> EncodeMessage(const Message& message) {

@@ -68,6 +68,14 @@ double ParseNumber(const std::string& flag, const std::string& text, const Inter
   return value;
 }
 
+double ParseDropFraction(const std::string& flag, const std::string& text) {
+  try {
+    return ParseNumber(flag, text, Interval::ClosedOpen(0, 1));
+  } catch (const UsageError&) {
+    throw std::invalid_argument(flag + " wants a fraction in [0, 1), got \"" + text + "\"");
+  }
+}
+
 FlagParser::FlagParser(std::string program) : program_(std::move(program)) {}
 
 FlagParser::Flag& FlagParser::Add(const std::string& name, bool takes_value,

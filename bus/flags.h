@@ -65,6 +65,9 @@ int64_t ParseWholeNumber(const std::string& flag, const std::string& text, int64
 /// for Interval::All()).
 double ParseNumber(const std::string& flag, const std::string& text, const Interval& range);
 
+/// Parses a --fault-drop value: a number in [0, 1). Throws std::invalid_argument naming `flag`.
+double ParseDropFraction(const std::string& flag, const std::string& text);
+
 /// The flags of one program: register each flag with where its value goes (its default is what
 /// that variable holds before parsing), then Parse or ParseOrExit. Flag names include the
 /// leading "--". Registering a name twice throws std::logic_error.

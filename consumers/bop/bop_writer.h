@@ -187,7 +187,6 @@ class BopWriter : public DatasetSink {
   void WriteChunk(int64_t scene_id);
   void WriteKeyToShard() const;
   int64_t ShardId(int64_t scene_id, int64_t im_id) const;
-  void WriteCamera(const scene& scene);
   void WriteModelsInfo() const;
 
   std::string dir_;

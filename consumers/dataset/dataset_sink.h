@@ -64,7 +64,4 @@ bool IsUtf8(const std::string& text);
 /// Per generator, the seqs missing between the first and the last of `seqs` (ascending).
 std::map<int32_t, int64_t> LostBetween(const std::map<int32_t, std::vector<int64_t>>& seqs);
 
-/// Per generator, the seqs missing between the first and the last of `seqs` (ascending).
-std::map<int32_t, int64_t> LostBetween(const std::map<int32_t, std::vector<int64_t>>& seqs);
-
 }  // namespace stackgen

@@ -3,7 +3,7 @@
 #include <random>
 #include <vector>
 
-#include "gen/render/renderer.h"
+#include "gen/render/lights.h"
 #include "stackgen_config.pb.h"
 
 namespace stackgen {

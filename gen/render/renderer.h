@@ -11,6 +11,7 @@
 
 #include "gen/mesh/mesh.h"
 #include "gen/render/environment.h"
+#include "gen/render/lights.h"
 
 namespace stackgen {
 
@@ -50,29 +51,6 @@ struct Material {
   /// Physically based only: the colour where the surface is metal (display values), blended
   /// with `color` by metallic; negative: `color` (MeshMaterial::metal_color).
   Eigen::Vector3f metal_color{-1.f, -1.f, -1.f};
-};
-
-/// Per-draw randomisation applied on top of whichever material a surface uses.
-struct MaterialGain {
-  /// Multiplies the colour (display values); the result is clamped to [0, 1].
-  Eigen::Vector3f color{1, 1, 1};
-  float specular = 1.f;   // multiplies the highlight strength
-  float shininess = 1.f;  // multiplies the exponent
-  float roughness = 1.f;  // physically based: multiplies the roughness (result clamped to 0..1)
-  float metallic = 0.f;   // physically based: added to metallic (result clamped to 0..1)
-};
-
-/// A light with the paper's three OpenGL terms (ambient, diffuse, specular). Ambient terms of all
-/// lights add up; no light falls off with distance. Physically based shading uses `diffuse` as
-/// the light's strength (a white matte surface facing it shows `diffuse` in linear light: an
-/// irradiance of pi x diffuse) and ignores ambient and specular: the environment is the ambient
-/// light, and highlights follow from the material.
-struct Light {
-  enum class Type { kDirectional, kPoint };
-  Type type = Type::kDirectional;
-  Eigen::Vector3f direction_world{0, 0, -1};   // directional: direction the light travels, unit
-  Eigen::Vector3f position_world{0, 0, 1000};  // point light: position, mm, world frame
-  float ambient = 0.25f, diffuse = 0.7f, specular = 0.4f;
 };
 
 /// Procedural surface detail of physically based shading (pbr.frag.glsl): roughness and

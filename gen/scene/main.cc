@@ -222,7 +222,6 @@ int Run(int argc, char** argv) {
 
   // delivery: credits and resends of reliable consumers; a scene asked for after it left the
   // ring is made again (determinism makes it the same scene)
-  StageTimes regenerate_times;
   SceneServerOptions server_options;
   server_options.generator_id = generator_id;
   server_options.ring_size = ring_size;
@@ -233,7 +232,8 @@ int Run(int argc, char** argv) {
   SceneServer server(
       &bus, server_options,
       [&](int64_t seq) {
-        scene message = generator.Generate(seq, &regenerate_times);
+        StageTimes not_reported;  // a scene made again is not a new one: its times stay out
+        scene message = generator.Generate(seq, &not_reported);
         message.header.utime = UnixMicros();
         return EncodeMessage(message);
       },

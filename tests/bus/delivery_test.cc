@@ -13,6 +13,7 @@
 #include "bus/bus.h"
 #include "bus/channels.h"
 #include "bus/clock.h"
+#include "bus/flags.h"
 
 namespace stackgen {
 namespace {

@@ -33,6 +33,7 @@
 #include "bus/bounded_decode.h"
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "bus/consumer.h"
 #include "bus/flags.h"
 #include "bus/scene_contract.h"
 #include "gen/annotate/rle.h"
@@ -784,26 +785,15 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
   // its counters on STACKGEN_STATUS (a best-effort consumer: it sends no credits)
   const bool live = bus.url().rfind("file://", 0) != 0;
   const auto publish_status = [&] {
-    stackgen::status message{};
-    message.header.seq = -1;
-    message.next_seq = -1;
-    message.scenes_held = static_cast<int64_t>(tiles.size());
-    message.header.generator_id = -1;
-    message.header.utime = std::chrono::duration_cast<std::chrono::microseconds>(
-                               std::chrono::system_clock::now().time_since_epoch())
-                               .count();
-    message.process = kProgram;
-    message.name = std::string(kProgram) + "/" + std::to_string(getpid());
-    message.scenes = static_cast<int64_t>(tiles.size());
-    message.received = received;
-    message.duplicates = repeated;
-    message.bad_messages = undecodable + invalid;
-    message.fault_dropped = bus.fault_dropped();
-    const stackgen::AuthCounters refused = bus.auth_counters();
-    message.refused_unsigned = refused.unsigned_messages;
-    message.refused_forged = refused.forged;
-    message.refused_replayed = refused.replayed;
-    bus.Publish(stackgen::kStatusChannel, message);
+    stackgen::ConsumerReport report;
+    report.process = kProgram;
+    report.name = std::string(kProgram) + "/" + std::to_string(getpid());
+    report.scenes_held = static_cast<int64_t>(tiles.size());
+    report.scenes = report.scenes_held;
+    report.delivery.received = received;
+    report.delivery.duplicates = repeated;
+    report.bad_messages = undecodable + invalid;
+    bus.Publish(stackgen::kStatusChannel, stackgen::ConsumerStatus(bus, report));
   };
 
   // scenes until enough, the timeout or a signal

@@ -17,6 +17,7 @@
 
 #include "bus/auth.h"
 #include "bus/channels.h"
+#include "bus/consumer.h"
 #include "bus/delivery.h"
 #include "bus/scene_contract.h"
 
@@ -30,10 +31,6 @@ constexpr int kQueueCapacity = 1000;
 constexpr double kKeyMismatchS = 2.0;
 // decode errors and invalid scenes reported one by one; later ones are only counted
 constexpr int kMaxReportedErrors = 10;
-// a seq whose copies failed the checks this often is given up (a generator that makes a bad
-// scene sends the same bad bytes again); at most this many seqs are remembered
-constexpr int kBadCopies = 3;
-constexpr size_t kMaxBadCopyKeys = 10000;
 
 std::atomic<bool> stop_requested{false};
 
@@ -288,8 +285,8 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
     int64_t decode_errors = 0;
     int64_t invalid_scenes = 0;
     int64_t duplicates = 0;
-    // reliable: bad copies received per (generator_id, seq) not stored yet
-    std::map<std::pair<int32_t, int64_t>, int> bad_copies;
+    // reliable: bad copies received of seqs not stored yet
+    BadCopies bad_copies;
     const bool group_commit = flags.group_commit > 1;
     const auto enough = [&] {
       return flags.count > 0 && writer->num_images() + writer->num_staged() >= flags.count;
@@ -324,7 +321,7 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
           // the writer first: it checks the scene whole (its images decoded) and refuses a
           // repeat. A copy that fails the checks tells the client nothing, so a damaged or a
           // stranger's copy cannot take the real scene's place: that seq is asked for again,
-          // and given up (skipped) only after kBadCopies bad copies of it
+          // and given up (skipped) only after BadCopies::kCopies bad copies of it
           bool added = false;
           try {
             added = writer->Add(scene);
@@ -333,11 +330,8 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
               std::fprintf(stderr, "%s: refused a scene: %s\n", name_text, error.what());
             }
             if (client) {
-              if (bad_copies.size() > kMaxBadCopyKeys) bad_copies.clear();
-              const std::pair<int32_t, int64_t> key{generator_id, seq};
-              if (++bad_copies[key] >= kBadCopies) {
-                bad_copies.erase(key);
-                if (client->Received(generator_id, seq)) client->Skipped(generator_id, seq);
+              if (bad_copies.Note(generator_id, seq) && client->Received(generator_id, seq)) {
+                client->Skipped(generator_id, seq);
               }
               client->Service();
             }
@@ -347,7 +341,7 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
           // the client has not seen (stored before it started) needs no asking again
           const bool fresh = !client || client->Received(generator_id, seq);
           if (added) {
-            if (client) bad_copies.erase({generator_id, seq});
+            if (client) bad_copies.Forget(generator_id, seq);
             // credited once durable: at once without group commits (Add made it durable),
             // else with its group
             if (!group_commit) {
@@ -378,28 +372,15 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
     auto last_status = std::chrono::steady_clock::now();
     const auto publish_status = [&](std::chrono::steady_clock::time_point now) {
       const double seconds = std::chrono::duration<double>(now - last_status).count();
-      status message{};
-      message.header.seq = -1;
-      message.next_seq = -1;
-      message.scenes_held = writer->num_images();
-      message.header.generator_id = -1;
-      message.header.utime = UnixMicros();
-      message.process = program.name;
-      message.name = name;
-      const DeliveryCounters counters = client ? client->counters() : DeliveryCounters{};
-      message.scenes = counters.stored;
-      message.rate_hz = seconds > 0 ? (writer->num_images() - stored_at_last_status) / seconds : 0;
-      message.received = counters.received;
-      message.duplicates = counters.duplicates;
-      message.lost = counters.lost;
-      message.reasked = counters.reasked;
-      message.bad_messages = decode_errors + invalid_scenes;
-      message.fault_dropped = bus.fault_dropped();
-      const AuthCounters refused = bus.auth_counters();
-      message.refused_unsigned = refused.unsigned_messages;
-      message.refused_forged = refused.forged;
-      message.refused_replayed = refused.replayed;
-      bus.Publish(kStatusChannel, message);
+      ConsumerReport report;
+      report.process = program.name;
+      report.name = name;
+      report.scenes_held = writer->num_images();
+      report.delivery = client ? client->counters() : DeliveryCounters{};
+      report.scenes = report.delivery.stored;
+      report.rate_hz = seconds > 0 ? (writer->num_images() - stored_at_last_status) / seconds : 0;
+      report.bad_messages = decode_errors + invalid_scenes;
+      bus.Publish(kStatusChannel, ConsumerStatus(bus, report));
       last_status = now;
       stored_at_last_status = writer->num_images();
     };

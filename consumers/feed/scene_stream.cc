@@ -22,6 +22,7 @@
 #include "bus/bounded_decode.h"
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "bus/consumer.h"
 #include "bus/delivery.h"
 #include "bus/log.h"
 #include "bus/scene_contract.h"
@@ -38,8 +39,6 @@ constexpr int kMaxReported = 10;
 constexpr double kKeyMismatchS = 2.0;
 // best effort: scene keys remembered to recognise a repeat (a resend for a reliable consumer)
 constexpr size_t kRecentKeys = 4096;
-// reliable: a seq is given up (skipped) after this many copies of it failed the checks
-constexpr int kBadCopies = 3;
 // the most scenes a queue may hold
 constexpr int kMaxQueue = 100000;
 
@@ -109,7 +108,7 @@ struct SceneStream::Impl {
   // thread-only state
   std::set<SceneKey> recent_keys;
   std::deque<SceneKey> recent_order;
-  std::map<SceneKey, int> bad_copies;  // reliable: copies of a seq that failed the checks
+  BadCopies bad_copies;  // reliable: copies of seqs that failed the checks
   std::atomic<int> reported{0};
 
   bool Wanted(int32_t generator_id, int64_t seq) const {
@@ -194,12 +193,9 @@ struct SceneStream::Impl {
     // a copy that fails the checks tells the client nothing: it neither sets where a learner
     // joins a generator nor marks its seq done, so a stranger's or a damaged copy cannot hide
     // the real scene (asked for again). A seq whose copies keep failing (a generator that
-    // publishes a bad scene, resends included) is given up after kBadCopies of them.
+    // publishes a bad scene, resends included) is given up after BadCopies::kCopies of them.
     if (!Check(message)) {
-      if (!client) return;
-      if (bad_copies.size() > kRecentKeys) bad_copies.clear();
-      if (++bad_copies[key] < kBadCopies) return;
-      bad_copies.erase(key);
+      if (!client || !bad_copies.Note(generator_id, seq)) return;
       bool taken;
       {
         const std::lock_guard<std::mutex> lock(mutex);
@@ -223,7 +219,7 @@ struct SceneStream::Impl {
         if (repeat) ++counters.duplicates;
       }
       if (repeat) return;
-      bad_copies.erase(key);
+      bad_copies.Forget(generator_id, seq);
     } else {
       if (!recent_keys.insert(key).second) {
         const std::lock_guard<std::mutex> lock(mutex);
@@ -254,27 +250,19 @@ struct SceneStream::Impl {
   }
 
   void PublishStatus(int64_t handed, double rate_hz) {
-    status message{};
-    message.header.seq = -1;
-    message.next_seq = -1;
-    message.scenes_held = handed;
-    message.header.generator_id = -1;
-    message.header.utime = UnixMicros();
-    message.process = "stackgen-feed";
-    message.name = name;
-    message.scenes = handed;
-    message.rate_hz = rate_hz;
     const StreamCounters now = Counters();
-    message.received = now.received;
-    message.duplicates = now.duplicates;
-    message.lost = now.lost;
-    message.reasked = now.reasked;
-    message.bad_messages = now.bad_messages;
-    message.fault_dropped = now.fault_dropped;
-    message.refused_unsigned = now.refused_unsigned;
-    message.refused_forged = now.refused_forged;
-    message.refused_replayed = now.refused_replayed;
-    bus->Publish(kStatusChannel, message);
+    ConsumerReport report;
+    report.process = "stackgen-feed";
+    report.name = name;
+    report.scenes_held = handed;
+    report.scenes = handed;
+    report.rate_hz = rate_hz;
+    report.delivery.received = now.received;
+    report.delivery.duplicates = now.duplicates;
+    report.delivery.lost = now.lost;
+    report.delivery.reasked = now.reasked;
+    report.bad_messages = now.bad_messages;
+    bus->Publish(kStatusChannel, ConsumerStatus(*bus, report));
   }
 
   StreamCounters Counters() const {

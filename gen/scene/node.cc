@@ -145,6 +145,7 @@ struct GeneratorNode::Impl {
   std::future<std::pair<scene, StageTimes>> encoding;
 
   bool Stopped() const { return options.stop != nullptr && *options.stop; }
+  status Status(int64_t next) const;
   void OnStatus(const status& other);
   void Announce();
   void Serve(int timeout_ms);
@@ -208,6 +209,20 @@ GeneratorNode::Impl::Impl(Bus* bus_in, SceneGenerator* generator_in, const Loade
       [](const std::string&) {});
 }
 
+// a status of this generator: who it is and its next seq, the counters left at 0
+status GeneratorNode::Impl::Status(int64_t next) const {
+  status message{};
+  message.header.seq = -1;
+  message.header.generator_id = generator_id;
+  message.header.seed = static_cast<int64_t>(seed);
+  message.header.utime = UnixMicros();
+  message.next_seq = next;
+  message.scenes_held = -1;
+  message.process = "stackgen";
+  message.name = name;
+  return message;
+}
+
 // another generator with this id: the one that has published fewer scenes (on a tie, the larger
 // name) gives way with an error, the other warns
 void GeneratorNode::Impl::OnStatus(const status& other) {
@@ -236,16 +251,7 @@ void GeneratorNode::Impl::OnStatus(const status& other) {
 // it conclude that the bus uses another key (the first scene may take seconds: piles, shader
 // compilation)
 void GeneratorNode::Impl::Announce() {
-  status hello{};
-  hello.header.seq = -1;
-  hello.next_seq = -1;  // not known before a resume is settled
-  hello.scenes_held = -1;
-  hello.header.generator_id = generator_id;
-  hello.header.seed = static_cast<int64_t>(seed);
-  hello.header.utime = UnixMicros();
-  hello.process = "stackgen";
-  hello.name = name;
-  bus.Publish(kStatusChannel, hello);
+  bus.Publish(kStatusChannel, Status(-1));  // the next seq is not known before a resume
   config_message.header.utime = UnixMicros();
   bus.Publish(kConfigChannel, config_message);
 }
@@ -305,15 +311,7 @@ void GeneratorNode::Impl::PublishPeriodic(bool force) {
       bus.Publish(kModelChannel, message);
     }
   }
-  status message{};
-  message.header.seq = -1;
-  message.next_seq = next_seq;
-  message.scenes_held = -1;
-  message.header.generator_id = generator_id;
-  message.header.seed = static_cast<int64_t>(seed);
-  message.header.utime = UnixMicros();
-  message.process = "stackgen";
-  message.name = name;
+  status message = Status(next_seq);
   message.scenes = published;
   message.scenes_rejected = times.redraws;
   message.rate_hz = since > 0 ? (published - published_at_last_status) / since : 0;

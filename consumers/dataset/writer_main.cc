@@ -188,16 +188,351 @@ std::string WriterFlagsHelp(const std::string& journal) {
          "0).\n";
 }
 
+namespace {
+
+// One writer's bus life, from opening the bus and the dataset to the summary: the delivery
+// client, each generator's run, the scene handler (the writer's checks, bad copies, duplicates,
+// group commits), status, progress and the silent-generator warning.
+class WriterSession {
+ public:
+  WriterSession(const WriterProgram& program, const WriterFlags& flags)
+      : program_(program), flags_(flags), name_text_(program.name.c_str()) {}
+
+  // the bus first: a bad URL or log is refused before anything is created on disk (on a log
+  // file it only reads, live it is a reliable consumer; it listens once subscribed); then the
+  // dataset: a folder that is not empty is this writer's dataset to resume, or refused
+  void Open() {
+    BusOptions bus_options;
+    bus_options.drop_receive_fraction = flags_.fault_drop;
+    bus_options.fault_seed = 0xC0C0;
+    bus_options.key_file = flags_.bus_key_file;
+    bus_options.open_bus = flags_.open_bus;
+    bus_options.replay = flags_.replay;
+    bus_ = std::make_unique<Bus>(ResolveLcmUrl(flags_.lcm_url), bus_options);
+    created_folder_ = CheckOutputFolder(program_, flags_);
+    writer_ = program_.open(flags_);
+    if (flags_.resume) {
+      std::printf("%s: resumed %s: %lld scenes stored%s\n", name_text_, flags_.out.c_str(),
+                  static_cast<long long>(writer_->num_images()),
+                  writer_->truncated_journal_bytes() > 0
+                      ? (", cut a torn last record of " +
+                         std::to_string(writer_->truncated_journal_bytes()) + " bytes")
+                            .c_str()
+                      : "");
+    }
+    name_ = ConsumerName(program_.name, flags_.out);
+    if (bus_->url().rfind("file://", 0) != 0) {
+      SceneClientOptions client_options;
+      client_options.name = name_;
+      client_options.window = static_cast<int32_t>(flags_.window);
+      client_options.max_scenes = flags_.count;
+      client_ = std::make_unique<SceneClient>(bus_.get(), client_options);
+      for (const auto& [generator_id, seqs] : writer_->StoredSeqs()) {
+        client_->Restore(generator_id, seqs);
+      }
+      // the runs the dataset holds go out with the credits: a generator of another run
+      // (--seed or config) refuses to continue it
+      for (const auto& [generator_id, run] : writer_->Runs()) client_->SetRun(generator_id, run);
+    }
+  }
+
+  void Subscribe() {
+    generator_heard_at_ = std::chrono::steady_clock::now();
+    bus_->Subscribe<config_text>(
+        kConfigChannel, [this](const config_text& config) { OnConfig(config); }, 16,
+        [](const std::string&) {});
+    if (program_.subscribe) program_.subscribe(*bus_, *writer_);
+    bus_->Subscribe<scene>(
+        kSceneChannel, [this](const scene& message) { OnScene(message); }, kQueueCapacity,
+        [this](const std::string& text) {
+          if (++decode_errors_ <= kMaxReportedErrors) {
+            std::fprintf(stderr, "%s: skipped a message: %s\n", name_text_, text.c_str());
+          }
+        });
+    std::printf("%s: listening on %s channel %s, writing %s\n", name_text_, bus_->url().c_str(),
+                kSceneChannel, flags_.out.c_str());
+    std::fflush(stdout);
+  }
+
+  // handles scenes until enough are stored, a signal arrives or the log ends
+  void Loop() {
+    stored_at_last_status_ = writer_->num_images();
+    last_status_ = std::chrono::steady_clock::now();
+    start_ = std::chrono::steady_clock::now();
+    stored_at_start_ = writer_->num_images();
+    last_progress_ = start_;
+    while (!stop_requested && !Enough() && !bus_->log_ended()) {
+      // with scenes staged, only those already waiting: the group ends when none is left
+      bus_->HandleFor(writer_->num_staged() > 0 ? 0 : 50);
+      Commit();
+      const std::string mismatch = bus_->KeyMismatch(generator_channels_, kKeyMismatchS);
+      if (!mismatch.empty()) throw std::runtime_error(mismatch);
+      if (client_) client_->Service();
+      const auto now = std::chrono::steady_clock::now();
+      WarnIfSilent(now);
+      if (client_ && now - last_status_ >= std::chrono::seconds(1)) PublishStatus(now);
+      ShowProgress(now);
+    }
+    if (show_progress_) std::fprintf(stderr, "\n");
+    // a log whose scenes were all refused for their key is an error, not an empty dataset
+    if (bus_->log_ended() && writer_->num_images() == stored_at_start_) {
+      const std::string mismatch = bus_->KeyMismatch(generator_channels_, 0);
+      if (!mismatch.empty()) throw std::runtime_error(mismatch);
+    }
+  }
+
+  // generators stop waiting for us; a valid dataset of what arrived; the summary
+  void Finish() {
+    Commit();
+    if (client_) {
+      PublishStatus(std::chrono::steady_clock::now());
+      client_->Leave();
+    }
+    writer_->Finish();
+    PrintSummary();
+  }
+
+  // a write error (full disk, ...): leave what is stored valid and say so. No leaving credit:
+  // the generators wait (up to their --consumer-timeout) for this writer to be resumed.
+  int Fail(const std::exception& error) {
+    std::string state;
+    if (writer_ && writer_->num_images() == 0 && !flags_.resume) {
+      // nothing stored: nothing left behind (the folder was empty or absent when it started)
+      writer_.reset();
+      RemoveDatasetFolder(flags_.out, created_folder_);
+    } else if (writer_ && (writer_->num_images() > 0 || flags_.resume)) {
+      try {
+        writer_->Finish();
+        state = "; " + flags_.out + " holds " + std::to_string(writer_->num_images()) +
+                " scenes (" + writer_->finished_files() + " written)";
+      } catch (const std::exception& finish_error) {
+        state = "; " + writer_->finished_files() + " not updated (" +
+                std::string(finish_error.what()) + ")";
+      }
+      state += "; the journal holds every scene stored: fix the cause and run again with --resume";
+    }
+    std::fprintf(stderr, "%s: error: %s%s\n", name_text_, error.what(), state.c_str());
+    return 1;
+  }
+
+ private:
+  bool Enough() const {
+    return flags_.count > 0 && writer_->num_images() + writer_->num_staged() >= flags_.count;
+  }
+
+  // makes the staged scenes durable, then credits them
+  void Commit() {
+    for (const auto& [generator_id, seq] : writer_->Commit()) {
+      if (client_) client_->Stored(generator_id, seq);
+    }
+  }
+
+  // each generator's run, from its STACKGEN_CONFIG: recorded with its first scene stored (and
+  // sent with the credits); a generator whose run differs from the one the dataset holds for
+  // its id gets its scenes refused
+  void OnConfig(const config_text& config) {
+    const int32_t generator_id = config.header.generator_id;
+    if (generator_id < 0 || generator_id > kMaxGeneratorId || config.header.seed < 0) return;
+    generator_heard_at_ = std::chrono::steady_clock::now();
+    const std::string run = RunName(config.header.seed, config.path, config.pbtxt);
+    const auto stored = writer_->Runs().find(generator_id);
+    if (stored == writer_->Runs().end()) {
+      if (heard_runs_.size() < 1024 || heard_runs_.count(generator_id) != 0) {
+        heard_runs_[generator_id] = run;
+      }
+    } else if (SameRun(stored->second, run)) {
+      foreign_runs_.erase(generator_id);
+    } else if (foreign_runs_.insert(generator_id).second) {
+      std::fprintf(stderr,
+                   "%s: refusing the scenes of generator %d: it runs %s, but %s holds "
+                   "scenes of %s\n",
+                   name_text_, generator_id, run.c_str(), flags_.out.c_str(),
+                   stored->second.c_str());
+    }
+  }
+
+  void OnScene(const scene& scene) {
+    generator_heard_at_ = std::chrono::steady_clock::now();
+    // once --count scenes are stored, later ones in the same batch are left out
+    if (Enough()) return;
+    const int32_t generator_id = scene.header.generator_id;
+    const int64_t seq = scene.header.seq;
+    if (foreign_runs_.count(generator_id) != 0) {
+      ++invalid_scenes_;
+      return;
+    }
+    // its generator's run, heard before, goes with the first scene stored
+    if (writer_->Runs().count(generator_id) == 0) {
+      const auto heard = heard_runs_.find(generator_id);
+      if (heard != heard_runs_.end()) {
+        writer_->SetRun(generator_id, heard->second);
+        if (client_) client_->SetRun(generator_id, heard->second);
+      }
+    }
+    // the writer first: it checks the scene whole (its images decoded) and refuses a repeat.
+    // A copy that fails the checks tells the client nothing, so a damaged or a stranger's copy
+    // cannot take the real scene's place: that seq is asked for again, and given up (skipped)
+    // only after BadCopies::kCopies bad copies of it
+    bool added = false;
+    try {
+      added = writer_->Add(scene);
+    } catch (const InvalidSceneError& error) {
+      if (++invalid_scenes_ <= kMaxReportedErrors) {
+        std::fprintf(stderr, "%s: refused a scene: %s\n", name_text_, error.what());
+      }
+      if (client_) {
+        if (bad_copies_.Note(generator_id, seq) && client_->Received(generator_id, seq)) {
+          client_->Skipped(generator_id, seq);
+        }
+        client_->Service();
+      }
+      return;
+    }
+    // the client tracks seqs (and counts repeats); a scene the writer holds already that the
+    // client has not seen (stored before it started) needs no asking again
+    const bool fresh = !client_ || client_->Received(generator_id, seq);
+    if (added) {
+      if (client_) bad_copies_.Forget(generator_id, seq);
+      // credited once durable: at once without group commits (Add made it durable), else with
+      // its group
+      if (flags_.group_commit <= 1) {
+        if (client_) client_->Stored(generator_id, seq);
+      } else if (writer_->num_staged() >= flags_.group_commit) {
+        Commit();
+      }
+    } else if (!client_) {
+      ++duplicates_;
+    } else if (fresh) {
+      client_->Skipped(generator_id, seq);
+    }
+    if (client_) client_->Service();
+  }
+
+  // the counters on STACKGEN_STATUS
+  void PublishStatus(std::chrono::steady_clock::time_point now) {
+    const double seconds = std::chrono::duration<double>(now - last_status_).count();
+    ConsumerReport report;
+    report.process = program_.name;
+    report.name = name_;
+    report.scenes_held = writer_->num_images();
+    report.delivery = client_ ? client_->counters() : DeliveryCounters{};
+    report.scenes = report.delivery.stored;
+    report.rate_hz = seconds > 0 ? (writer_->num_images() - stored_at_last_status_) / seconds : 0;
+    report.bad_messages = decode_errors_ + invalid_scenes_;
+    bus_->Publish(kStatusChannel, ConsumerStatus(*bus_, report));
+    last_status_ = now;
+    stored_at_last_status_ = writer_->num_images();
+  }
+
+  // when no generator was heard (its config every second, or a scene) for --warn-silent
+  // seconds, says so once
+  void WarnIfSilent(std::chrono::steady_clock::time_point now) {
+    const double silent_s = std::chrono::duration<double>(now - generator_heard_at_).count();
+    if (silent_s < 1) {
+      warned_silent_ = false;
+    } else if (!warned_silent_ && flags_.warn_silent_s > 0 && silent_s >= flags_.warn_silent_s &&
+               bus_->url().rfind("file://", 0) != 0) {
+      warned_silent_ = true;
+      if (show_progress_) std::fprintf(stderr, "\n");
+      std::fprintf(stderr,
+                   "%s: no generator heard for %d s on %s (no scene, no config): is stackgen "
+                   "running with this --lcm-url (the same port) and %s? still waiting\n",
+                   name_text_, static_cast<int>(silent_s), bus_->url().c_str(),
+                   bus_->keyed() ? ("the bus key " + bus_->key_file() + " (key id " +
+                                    KeyIdText(bus_->key_id()) + ")")
+                                       .c_str()
+                                 : "--open-bus (this writer checks no key)");
+    }
+  }
+
+  // a progress line on a terminal, twice a second
+  void ShowProgress(std::chrono::steady_clock::time_point now) {
+    if (!show_progress_ || now - last_progress_ < std::chrono::milliseconds(500)) return;
+    last_progress_ = now;
+    const double seconds = std::chrono::duration<double>(now - start_).count();
+    const double rate = (writer_->num_images() - stored_at_start_) / std::max(seconds, 1e-9);
+    std::string eta;
+    if (flags_.count > 0 && rate > 0) {
+      eta = ", ETA " + FormatDuration((flags_.count - writer_->num_images()) / rate);
+    }
+    std::fprintf(stderr, "\r%s: %lld scenes, %.1f scenes/s%s   ", name_text_,
+                 static_cast<long long>(writer_->num_images()), rate, eta.c_str());
+  }
+
+  void PrintSummary() const {
+    for (const auto& [generator_id, lost] : writer_->LostPerGenerator()) {
+      if (lost > 0) {
+        std::fprintf(stderr, "%s: generator %d: %lld scenes lost\n", name_text_, generator_id,
+                     static_cast<long long>(lost));
+      }
+    }
+    if (decode_errors_ > 0 || invalid_scenes_ > 0) {
+      std::fprintf(stderr, "%s: skipped %lld undecodable messages, refused %lld invalid scenes\n",
+                   name_text_, static_cast<long long>(decode_errors_),
+                   static_cast<long long>(invalid_scenes_));
+    }
+    if (bus_->url().rfind("udpm://", 0) == 0) {
+      std::printf("%s: %s\n", name_text_, ReceiveSummary(bus_->receive_counters()).c_str());
+    }
+    if (bus_->keyed()) {
+      const int64_t stored = writer_->num_images();
+      std::printf("%s: bus key: %.3f ms per scene stored signing and checking messages; %s\n",
+                  name_text_,
+                  stored > 0 ? bus_->auth_seconds() * 1e3 / static_cast<double>(stored) : 0.0,
+                  RefusedSummary(bus_->auth_counters()).c_str());
+    }
+    if (client_) {
+      const DeliveryCounters counters = client_->counters();
+      std::printf(
+          "%s: delivery: %lld scenes received, %lld stored, %lld received twice, %lld asked "
+          "for again, %lld missing, %lld messages dropped on purpose\n",
+          name_text_, static_cast<long long>(counters.received),
+          static_cast<long long>(counters.stored), static_cast<long long>(counters.duplicates),
+          static_cast<long long>(counters.reasked), static_cast<long long>(counters.lost),
+          static_cast<long long>(bus_->fault_dropped()));
+    } else if (duplicates_ > 0) {
+      std::printf("%s: %lld scenes received twice, stored once\n", name_text_,
+                  static_cast<long long>(duplicates_));
+    }
+    std::printf("%s\n", program_.summary(*writer_).c_str());
+    std::fflush(stdout);
+  }
+
+  const WriterProgram& program_;
+  const WriterFlags& flags_;
+  const char* const name_text_;
+  const std::vector<std::string> generator_channels_ = {kSceneChannel, kConfigChannel};
+  const bool show_progress_ = isatty(STDERR_FILENO) != 0;
+  // the writer outlives the bus and the client (the error path still finishes the dataset);
+  // the client refers to the bus, so it goes first
+  std::unique_ptr<DatasetSink> writer_;
+  std::unique_ptr<Bus> bus_;
+  std::unique_ptr<SceneClient> client_;
+  bool created_folder_ = false;
+  std::string name_;
+  std::map<int32_t, std::string> heard_runs_;
+  std::set<int32_t> foreign_runs_;
+  std::chrono::steady_clock::time_point generator_heard_at_;
+  bool warned_silent_ = false;
+  // counters of what did not make it into the dataset
+  int64_t decode_errors_ = 0;
+  int64_t invalid_scenes_ = 0;
+  int64_t duplicates_ = 0;
+  // reliable: bad copies received of seqs not stored yet
+  BadCopies bad_copies_;
+  int64_t stored_at_last_status_ = 0;
+  std::chrono::steady_clock::time_point last_status_;
+  std::chrono::steady_clock::time_point start_;
+  std::chrono::steady_clock::time_point last_progress_;
+  int64_t stored_at_start_ = 0;
+};
+
+}  // namespace
+
 int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
-  const char* const name_text = program.name.c_str();
   // a file too large for RLIMIT_FSIZE is a write error with a message, not a silent kill
   std::signal(SIGXFSZ, SIG_IGN);
-  // declared here so that the error path below can still finish the dataset; the client
-  // refers to the bus, so it goes first
-  std::unique_ptr<DatasetSink> writer;
-  std::unique_ptr<Bus> bus_owner;
-  std::unique_ptr<SceneClient> client;
-  bool created_folder = false;
+  WriterSession session(program, flags);
   try {
     // stop cleanly on SIGINT and SIGTERM: the handler only sets a flag
     struct sigaction action {};
@@ -206,300 +541,13 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
     sigemptyset(&action.sa_mask);
     sigaction(SIGINT, &action, nullptr);
     sigaction(SIGTERM, &action, nullptr);
-
-    // the bus first: a bad URL or log is refused before anything is created on disk (on a log
-    // file it only reads, live it is a reliable consumer; it listens once subscribed, below)
-    BusOptions bus_options;
-    bus_options.drop_receive_fraction = flags.fault_drop;
-    bus_options.fault_seed = 0xC0C0;
-    bus_options.key_file = flags.bus_key_file;
-    bus_options.open_bus = flags.open_bus;
-    bus_options.replay = flags.replay;
-    bus_owner = std::make_unique<Bus>(ResolveLcmUrl(flags.lcm_url), bus_options);
-    Bus& bus = *bus_owner;
-    // then the dataset: a folder that is not empty is this writer's dataset to resume, or refused
-    created_folder = CheckOutputFolder(program, flags);
-    writer = program.open(flags);
-    if (flags.resume) {
-      std::printf("%s: resumed %s: %lld scenes stored%s\n", name_text, flags.out.c_str(),
-                  static_cast<long long>(writer->num_images()),
-                  writer->truncated_journal_bytes() > 0
-                      ? (", cut a torn last record of " +
-                         std::to_string(writer->truncated_journal_bytes()) + " bytes")
-                            .c_str()
-                      : "");
-    }
-
-    const std::string name = ConsumerName(program.name, flags.out);
-    if (bus.url().rfind("file://", 0) != 0) {
-      SceneClientOptions client_options;
-      client_options.name = name;
-      client_options.window = static_cast<int32_t>(flags.window);
-      client_options.max_scenes = flags.count;
-      client = std::make_unique<SceneClient>(&bus, client_options);
-      for (const auto& [generator_id, seqs] : writer->StoredSeqs()) {
-        client->Restore(generator_id, seqs);
-      }
-      // the runs the dataset holds go out with the credits: a generator of another run
-      // (--seed or config) refuses to continue it
-      for (const auto& [generator_id, run] : writer->Runs()) client->SetRun(generator_id, run);
-    }
-
-    // each generator's run, from its STACKGEN_CONFIG: recorded with its first scene stored (and
-    // sent with the credits); a generator whose run differs from the one the dataset holds for
-    // its id gets its scenes refused
-    std::map<int32_t, std::string> heard_runs;
-    std::set<int32_t> foreign_runs;
-    // when a generator was last heard (its config every second, or a scene): a writer that
-    // hears none for --warn-silent seconds says so
-    auto generator_heard_at = std::chrono::steady_clock::now();
-    bool warned_silent = false;
-    bus.Subscribe<config_text>(
-        kConfigChannel,
-        [&](const config_text& config) {
-          const int32_t generator_id = config.header.generator_id;
-          if (generator_id < 0 || generator_id > kMaxGeneratorId || config.header.seed < 0) {
-            return;
-          }
-          generator_heard_at = std::chrono::steady_clock::now();
-          const std::string run = RunName(config.header.seed, config.path, config.pbtxt);
-          const auto stored = writer->Runs().find(generator_id);
-          if (stored == writer->Runs().end()) {
-            if (heard_runs.size() < 1024 || heard_runs.count(generator_id) != 0) {
-              heard_runs[generator_id] = run;
-            }
-          } else if (SameRun(stored->second, run)) {
-            foreign_runs.erase(generator_id);
-          } else if (foreign_runs.insert(generator_id).second) {
-            std::fprintf(stderr,
-                         "%s: refusing the scenes of generator %d: it runs %s, but %s holds "
-                         "scenes of %s\n",
-                         name_text, generator_id, run.c_str(), flags.out.c_str(),
-                         stored->second.c_str());
-          }
-        },
-        16, [](const std::string&) {});
-    if (program.subscribe) program.subscribe(bus, *writer);
-
-    // counters of what did not make it into the dataset
-    int64_t decode_errors = 0;
-    int64_t invalid_scenes = 0;
-    int64_t duplicates = 0;
-    // reliable: bad copies received of seqs not stored yet
-    BadCopies bad_copies;
-    const bool group_commit = flags.group_commit > 1;
-    const auto enough = [&] {
-      return flags.count > 0 && writer->num_images() + writer->num_staged() >= flags.count;
-    };
-    // makes the staged scenes durable, then credits them
-    const auto commit = [&] {
-      for (const auto& [generator_id, seq] : writer->Commit()) {
-        if (client) client->Stored(generator_id, seq);
-      }
-    };
-
-    bus.Subscribe<scene>(
-        kSceneChannel,
-        [&](const scene& scene) {
-          generator_heard_at = std::chrono::steady_clock::now();
-          // once --count scenes are stored, later ones in the same batch are left out
-          if (enough()) return;
-          const int32_t generator_id = scene.header.generator_id;
-          const int64_t seq = scene.header.seq;
-          if (foreign_runs.count(generator_id) != 0) {
-            ++invalid_scenes;
-            return;
-          }
-          // its generator's run, heard before, goes with the first scene stored
-          if (writer->Runs().count(generator_id) == 0) {
-            const auto heard = heard_runs.find(generator_id);
-            if (heard != heard_runs.end()) {
-              writer->SetRun(generator_id, heard->second);
-              if (client) client->SetRun(generator_id, heard->second);
-            }
-          }
-          // the writer first: it checks the scene whole (its images decoded) and refuses a
-          // repeat. A copy that fails the checks tells the client nothing, so a damaged or a
-          // stranger's copy cannot take the real scene's place: that seq is asked for again,
-          // and given up (skipped) only after BadCopies::kCopies bad copies of it
-          bool added = false;
-          try {
-            added = writer->Add(scene);
-          } catch (const InvalidSceneError& error) {
-            if (++invalid_scenes <= kMaxReportedErrors) {
-              std::fprintf(stderr, "%s: refused a scene: %s\n", name_text, error.what());
-            }
-            if (client) {
-              if (bad_copies.Note(generator_id, seq) && client->Received(generator_id, seq)) {
-                client->Skipped(generator_id, seq);
-              }
-              client->Service();
-            }
-            return;
-          }
-          // the client tracks seqs (and counts repeats); a scene the writer holds already that
-          // the client has not seen (stored before it started) needs no asking again
-          const bool fresh = !client || client->Received(generator_id, seq);
-          if (added) {
-            if (client) bad_copies.Forget(generator_id, seq);
-            // credited once durable: at once without group commits (Add made it durable),
-            // else with its group
-            if (!group_commit) {
-              if (client) client->Stored(generator_id, seq);
-            } else if (writer->num_staged() >= flags.group_commit) {
-              commit();
-            }
-          } else if (!client) {
-            ++duplicates;
-          } else if (fresh) {
-            client->Skipped(generator_id, seq);
-          }
-          if (client) client->Service();
-        },
-        kQueueCapacity,
-        [&](const std::string& text) {
-          if (++decode_errors <= kMaxReportedErrors) {
-            std::fprintf(stderr, "%s: skipped a message: %s\n", name_text, text.c_str());
-          }
-        });
-
-    std::printf("%s: listening on %s channel %s, writing %s\n", name_text, bus.url().c_str(),
-                kSceneChannel, flags.out.c_str());
-    std::fflush(stdout);
-
-    // publishes the counters on STACKGEN_STATUS
-    int64_t stored_at_last_status = writer->num_images();
-    auto last_status = std::chrono::steady_clock::now();
-    const auto publish_status = [&](std::chrono::steady_clock::time_point now) {
-      const double seconds = std::chrono::duration<double>(now - last_status).count();
-      ConsumerReport report;
-      report.process = program.name;
-      report.name = name;
-      report.scenes_held = writer->num_images();
-      report.delivery = client ? client->counters() : DeliveryCounters{};
-      report.scenes = report.delivery.stored;
-      report.rate_hz = seconds > 0 ? (writer->num_images() - stored_at_last_status) / seconds : 0;
-      report.bad_messages = decode_errors + invalid_scenes;
-      bus.Publish(kStatusChannel, ConsumerStatus(bus, report));
-      last_status = now;
-      stored_at_last_status = writer->num_images();
-    };
-
-    // handle scenes until enough are stored or a signal arrives
-    const bool show_progress = isatty(STDERR_FILENO) != 0;
-    const auto start = std::chrono::steady_clock::now();
-    const int64_t stored_at_start = writer->num_images();
-    auto last_progress = start;
-    const std::vector<std::string> generator_channels = {kSceneChannel, kConfigChannel};
-    while (!stop_requested && !enough() && !bus.log_ended()) {
-      // with scenes staged, only those already waiting: the group ends when none is left
-      bus.HandleFor(writer->num_staged() > 0 ? 0 : 50);
-      commit();
-      const std::string mismatch = bus.KeyMismatch(generator_channels, kKeyMismatchS);
-      if (!mismatch.empty()) throw std::runtime_error(mismatch);
-      if (client) client->Service();
-      const auto now = std::chrono::steady_clock::now();
-      const double silent_s = std::chrono::duration<double>(now - generator_heard_at).count();
-      if (silent_s < 1) {
-        warned_silent = false;
-      } else if (!warned_silent && flags.warn_silent_s > 0 && silent_s >= flags.warn_silent_s &&
-                 bus.url().rfind("file://", 0) != 0) {
-        warned_silent = true;
-        if (show_progress) std::fprintf(stderr, "\n");
-        std::fprintf(stderr,
-                     "%s: no generator heard for %d s on %s (no scene, no config): is stackgen "
-                     "running with this --lcm-url (the same port) and %s? still waiting\n",
-                     name_text, static_cast<int>(silent_s), bus.url().c_str(),
-                     bus.keyed() ? ("the bus key " + bus.key_file() + " (key id " +
-                                    KeyIdText(bus.key_id()) + ")")
-                                       .c_str()
-                                 : "--open-bus (this writer checks no key)");
-      }
-      if (client && now - last_status >= std::chrono::seconds(1)) publish_status(now);
-      if (show_progress && now - last_progress >= std::chrono::milliseconds(500)) {
-        last_progress = now;
-        const double seconds = std::chrono::duration<double>(now - start).count();
-        const double rate = (writer->num_images() - stored_at_start) / std::max(seconds, 1e-9);
-        std::string eta;
-        if (flags.count > 0 && rate > 0) {
-          eta = ", ETA " + FormatDuration((flags.count - writer->num_images()) / rate);
-        }
-        std::fprintf(stderr, "\r%s: %lld scenes, %.1f scenes/s%s   ", name_text,
-                     static_cast<long long>(writer->num_images()), rate, eta.c_str());
-      }
-    }
-    if (show_progress) std::fprintf(stderr, "\n");
-    // a log whose scenes were all refused for their key is an error, not an empty dataset
-    if (bus.log_ended() && writer->num_images() == stored_at_start) {
-      const std::string mismatch = bus.KeyMismatch(generator_channels, 0);
-      if (!mismatch.empty()) throw std::runtime_error(mismatch);
-    }
-
-    // generators stop waiting for us; a valid dataset of what arrived
-    commit();
-    if (client) {
-      publish_status(std::chrono::steady_clock::now());
-      client->Leave();
-    }
-    writer->Finish();
-    for (const auto& [generator_id, lost] : writer->LostPerGenerator()) {
-      if (lost > 0) {
-        std::fprintf(stderr, "%s: generator %d: %lld scenes lost\n", name_text, generator_id,
-                     static_cast<long long>(lost));
-      }
-    }
-    if (decode_errors > 0 || invalid_scenes > 0) {
-      std::fprintf(stderr, "%s: skipped %lld undecodable messages, refused %lld invalid scenes\n",
-                   name_text, static_cast<long long>(decode_errors),
-                   static_cast<long long>(invalid_scenes));
-    }
-    if (bus.url().rfind("udpm://", 0) == 0) {
-      std::printf("%s: %s\n", name_text, ReceiveSummary(bus.receive_counters()).c_str());
-    }
-    if (bus.keyed()) {
-      const int64_t stored = writer->num_images();
-      std::printf("%s: bus key: %.3f ms per scene stored signing and checking messages; %s\n",
-                  name_text,
-                  stored > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(stored) : 0.0,
-                  RefusedSummary(bus.auth_counters()).c_str());
-    }
-    if (client) {
-      const DeliveryCounters counters = client->counters();
-      std::printf(
-          "%s: delivery: %lld scenes received, %lld stored, %lld received twice, %lld asked "
-          "for again, %lld missing, %lld messages dropped on purpose\n",
-          name_text, static_cast<long long>(counters.received),
-          static_cast<long long>(counters.stored), static_cast<long long>(counters.duplicates),
-          static_cast<long long>(counters.reasked), static_cast<long long>(counters.lost),
-          static_cast<long long>(bus.fault_dropped()));
-    } else if (duplicates > 0) {
-      std::printf("%s: %lld scenes received twice, stored once\n", name_text,
-                  static_cast<long long>(duplicates));
-    }
-    std::printf("%s\n", program.summary(*writer).c_str());
-    std::fflush(stdout);
+    session.Open();
+    session.Subscribe();
+    session.Loop();
+    session.Finish();
     return 0;
   } catch (const std::exception& error) {
-    // a write error (full disk, ...): leave what is stored valid and say so. No leaving credit:
-    // the generators wait (up to their --consumer-timeout) for this writer to be resumed.
-    std::string state;
-    if (writer && writer->num_images() == 0 && !flags.resume) {
-      // nothing stored: nothing left behind (the folder was empty or absent when it started)
-      writer.reset();
-      RemoveDatasetFolder(flags.out, created_folder);
-    } else if (writer && (writer->num_images() > 0 || flags.resume)) {
-      try {
-        writer->Finish();
-        state = "; " + flags.out + " holds " + std::to_string(writer->num_images()) + " scenes (" +
-                writer->finished_files() + " written)";
-      } catch (const std::exception& finish_error) {
-        state = "; " + writer->finished_files() + " not updated (" +
-                std::string(finish_error.what()) + ")";
-      }
-      state += "; the journal holds every scene stored: fix the cause and run again with --resume";
-    }
-    std::fprintf(stderr, "%s: error: %s%s\n", name_text, error.what(), state.c_str());
-    return 1;
+    return session.Fail(error);
   }
 }
 

@@ -47,11 +47,6 @@ constexpr const char* kMaskFolder = "mask";
 constexpr const char* kMaskVisibFolder = "mask_visib";
 const char* const kImageFolders[] = {"rgb", "gray", kDepthFolder, kMaskFolder, kMaskVisibFolder};
 
-std::string SceneName(const scene& scene) {
-  return "scene " + std::to_string(scene.header.generator_id) + "/" +
-         std::to_string(scene.header.seq);
-}
-
 [[noreturn]] void Fail(const std::string& scene_name, const std::string& text) {
   throw InvalidSceneError(scene_name + ": " + text);
 }
@@ -546,32 +541,17 @@ bool BopWriter::Add(const scene& scene) {
   const std::string scene_name = SceneName(scene);
   const int32_t generator_id = scene.header.generator_id;
   const int64_t seq = scene.header.seq;
-  if (!SceneIdsInRange(generator_id, seq)) {
-    Fail(scene_name, "generator_id or seq outside the id layout (generator_id 0.." +
-                         std::to_string(kMaxGeneratorId) + ", seq 0.." + std::to_string(kMaxSeq) +
-                         ")");
-  }
+  CheckSceneIds(scene);
   const int64_t scene_id = SceneId(generator_id, seq);
   const int64_t im_id = ImageId(seq);
   const auto key = std::make_pair(scene_id, im_id);
-  int64_t seen_seed = 0;
-  bool seen = false;
+  std::optional<int64_t> seen_seed;
   if (const auto stored = index_.find(key); stored != index_.end()) {
-    seen = true;
     seen_seed = stored->second.seed;
   } else if (const auto staged = staged_seeds_.find(key); staged != staged_seeds_.end()) {
-    seen = true;
     seen_seed = staged->second;
   }
-  if (seen) {
-    if (seen_seed != scene.header.seed) {
-      Fail(scene_name, "header.seed " + std::to_string(scene.header.seed) +
-                           " differs from the stored scene's " + std::to_string(seen_seed) +
-                           ": another run with the same --generator-id (give each run its own "
-                           "id, or write it to another --out)");
-    }
-    return false;
-  }
+  if (IsRepeat(scene, seen_seed)) return false;
   Validate(scene);
 
   // the images, decoded whole: a PNG or JPEG is checked before it is stored

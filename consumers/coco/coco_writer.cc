@@ -88,12 +88,6 @@ constexpr std::string_view kImagePrefix = "{\"image\":";
 constexpr std::string_view kAnnotationsPrefix = ",\"annotations\":[";
 constexpr std::string_view kScenePrefix = "],\"scene\":";
 
-// the scene's name in error messages: "scene <generator_id>/<seq>"
-std::string SceneName(const stackgen::scene& scene) {
-  return "scene " + std::to_string(scene.header.generator_id) + "/" +
-         std::to_string(scene.header.seq);
-}
-
 [[noreturn]] void Fail(const std::string& scene_name, const std::string& text) {
   throw InvalidSceneError(scene_name + ": " + text);
 }
@@ -498,33 +492,15 @@ void CocoWriter::WriteImageFile(const stackgen::scene& scene, const std::string&
 bool CocoWriter::Add(const stackgen::scene& scene) {
   // store each (generator_id, seq) once; the same ids with another seed come from another run
   const std::string scene_name = SceneName(scene);
-  if (!SceneIdsInRange(scene.header.generator_id, scene.header.seq)) {
-    Fail(scene_name, "generator_id or seq outside the id layout (generator_id 0.." +
-                         std::to_string(kMaxGeneratorId) + ", seq 0.." + std::to_string(kMaxSeq) +
-                         ")");
-  }
+  CheckSceneIds(scene);
   const int64_t image_id = ImageId(scene.header.generator_id, scene.header.seq);
-  const auto stored = index_.find(image_id);
-  if (stored != index_.end()) {
-    if (stored->second.seed != scene.header.seed) {
-      Fail(scene_name, "header.seed " + std::to_string(scene.header.seed) +
-                           " differs from the stored scene's " +
-                           std::to_string(stored->second.seed) +
-                           ": another run with the same --generator-id (give each run its own "
-                           "id, or write it to another --out)");
-    }
-    return false;
+  std::optional<int64_t> seen_seed;
+  if (const auto stored = index_.find(image_id); stored != index_.end()) {
+    seen_seed = stored->second.seed;
+  } else if (const auto staged = staged_seeds_.find(image_id); staged != staged_seeds_.end()) {
+    seen_seed = staged->second;
   }
-  const auto staged = staged_seeds_.find(image_id);
-  if (staged != staged_seeds_.end()) {
-    if (staged->second != scene.header.seed) {
-      Fail(scene_name, "header.seed " + std::to_string(scene.header.seed) +
-                           " differs from the stored scene's " + std::to_string(staged->second) +
-                           ": another run with the same --generator-id (give each run its own "
-                           "id, or write it to another --out)");
-    }
-    return false;
-  }
+  if (IsRepeat(scene, seen_seed)) return false;
   Validate(scene);
 
   // the image record

@@ -3,6 +3,7 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -56,6 +57,20 @@ class DatasetSink {
   /// Bytes of a torn last journal line cut off on resume.
   virtual int64_t truncated_journal_bytes() const = 0;
 };
+
+/// The checks every DatasetSink::Add makes first, in one place.
+///
+/// The scene's name in errors: "scene <generator_id>/<seq>".
+std::string SceneName(const scene& scene);
+/// Throws InvalidSceneError("scene G/S: `text`").
+[[noreturn]] void FailScene(const scene& scene, const std::string& text);
+/// Throws InvalidSceneError when the scene's generator_id or seq is outside the id layout
+/// (bus/scene_contract.h).
+void CheckSceneIds(const scene& scene);
+/// Whether `scene` repeats the scene stored or staged with its ids, whose seed was `seen_seed`
+/// (none stored or staged: std::nullopt): true means store nothing. Throws InvalidSceneError when
+/// the seeds differ: another run with the same --generator-id.
+bool IsRepeat(const scene& scene, std::optional<int64_t> seen_seed);
 
 /// Whether `text` is valid UTF-8, as the JSON files of a dataset must be (class names come from
 /// the bus).

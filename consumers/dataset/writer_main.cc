@@ -117,24 +117,6 @@ void RemoveDatasetFolder(const std::string& out, bool created_folder) {
 
 }  // namespace
 
-bool IsUtf8(const std::string& text) {
-  try {
-    nlohmann::json(text).dump();
-    return true;
-  } catch (const nlohmann::json::type_error&) {
-    return false;
-  }
-}
-
-std::map<int32_t, int64_t> LostBetween(const std::map<int32_t, std::vector<int64_t>>& seqs) {
-  std::map<int32_t, int64_t> lost;
-  for (const auto& [generator_id, stored] : seqs) {
-    if (stored.empty()) continue;
-    lost[generator_id] = stored.back() - stored.front() + 1 - static_cast<int64_t>(stored.size());
-  }
-  return lost;
-}
-
 void AddWriterFlags(FlagParser* parser, WriterFlags* flags) {
   parser->String("--out", &flags->out, "a folder");
   parser->Require("--out");

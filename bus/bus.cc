@@ -5,6 +5,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <chrono>
@@ -63,13 +64,35 @@ std::string ResolveLcmUrl(const std::string& flag_value) {
   return kDefaultLcmUrl;
 }
 
+// one handler of a channel; a Subscription that ends when dropped clears `handler`
+struct Subscription::Slot {
+  std::function<void(const uint8_t* data, size_t size)> handler;
+};
+
+void Subscription::Reset() {
+  if (!end_when_dropped_) {
+    slot_.reset();
+    return;
+  }
+  end_when_dropped_ = false;
+  if (const std::shared_ptr<Slot> slot = slot_.lock()) slot->handler = nullptr;
+  slot_.reset();
+}
+
+bool Subscription::active() const {
+  const std::shared_ptr<Slot> slot = slot_.lock();
+  return slot && slot->handler;
+}
+
 struct Bus::Impl {
   // what LCM's callback gets as its context: one per channel, so that a message is checked once
   // (its counter would look replayed to a second check) and then handed to each handler.
   struct Subscriber {
     Impl* impl;
     std::string channel;
-    std::vector<BytesHandler> handlers;
+    // the handlers, in the order subscribed; one whose Subscription ended has none (and is
+    // forgotten when the next message comes)
+    std::vector<std::shared_ptr<Subscription::Slot>> handlers;
     lcm::Subscription* subscription = nullptr;
     int queue_capacity = 0;
   };
@@ -180,8 +203,14 @@ struct Bus::Impl {
       if (!ReadTrailer(data, data_size, &trailer) || trailer.sender != auth->sender()) {
         taken_any = true;
       }
-      for (const BytesHandler& handler : subscriber->handlers) {
-        handler(data, static_cast<size_t>(size));
+      auto& slots = subscriber->handlers;
+      slots.erase(std::remove_if(slots.begin(), slots.end(),
+                                 [](const auto& slot) { return !slot->handler; }),
+                  slots.end());
+      // a copy: a handler may end its own or another's subscription, or subscribe anew
+      const std::vector<std::shared_ptr<Subscription::Slot>> now = slots;
+      for (const std::shared_ptr<Subscription::Slot>& slot : now) {
+        if (slot->handler) slot->handler(data, static_cast<size_t>(size));
       }
     } catch (...) {
       pending_error = std::current_exception();
@@ -404,10 +433,14 @@ void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t s
   }
 }
 
-void Bus::SubscribeBytes(const std::string& channel, BytesHandler handler, int queue_capacity) {
+Subscription Bus::SubscribeBytes(const std::string& channel, BytesHandler handler,
+                                 int queue_capacity) {
+  auto slot = std::make_shared<Subscription::Slot>();
+  slot->handler = std::move(handler);
+  Subscription subscription{std::weak_ptr<Subscription::Slot>(slot)};
   // a second handler on a channel joins the first subscription (the larger queue wins)
   if (Impl::Subscriber* subscriber = impl_->Find(channel)) {
-    subscriber->handlers.push_back(std::move(handler));
+    subscriber->handlers.push_back(std::move(slot));
     if (queue_capacity > subscriber->queue_capacity) {
       subscriber->queue_capacity = queue_capacity;
       if (subscriber->subscription != nullptr) {
@@ -415,14 +448,14 @@ void Bus::SubscribeBytes(const std::string& channel, BytesHandler handler, int q
       }
       if (impl_->receiver) impl_->receiver->Subscribe(channel, queue_capacity);
     }
-    return;
+    return subscription;
   }
-  impl_->subscribers.push_back(Impl::Subscriber{impl_.get(), channel, {std::move(handler)}});
+  impl_->subscribers.push_back(Impl::Subscriber{impl_.get(), channel, {std::move(slot)}});
   Impl::Subscriber& subscriber = impl_->subscribers.back();
   subscriber.queue_capacity = queue_capacity;
   if (impl_->receiver) {
     impl_->receiver->Subscribe(channel, queue_capacity);
-    return;
+    return subscription;
   }
   // lcm treats the channel as a regular expression; ours are plain names.
   subscriber.subscription = impl_->lcm->subscribeFunction(channel, &Impl::Dispatch, &subscriber);
@@ -431,6 +464,7 @@ void Bus::SubscribeBytes(const std::string& channel, BytesHandler handler, int q
     throw std::runtime_error("cannot subscribe to channel " + channel);
   }
   subscriber.subscription->setQueueCapacity(queue_capacity);
+  return subscription;
 }
 
 int Bus::HandleFor(int timeout_ms) {

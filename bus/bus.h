@@ -67,6 +67,48 @@ std::vector<uint8_t> EncodeMessage(const Message& message) {
   return bytes;
 }
 
+/// What Bus::Subscribe returns: its handler's registration. By default dropping it changes
+/// nothing (the handler stays for the bus's life, as most programs want); after
+/// EndWhenDropped() the handler is removed when the Subscription is destroyed or Reset, so an
+/// object that subscribes with its own `this` (SceneServer, SceneClient, the generator node, a
+/// writer session) can be destroyed before its bus (after which the bus may go on handling
+/// messages). A Subscription may outlive its bus. Move-only; not thread-safe, like the bus.
+class Subscription {
+ public:
+  Subscription() = default;
+  ~Subscription() { Reset(); }
+  Subscription(Subscription&& other) noexcept { *this = std::move(other); }
+  Subscription& operator=(Subscription&& other) noexcept {
+    if (this != &other) {
+      Reset();
+      slot_ = std::move(other.slot_);
+      end_when_dropped_ = other.end_when_dropped_;
+      other.end_when_dropped_ = false;
+    }
+    return *this;
+  }
+  Subscription(const Subscription&) = delete;
+  Subscription& operator=(const Subscription&) = delete;
+
+  /// The handler ends with this object (returns it, so `sub_ = bus.Subscribe(...).EndWhenDropped()`
+  /// reads as it works).
+  Subscription&& EndWhenDropped() && {
+    end_when_dropped_ = true;
+    return std::move(*this);
+  }
+  /// Removes the handler now when it ends with this object; keeps it otherwise.
+  void Reset();
+  /// Whether the handler is still called (false once removed, or when the bus is gone).
+  bool active() const;
+
+ private:
+  friend class Bus;
+  struct Slot;
+  explicit Subscription(std::weak_ptr<Slot> slot) : slot_(std::move(slot)) {}
+  std::weak_ptr<Slot> slot_;
+  bool end_when_dropped_ = false;
+};
+
 /// Typed publish/subscribe over LCM. Message types are lcm-gen C++ classes from types/.
 /// LCM itself is hidden in bus.cc. Not thread-safe: publish and handle from one thread.
 class Bus {
@@ -104,12 +146,13 @@ class Bus {
   /// and the reason, unless `on_decode_error` is given, which then receives the text.
   /// `queue_capacity` is how many received messages LCM keeps waiting for HandleFor. Handlers
   /// of one channel share one LCM subscription (so each message is checked against the bus key
-  /// once) and its queue, of the largest capacity asked for.
+  /// once) and its queue, of the largest capacity asked for. Returns the handler's
+  /// Subscription: kept for the bus's life unless made to EndWhenDropped().
   template <typename Message>
-  void Subscribe(const std::string& channel, std::function<void(const Message&)> handler,
-                 int queue_capacity = 256,
-                 std::function<void(const std::string&)> on_decode_error = nullptr) {
-    SubscribeBytes(
+  Subscription Subscribe(const std::string& channel, std::function<void(const Message&)> handler,
+                         int queue_capacity = 256,
+                         std::function<void(const std::string&)> on_decode_error = nullptr) {
+    return SubscribeBytes(
         channel,
         [channel, handler, on_decode_error, limits = decode_limits()](const uint8_t* data,
                                                                       size_t size) {
@@ -172,7 +215,7 @@ class Bus {
   using BytesHandler = std::function<void(const uint8_t* data, size_t size)>;
   const DecodeLimits& decode_limits() const;
   void PublishBytes(const std::string& channel, const uint8_t* data, size_t size);
-  void SubscribeBytes(const std::string& channel, BytesHandler handler, int queue_capacity);
+  Subscription SubscribeBytes(const std::string& channel, BytesHandler handler, int queue_capacity);
 
   struct Impl;
   std::unique_ptr<Impl> impl_;

@@ -98,7 +98,8 @@ struct SceneServer::Impl {
 
   Bus* bus = nullptr;
   SceneServerOptions options;
-  Clock* clock = nullptr;  // options.clock, or the steady clock
+  Clock* clock = nullptr;         // options.clock, or the steady clock
+  Subscription subscriptions[2];  // credits and resend requests, ended with the server
   Regenerate regenerate;
   Notice notice;
   std::map<std::string, Consumer> consumers;
@@ -274,11 +275,16 @@ SceneServer::SceneServer(Bus* bus, const SceneServerOptions& options, Regenerate
   impl_->notice = std::move(notice);
   Impl* impl = impl_.get();
   const auto count_bad = [impl](const std::string&) { ++impl->bad_messages; };
-  bus->Subscribe<credit>(
-      kCreditChannel, [impl](const credit& message) { impl->OnCredit(message); }, 1000, count_bad);
-  bus->Subscribe<resend_request>(
-      kResendChannel, [impl](const resend_request& message) { impl->OnResend(message); }, 1000,
-      count_bad);
+  impl->subscriptions[0] =
+      bus->Subscribe<credit>(
+             kCreditChannel, [impl](const credit& message) { impl->OnCredit(message); }, 1000,
+             count_bad)
+          .EndWhenDropped();
+  impl->subscriptions[1] =
+      bus->Subscribe<resend_request>(
+             kResendChannel, [impl](const resend_request& message) { impl->OnResend(message); },
+             1000, count_bad)
+          .EndWhenDropped();
 }
 
 SceneServer::~SceneServer() = default;

@@ -78,8 +78,8 @@ class SceneServer {
   /// Receives one line about consumers registering, leaving or going silent.
   using Notice = std::function<void(const std::string&)>;
 
-  /// `bus` must outlive the server, and must not handle messages (HandleFor) after the server
-  /// is destroyed: its subscriptions stay. Throws std::invalid_argument on options out of range.
+  /// `bus` must outlive the server; its subscriptions end with it (the bus may go on handling
+  /// messages). Throws std::invalid_argument on options out of range.
   SceneServer(Bus* bus, const SceneServerOptions& options, Regenerate regenerate, Notice notice);
   ~SceneServer();
   SceneServer(const SceneServer&) = delete;

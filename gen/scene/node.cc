@@ -123,6 +123,7 @@ struct GeneratorNode::Impl {
   const std::string name;  // stackgen/ID@HOST:PID, in status messages
   config_text config_message;
   std::unique_ptr<SceneServer> server;
+  Subscription status_subscription;  // other generators' status (twins), ended with the node
   const std::vector<std::string> consumer_channels = {kCreditChannel, kResendChannel};
 
   // what was published, for status messages and the summary
@@ -204,9 +205,10 @@ GeneratorNode::Impl::Impl(Bus* bus_in, SceneGenerator* generator_in, const Loade
       });
 
   // another generator with this id on the bus would mix its scenes with ours
-  bus.Subscribe<status>(
-      kStatusChannel, [this](const status& other) { OnStatus(other); }, 100,
-      [](const std::string&) {});
+  status_subscription = bus.Subscribe<status>(
+                               kStatusChannel, [this](const status& other) { OnStatus(other); },
+                               100, [](const std::string&) {})
+                            .EndWhenDropped();
 }
 
 // a status of this generator: who it is and its next seq, the counters left at 0

@@ -3,6 +3,7 @@
 #include <poll.h>
 
 #include <cstdlib>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -42,6 +43,49 @@ TEST(BusTest, MemqRoundTrip) {
 }
 
 // a message of another type on our channel is a decode error that names the channel.
+// a Subscription made to end when dropped removes its handler then (the channel's other
+// handlers stay); a plain one keeps its handler; a handler may end its own subscription while it
+// runs; a Subscription may outlive its bus
+TEST(BusTest, SubscriptionsThatEndWhenDropped) {
+  auto bus = std::make_unique<Bus>("memq://");
+  std::vector<std::string> calls;
+  const auto publish_and_handle = [&] {
+    calls.clear();
+    bus->Publish(kStatusChannel, MakeStatus(1));
+    bus->HandleFor(0);
+  };
+  bus->Subscribe<status>(kStatusChannel, [&](const status&) { calls.push_back("kept"); });
+  {
+    Subscription ending =
+        bus->Subscribe<status>(kStatusChannel, [&](const status&) { calls.push_back("scoped"); })
+            .EndWhenDropped();
+    EXPECT_TRUE(ending.active());
+    publish_and_handle();
+    EXPECT_EQ(calls, (std::vector<std::string>{"kept", "scoped"}));
+  }
+  publish_and_handle();
+  EXPECT_EQ(calls, std::vector<std::string>{"kept"});
+
+  Subscription self;
+  self = bus->Subscribe<status>(kStatusChannel,
+                                [&](const status&) {
+                                  calls.push_back("once");
+                                  self.Reset();
+                                })
+             .EndWhenDropped();
+  publish_and_handle();
+  EXPECT_EQ(calls, (std::vector<std::string>{"kept", "once"}));
+  EXPECT_FALSE(self.active());
+  publish_and_handle();
+  EXPECT_EQ(calls, std::vector<std::string>{"kept"});
+
+  Subscription outliving =
+      bus->Subscribe<status>(kStatusChannel, [](const status&) {}).EndWhenDropped();
+  bus.reset();
+  EXPECT_FALSE(outliving.active());
+  outliving.Reset();  // nothing to remove, nothing touched
+}
+
 TEST(BusTest, DecodeErrorNamesChannel) {
   Bus bus("memq://");
   bus.Subscribe<status>(kStatusChannel, [](const status&) { FAIL() << "must not decode"; });

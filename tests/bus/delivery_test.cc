@@ -412,6 +412,22 @@ TEST_F(DeliveryFixture, TailResendsBackOff) {
   EXPECT_EQ(server_->resent(), before);
 }
 
+// a generator's server can go before its bus: its subscriptions end with it, so credits and
+// resend requests that still come are handled by no one (no handler into a destroyed server)
+TEST_F(DeliveryFixture, ServerEndsBeforeItsBus) {
+  SetUpLink(SceneServerOptions{}, Client(2));
+  Exchange();
+  server_.reset();
+  client_->Service();
+  resend_request request{};
+  request.header.generator_id = 0;
+  request.consumer = "test-consumer";
+  request.seqs = {0};
+  request.num_seqs = 1;
+  bus_->Publish(kResendChannel, request);
+  EXPECT_GE(bus_->HandleFor(0), 2);
+}
+
 // a consumer that goes silent is dropped after the timeout, with a notice; one that leaves is
 // dropped at once; either way the generator is free again.
 TEST_F(DeliveryFixture, SilentOrLeavingConsumerIsDropped) {

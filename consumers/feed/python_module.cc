@@ -195,29 +195,29 @@ py::dict StatusDict(const status& s) {
 }  // namespace
 }  // namespace stackgen::feed
 
-PYBIND11_MODULE(_native, m) {
+namespace {
+
+using SceneClass =
+    py::class_<stackgen::feed::FeedScene, std::shared_ptr<stackgen::feed::FeedScene>>;
+void BindSceneImages(SceneClass& scene);
+void BindSceneInstances(SceneClass& scene);
+void BindSceneMasks(SceneClass& scene);
+
+// stackgen.Scene: a checked scene, its arrays without copies, masks decoded on demand
+void BindScene(py::module_& m) {
   using namespace stackgen;
   using namespace stackgen::feed;
-  m.doc() = "The C++ half of the stackgen package; use the names that `stackgen` exports.";
+  SceneClass scene(m, "Scene");
+  BindSceneImages(scene);
+  BindSceneInstances(scene);
+  BindSceneMasks(scene);
+}
 
-  // StreamError(RuntimeError) and StreamTimeout(StreamError, TimeoutError)
-  stream_error_type = PyErr_NewException("stackgen.StreamError", PyExc_RuntimeError, nullptr);
-  PyObject* timeout_bases = PyTuple_Pack(2, stream_error_type, PyExc_TimeoutError);
-  stream_timeout_type = PyErr_NewException("stackgen.StreamTimeout", timeout_bases, nullptr);
-  Py_DECREF(timeout_bases);
-  m.attr("StreamError") = py::handle(stream_error_type);
-  m.attr("StreamTimeout") = py::handle(stream_timeout_type);
-  py::register_exception_translator([](std::exception_ptr error) {
-    try {
-      if (error) std::rethrow_exception(error);
-    } catch (const FeedTimeout& timeout) {
-      PyErr_SetString(stream_timeout_type, timeout.what());
-    } catch (const FeedError& failure) {
-      PyErr_SetString(stream_error_type, failure.what());
-    }
-  });
-
-  py::class_<FeedScene, std::shared_ptr<FeedScene>>(m, "Scene")
+// the header, camera and images of a scene
+void BindSceneImages(SceneClass& scene) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
+  scene
       .def_property_readonly("generator_id",
                              [](const FeedScene& s) { return s.message().header.generator_id; })
       .def_property_readonly("seq", [](const FeedScene& s) { return s.message().header.seq; })
@@ -268,16 +268,22 @@ PYBIND11_MODULE(_native, m) {
                                }
                                return MatToArray(mat, self);
                              })
-      .def_property_readonly("instance_map",
-                             [](py::object self) {
-                               FeedScene& s = self.cast<FeedScene&>();
-                               cv::Mat mat;
-                               {
-                                 py::gil_scoped_release release;
-                                 mat = s.InstanceMap();
-                               }
-                               return MatToArray(mat, self);
-                             })
+      .def_property_readonly("instance_map", [](py::object self) {
+        FeedScene& s = self.cast<FeedScene&>();
+        cv::Mat mat;
+        {
+          py::gil_scoped_release release;
+          mat = s.InstanceMap();
+        }
+        return MatToArray(mat, self);
+      });
+}
+
+// the instances' labels, one array per field
+void BindSceneInstances(SceneClass& scene) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
+  scene
       .def_property_readonly("num_instances",
                              [](const FeedScene& s) { return s.message().instances.size(); })
       .def_property_readonly("instance_ids",
@@ -348,11 +354,16 @@ PYBIND11_MODULE(_native, m) {
                                return InstanceField<bool>(
                                    s.message(), [](const instance& i) { return i.annotated; });
                              })
-      .def_property_readonly("ignored",
-                             [](const FeedScene& s) {
-                               return InstanceField<bool>(
-                                   s.message(), [](const instance& i) { return i.ignored; });
-                             })
+      .def_property_readonly("ignored", [](const FeedScene& s) {
+        return InstanceField<bool>(s.message(), [](const instance& i) { return i.ignored; });
+      });
+}
+
+// masks decoded on demand, and the encoded message
+void BindSceneMasks(SceneClass& scene) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
+  scene
       .def(
           "masks_visib",
           [](const FeedScene& s, std::optional<std::vector<int>> indices) {
@@ -383,7 +394,12 @@ PYBIND11_MODULE(_native, m) {
         const std::vector<uint8_t> bytes = EncodeMessage(s.message());
         return py::bytes(reinterpret_cast<const char*>(bytes.data()), bytes.size());
       });
+}
 
+// stackgen._native.Stream: the C++ stream in a thread of its own
+void BindStream(py::module_& m) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
   py::class_<SceneStream>(m, "Stream")
       .def(py::init([](const std::string& url, const std::string& channel, bool reliable,
                        int32_t window, std::vector<int32_t> generator_ids, int32_t shard_index,
@@ -458,7 +474,12 @@ PYBIND11_MODULE(_native, m) {
       .def_property_readonly("url", &SceneStream::url)
       .def_property_readonly("name", &SceneStream::name)
       .def_property_readonly("is_log", &SceneStream::is_log);
+}
 
+// stackgen._native.LogAppender: LogRecorder's writer
+void BindLogAppender(py::module_& m) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
   py::class_<LogAppender>(m, "LogAppender")
       .def(py::init([](const std::string& path, const std::string& bus_key_file, bool open_bus) {
              try {
@@ -486,7 +507,12 @@ PYBIND11_MODULE(_native, m) {
           },
           py::arg("channel"), py::arg("data"), py::arg("utime"))
       .def_property_readonly("path", &LogAppender::path);
+}
 
+// stackgen._native.StatusMonitor
+void BindStatusMonitor(py::module_& m) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
   py::class_<StatusMonitor>(m, "StatusMonitor")
       .def(py::init([](const std::string& url, const std::string& bus_key_file, bool open_bus) {
              py::gil_scoped_release release;
@@ -498,7 +524,12 @@ PYBIND11_MODULE(_native, m) {
         for (const auto& [name, message] : monitor.Latest()) statuses.append(StatusDict(message));
         return statuses;
       });
+}
 
+// the module's functions and constants
+void BindFunctions(py::module_& m) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
   m.def(
       "decode_rle",
       [](const std::string& counts, int height, int width) {
@@ -535,4 +566,34 @@ PYBIND11_MODULE(_native, m) {
       py::arg("name"),
       "Names the program in the stream's warnings on stderr (\"NAME: warning: ...\"); default "
       "\"stackgen\".");
+}
+}  // namespace
+
+PYBIND11_MODULE(_native, m) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
+  m.doc() = "The C++ half of the stackgen package; use the names that `stackgen` exports.";
+
+  // StreamError(RuntimeError) and StreamTimeout(StreamError, TimeoutError)
+  stream_error_type = PyErr_NewException("stackgen.StreamError", PyExc_RuntimeError, nullptr);
+  PyObject* timeout_bases = PyTuple_Pack(2, stream_error_type, PyExc_TimeoutError);
+  stream_timeout_type = PyErr_NewException("stackgen.StreamTimeout", timeout_bases, nullptr);
+  Py_DECREF(timeout_bases);
+  m.attr("StreamError") = py::handle(stream_error_type);
+  m.attr("StreamTimeout") = py::handle(stream_timeout_type);
+  py::register_exception_translator([](std::exception_ptr error) {
+    try {
+      if (error) std::rethrow_exception(error);
+    } catch (const FeedTimeout& timeout) {
+      PyErr_SetString(stream_timeout_type, timeout.what());
+    } catch (const FeedError& failure) {
+      PyErr_SetString(stream_error_type, failure.what());
+    }
+  });
+
+  BindScene(m);
+  BindStream(m);
+  BindLogAppender(m);
+  BindStatusMonitor(m);
+  BindFunctions(m);
 }

@@ -142,8 +142,11 @@ void ApplyCameraPreset(config::CameraConfig* camera, const FieldNamer& n) {
   if (!camera->has_fy()) camera->set_fy(focal_px);
 }
 
-void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
-  const double kHuge = 1e6;
+// the largest value most lengths and scales may take
+constexpr double kHuge = 1e6;
+
+// the parts, and the objects a scene can hold
+void ValidateParts(const config::GeneratorConfig& c, const FieldNamer& n) {
   // parts
   int max_objects = 0;
   bool any_part = false;
@@ -197,7 +200,10 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
     throw ConfigError(n.Where("part", "count", 0) + ": up to " + std::to_string(max_objects) +
                       " objects per scene; at most 999");
   }
+}
 
+// the bin and its surroundings
+void ValidateBin(const config::GeneratorConfig& c, const FieldNamer& n) {
   // bin
   const config::BinConfig& bin = c.bin();
   CheckRange(n, "bin", "inner_length_mm", bin.inner_length_mm(), 0, 10000, true);
@@ -230,7 +236,10 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   }
   CheckOrdered(n, "surroundings", "bin_roughness_min", around.bin_roughness_min(),
                "bin_roughness_max", around.bin_roughness_max());
+}
 
+// the camera's own fields
+void ValidateCameraFields(const config::GeneratorConfig& c, const FieldNamer& n) {
   // camera
   const config::CameraConfig& camera = c.camera();
   CheckRange(n, "camera", "width", camera.width(), 16, 8192);
@@ -244,7 +253,11 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "camera", "distance_jitter_mm", camera.distance_jitter_mm(), 0, 100000);
   CheckRange(n, "camera", "tilt_max_deg", camera.tilt_max_deg(), 0, 60);
   CheckRange(n, "camera", "roll_max_deg", camera.roll_max_deg(), 0, 180);
+}
 
+// the lights, none inside the bin
+void ValidateLighting(const config::GeneratorConfig& c, const FieldNamer& n) {
+  const config::BinConfig& bin = c.bin();
   // lighting and background
   const config::LightingConfig& light = c.lighting();
   CheckRange(n, "lighting", "ambient_min", light.ambient_min(), 0, 1);
@@ -280,7 +293,10 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
                       " mm could put a point light inside the bin; it must exceed " +
                       Number(std::ceil(bin_reach)) + " mm (the farthest bin corner)");
   }
+}
 
+// appearance, background, sensor and rendering
+void ValidateLook(const config::GeneratorConfig& c, const FieldNamer& n) {
   // appearance
   const config::AppearanceConfig& look = c.appearance();
   CheckRange(n, "appearance", "value_gain_min", look.value_gain_min(), 0, 4);
@@ -355,7 +371,11 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
              100);
   CheckOrdered(n, "rendering", "environment_intensity_min", rendering.environment_intensity_min(),
                "environment_intensity_max", rendering.environment_intensity_max());
+}
 
+// the simulation and the drops
+void ValidatePhysics(const config::GeneratorConfig& c, const FieldNamer& n) {
+  const config::BinConfig& bin = c.bin();
   // physics
   const config::PhysicsConfig& physics = c.physics();
   // coarser steps let 6 mm plates tunnel through each other.
@@ -382,7 +402,10 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
              bin.inner_width_mm() / 2);
   CheckRange(n, "physics", "max_penetration_mm", physics.max_penetration_mm(), 0.01, 10);
   CheckRange(n, "physics", "views_per_pile", physics.views_per_pile(), 1, 1000);
+}
 
+// annotation and output
+void ValidateOutput(const config::GeneratorConfig& c, const FieldNamer& n) {
   // annotation and output
   CheckRange(n, "annotation", "min_visib_fract", c.annotation().min_visib_fract(), 0, 1);
   CheckRange(n, "annotation", "min_visible_px", c.annotation().min_visible_px(), 1, 10000);
@@ -392,7 +415,12 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
   if (c.output().image_encoding() == config::OutputConfig::ENCODING_UNSPECIFIED) {
     throw ConfigError(n.Where("output", "image_encoding") + ": must be RAW or PNG");
   }
+}
 
+// what the camera sees of the bin: above the rim, within the depth range, the whole interior
+void ValidateView(const config::GeneratorConfig& c, const FieldNamer& n) {
+  const config::BinConfig& bin = c.bin();
+  const config::CameraConfig& camera = c.camera();
   // the camera must stay above the rim in every drawn pose, and its nominal pose see the whole
   // bin interior.
   const double lowest_mm = (camera.height_mm() - camera.distance_jitter_mm()) *
@@ -436,6 +464,18 @@ void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
       }
     }
   }
+}
+
+// every field and every setting that cannot work, in the order a reader meets them
+void Validate(const config::GeneratorConfig& c, const FieldNamer& n) {
+  ValidateParts(c, n);
+  ValidateBin(c, n);
+  ValidateCameraFields(c, n);
+  ValidateLighting(c, n);
+  ValidateLook(c, n);
+  ValidatePhysics(c, n);
+  ValidateOutput(c, n);
+  ValidateView(c, n);
 }
 
 }  // namespace

@@ -64,9 +64,10 @@ std::string ResolveLcmUrl(const std::string& flag_value) {
   return kDefaultLcmUrl;
 }
 
-// one handler of a channel; a Subscription that ends when dropped clears `handler`
+// one handler of a channel; a Subscription that ends when dropped clears `handler` (a shared
+// pointer: a handler that ends its own subscription while it runs is kept alive by the call)
 struct Subscription::Slot {
-  std::function<void(const uint8_t* data, size_t size)> handler;
+  std::shared_ptr<std::function<void(const uint8_t* data, size_t size)>> handler;
 };
 
 void Subscription::Reset() {
@@ -75,7 +76,7 @@ void Subscription::Reset() {
     return;
   }
   end_when_dropped_ = false;
-  if (const std::shared_ptr<Slot> slot = slot_.lock()) slot->handler = nullptr;
+  if (const std::shared_ptr<Slot> slot = slot_.lock()) slot->handler.reset();
   slot_.reset();
 }
 
@@ -210,7 +211,8 @@ struct Bus::Impl {
       // a copy: a handler may end its own or another's subscription, or subscribe anew
       const std::vector<std::shared_ptr<Subscription::Slot>> now = slots;
       for (const std::shared_ptr<Subscription::Slot>& slot : now) {
-        if (slot->handler) slot->handler(data, static_cast<size_t>(size));
+        const auto handler = slot->handler;  // alive through the call, whatever it ends
+        if (handler) (*handler)(data, static_cast<size_t>(size));
       }
     } catch (...) {
       pending_error = std::current_exception();
@@ -408,6 +410,13 @@ void Bus::WatchKeys(const std::vector<std::string>& channels) {
   }
 }
 
+int Bus::handlers(const std::string& channel) const {
+  const Impl::Subscriber* subscriber = impl_->Find(channel);
+  if (subscriber == nullptr) return 0;
+  return static_cast<int>(std::count_if(subscriber->handlers.begin(), subscriber->handlers.end(),
+                                        [](const auto& slot) { return slot->handler != nullptr; }));
+}
+
 UdpmCounters Bus::receive_counters() const {
   return impl_->receiver ? impl_->receiver->counters() : UdpmCounters{};
 }
@@ -436,7 +445,7 @@ void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t s
 Subscription Bus::SubscribeBytes(const std::string& channel, BytesHandler handler,
                                  int queue_capacity) {
   auto slot = std::make_shared<Subscription::Slot>();
-  slot->handler = std::move(handler);
+  slot->handler = std::make_shared<BytesHandler>(std::move(handler));
   Subscription subscription{std::weak_ptr<Subscription::Slot>(slot)};
   // a second handler on a channel joins the first subscription (the larger queue wins)
   if (Impl::Subscriber* subscriber = impl_->Find(channel)) {

@@ -200,6 +200,8 @@ class Bus {
   /// before its first scene (which may take seconds), and a stranger's unsigned scenes heard
   /// meanwhile are not all the evidence.
   void WatchKeys(const std::vector<std::string>& channels);
+  /// The handlers subscribed to `channel` now (those whose Subscription ended not counted).
+  int handlers(const std::string& channel) const;
   /// What receiving a udpm:// bus did with the datagrams it read (udpm.h; all zero on memq://
   /// and file://): malformed ones dropped, messages given up or dropped for a full queue.
   UdpmCounters receive_counters() const;

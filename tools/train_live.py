@@ -366,10 +366,20 @@ def main(argv):
                                                                        torch.__version__))
     try:
         device = torch.device(args.device)
-        if world > 1 and device.type == "cuda" and device.index is None:
-            device = torch.device("cuda", local_rank)
     except RuntimeError as error:
         fail("--device %s: %s" % (args.device, error))
+    if device.type == "cuda" and (args.nproc > 1 or world > 1):
+        # one GPU per rank, rank r on cuda:r (NCCL's collectives run on the current device)
+        if device.index is not None:
+            fail("--device %s with several ranks: pass --device cuda, each rank takes its own "
+                 "GPU" % args.device)
+        ranks = max(args.nproc, world)
+        if ranks > torch.cuda.device_count():
+            fail("%d ranks on CUDA need %d GPUs; torch sees %d" % (
+                ranks, ranks, torch.cuda.device_count()))
+        if world > 1:
+            device = torch.device("cuda", local_rank)
+            torch.cuda.set_device(device)
     mix_set = eval_set = None
     if args.mix:
         try:
@@ -457,13 +467,18 @@ def main(argv):
         for images, targets in loader:
             check_generators(generators)
             meter.update(targets)
+            raw_targets = targets
             targets = [sgt.without_ignore_regions(t) for t in targets]
             for target in targets:
                 if len(target["labels"]) and int(target["labels"].max()) >= args.num_classes:
                     fail("class id %d seen: pass --num-classes %d or more" % (
                         int(target["labels"].max()), int(target["labels"].max()) + 1))
             if model is None:
-                channels, height, width = images[0].shape
+                # sized by a scene, not a mixed-in photo of another size (the first batch
+                # without a scene falls back to its first image)
+                scenes = [image for image, target in zip(images, raw_targets)
+                          if int(target["scene"][0]) >= 0]
+                channels, height, width = (scenes or images)[0].shape
                 model = build_model(args, channels, height, width).to(device)
                 model.train()
                 if world > 1:

@@ -67,15 +67,18 @@ TEST(BusTest, SubscriptionsThatEndWhenDropped) {
   EXPECT_EQ(calls, std::vector<std::string>{"kept"});
 
   Subscription self;
+  const std::string label = "once";  // read through the handler's captures after its Reset
   self = bus->Subscribe<status>(kStatusChannel,
-                                [&](const status&) {
-                                  calls.push_back("once");
+                                [&calls, &self, label](const status&) {
                                   self.Reset();
+                                  calls.push_back(label);
                                 })
              .EndWhenDropped();
+  EXPECT_EQ(bus->handlers(kStatusChannel), 2);
   publish_and_handle();
   EXPECT_EQ(calls, (std::vector<std::string>{"kept", "once"}));
   EXPECT_FALSE(self.active());
+  EXPECT_EQ(bus->handlers(kStatusChannel), 1);
   publish_and_handle();
   EXPECT_EQ(calls, std::vector<std::string>{"kept"});
 

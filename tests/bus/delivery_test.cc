@@ -417,7 +417,11 @@ TEST_F(DeliveryFixture, TailResendsBackOff) {
 TEST_F(DeliveryFixture, ServerEndsBeforeItsBus) {
   SetUpLink(SceneServerOptions{}, Client(2));
   Exchange();
+  EXPECT_EQ(bus_->handlers(kCreditChannel), 1);
+  EXPECT_EQ(bus_->handlers(kResendChannel), 1);
   server_.reset();
+  EXPECT_EQ(bus_->handlers(kCreditChannel), 0);
+  EXPECT_EQ(bus_->handlers(kResendChannel), 0);
   client_->Service();
   resend_request request{};
   request.header.generator_id = 0;

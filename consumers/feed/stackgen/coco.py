@@ -188,11 +188,15 @@ class LabelmeDataset:
             except (OSError, ValueError, KeyError, TypeError) as error:
                 raise ValueError("%s: not a labelme file: %s" % (path, error)) from None
             for index, shape in enumerate(shapes):
+                if not isinstance(shape, dict) or not isinstance(shape.get("label"), str):
+                    raise ValueError("%s: shape %d has no label" % (path, index))
                 kind = shape.get("shape_type") or "polygon"
                 if kind not in ("polygon", "rectangle"):
                     raise ValueError("%s: shape %d (%s): a %s, not a polygon or rectangle" %
                                      (path, index, shape.get("label"), kind))
                 labels.add(shape.get("label"))
+            # labelme on Windows writes imagePath with backslashes
+            image_path = str(image_path).replace("\\", "/")
             self._records.append((path, os.path.join(os.path.dirname(path), image_path),
                                   height, width, shapes))
         if class_ids is None:
@@ -260,7 +264,7 @@ class LabelmeDataset:
         instances = {}  # key -> (label, [shapes])
         for number, shape in enumerate(shapes):
             group = shape.get("group_id")
-            key = (shape["label"], group) if group is not None else ("", number)
+            key = ("group", shape["label"], group) if group is not None else ("shape", number)
             instances.setdefault(key, (shape["label"], []))[1].append((number, shape))
         masks = np.zeros((len(instances), height, width), dtype=np.uint8)
         labels = np.zeros(len(instances), dtype=np.int64)

@@ -140,6 +140,20 @@ def test_labelme_folder(tmp_path):
     write_labelme(tmp_path, "c", [shape("part", [[1, 1], [3, 3]], "circle")], image)
     with pytest.raises(ValueError, match=r"c\.json: shape 0 \(part\): a circle"):
         LabelmeDataset(str(tmp_path), class_ids={"part": 1, "bolt": 2})
+    # a shape without a label; an imagePath written on Windows
+    (tmp_path / "c.json").unlink()
+    other = tmp_path / "other"
+    (other / "pics").mkdir(parents=True)
+    cv2.imwrite(str(other / "pics" / "d.png"), image)
+    (other / "d.json").write_text(json.dumps({
+        "shapes": [shape("part", [[1, 1], [9, 1], [9, 9]])], "imagePath": "pics\\d.png",
+        "imageHeight": 40, "imageWidth": 60}))
+    assert np.array_equal(LabelmeDataset(str(other)).image(0), image)
+    (other / "d.json").write_text(json.dumps({
+        "shapes": [{"points": [[1, 1], [9, 1], [9, 9]]}], "imagePath": "pics/d.png",
+        "imageHeight": 40, "imageWidth": 60}))
+    with pytest.raises(ValueError, match=r"d\.json: shape 0 has no label"):
+        LabelmeDataset(str(other))
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="empty: neither a COCO folder"):
         open_labelled_folder(str(tmp_path / "empty"))

@@ -9,6 +9,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "tests/support/environments.h"
+#include "tests/support/process.h"
 
 namespace stackgen {
 namespace {
@@ -104,7 +105,8 @@ TEST(EnvironmentTest, HallsAreReproducibleAndLitFromAbove) {
 
 // Radiance and OpenEXR files load as linear RGB; a bad file is refused naming it
 TEST(EnvironmentTest, LoadsHdrAndExrFiles) {
-  const std::string dir = ::testing::TempDir();
+  const testing::ScratchDir scratch("environment");  // removed at the end, its own name
+  const std::string dir = scratch.path() + "/";
   cv::Mat bgr(32, 64, CV_32FC3, cv::Scalar(0.25, 0.5, 4.0));  // B, G, R
   ASSERT_TRUE(cv::imwrite(dir + "sky.hdr", bgr));
   const EnvironmentMap hdr = LoadEnvironment(dir + "sky.hdr");

@@ -703,27 +703,21 @@ bool BopWriter::Add(const scene& scene) {
 std::vector<std::pair<int32_t, int64_t>> BopWriter::Commit() {
   std::vector<std::pair<int32_t, int64_t>> committed;
   if (staged_.empty()) return committed;
+  // on failure nothing staged stays: its files go
+  std::vector<std::string> lines, files;
+  for (const Staged& staged : staged_) {
+    lines.push_back(staged.line);
+    files.insert(files.end(), staged.files.begin(), staged.files.end());
+  }
+  uint64_t offset = 0;
   try {
-    // the files and their names, in one sync of the file system; then the lines that record
-    // them, in one write and one sync
-    if (syncfs(journal_->fd()) != 0) throw SystemError("cannot sync", dir_, errno);
-    std::string lines;
-    for (const Staged& staged : staged_) lines += staged.line;
-    journal_->Append(lines);
+    offset = CommitGroup(journal_.get(), lines, files, true, dir_);
   } catch (...) {
-    // nothing staged stays: its files go (unless the journal may record them)
-    if (!journal_->broken()) {
-      for (const Staged& staged : staged_) {
-        for (const std::string& path : staged.files) unlink(path.c_str());
-      }
-    }
     staged_.clear();
     staged_seeds_.clear();
     throw;
   }
   // index them where their lines now lie
-  uint64_t offset = journal_->size();
-  for (const Staged& staged : staged_) offset -= staged.line.size();
   std::set<int64_t> chunks;
   for (const Staged& staged : staged_) {
     Entry entry = staged.entry;

@@ -642,32 +642,24 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
 std::vector<std::pair<int32_t, int64_t>> CocoWriter::Commit() {
   std::vector<std::pair<int32_t, int64_t>> committed;
   if (staged_.empty()) return committed;
-  // drops what is staged: its image files go, nothing of it stays in the writer
-  const auto drop_staged = [&] {
-    if (!journal_->broken()) {
-      for (const StagedScene& staged : staged_) unlink(staged.image_path.c_str());
-    }
+  // group commits sync the image files in one go (without, each Add synced its image and the
+  // folder); on failure nothing staged stays: its image files go
+  std::vector<std::string> lines, files;
+  for (const StagedScene& staged : staged_) {
+    lines.push_back(staged.line);
+    files.push_back(staged.image_path);
+  }
+  uint64_t line_offset = 0;
+  try {
+    line_offset = CommitGroup(journal_.get(), lines, files, options_.group_commit,
+                              (fs::path(dir_) / kImagesFolder).string());
+  } catch (...) {
     staged_.clear();
     staged_seeds_.clear();
     staged_categories_.clear();
-  };
-  try {
-    // group commits: the image files and their names, in one sync of the file system (without,
-    // each Add synced its image and the folder)
-    if (options_.group_commit && syncfs(journal_->fd()) != 0) {
-      throw SystemError("cannot sync", (fs::path(dir_) / kImagesFolder).string(), errno);
-    }
-    // then the lines that record them, in one write and one sync
-    std::string lines;
-    for (const StagedScene& staged : staged_) lines += staged.line;
-    journal_->Append(lines);
-  } catch (...) {
-    drop_staged();
     throw;
   }
   // index them where their lines now lie
-  uint64_t line_offset = journal_->size();
-  for (const StagedScene& staged : staged_) line_offset -= staged.line.size();
   for (const StagedScene& staged : staged_) {
     JournalEntry entry = staged.entry;
     entry.image_offset += line_offset;

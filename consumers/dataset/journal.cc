@@ -100,4 +100,23 @@ std::string Journal::Read(uint64_t offset, uint64_t length) const {
   return ReadAt(fd_, offset, length, path_);
 }
 
+uint64_t CommitGroup(Journal* journal, const std::vector<std::string>& lines,
+                     const std::vector<std::string>& files, bool sync_files,
+                     const std::string& files_name) {
+  try {
+    if (sync_files && syncfs(journal->fd()) != 0) {
+      throw SystemError("cannot sync", files_name, errno);
+    }
+    std::string text;
+    for (const std::string& line : lines) text += line;
+    journal->Append(text);
+    return journal->size() - text.size();
+  } catch (...) {
+    if (!journal->broken()) {
+      for (const std::string& path : files) unlink(path.c_str());
+    }
+    throw;
+  }
+}
+
 }  // namespace stackgen

@@ -6,6 +6,7 @@
 #include <functional>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace stackgen {
 
@@ -52,5 +53,14 @@ class Journal {
   uint64_t size_ = 0;
   bool broken_ = false;  // a failed append could not be cut back
 };
+
+/// Makes a group of staged scenes durable, the same way for every dataset writer: first the
+/// files they wrote (with `sync_files`: one syncfs of the file system the journal is on; the
+/// error names `files_name`), then their journal `lines` in one write and one sync. On failure
+/// removes `files` (unless the journal may record them: Journal::broken) and rethrows; the caller
+/// drops what it staged. Returns the offset in the journal of the group's first line.
+uint64_t CommitGroup(Journal* journal, const std::vector<std::string>& lines,
+                     const std::vector<std::string>& files, bool sync_files,
+                     const std::string& files_name);
 
 }  // namespace stackgen

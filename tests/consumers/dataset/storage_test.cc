@@ -136,6 +136,39 @@ TEST(JournalTest, FailedAppendIsCutBack) {
   EXPECT_EQ(Contents(path), "kept\nafter\n");
 }
 
+// a group commit: the files first, then the lines in one write; the first line's offset comes
+// back; a group that cannot be recorded takes its files with it
+TEST(JournalTest, GroupCommitRecordsOrRemovesItsFiles) {
+  testing::ScratchDir scratch("journal");
+  const std::string path = scratch.path() + "/a.journal";
+  Journal journal(path);
+  LoadAll(&journal);
+  journal.Append("before\n");
+  const std::string image = scratch.path() + "/a.png";
+  std::ofstream(image) << "png";
+  EXPECT_EQ(CommitGroup(&journal, {"one\n", "two\n"}, {image}, true, scratch.path()), 7u);
+  EXPECT_EQ(Contents(path), "before\none\ntwo\n");
+  EXPECT_TRUE(fs::exists(image));
+
+  const std::string lost = scratch.path() + "/b.png";
+  std::ofstream(lost) << "png";
+  struct sigaction ignore {
+  }, old_action{};
+  ignore.sa_handler = SIG_IGN;
+  sigaction(SIGXFSZ, &ignore, &old_action);
+  rlimit old_limit{};
+  getrlimit(RLIMIT_FSIZE, &old_limit);
+  rlimit small = old_limit;
+  small.rlim_cur = 20;
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  EXPECT_THROW(CommitGroup(&journal, {std::string(30, 'x') + "\n"}, {lost}, false, ""),
+               std::runtime_error);
+  setrlimit(RLIMIT_FSIZE, &old_limit);
+  sigaction(SIGXFSZ, &old_action, nullptr);
+  EXPECT_FALSE(fs::exists(lost));
+  EXPECT_EQ(Contents(path), "before\none\ntwo\n");
+}
+
 TEST(JournalTest, StartedDatasetErrorSaysWhatToDo) {
   EXPECT_EQ(std::string(DatasetStartedError("/d/annotations.journal").what()),
             "/d/annotations.journal already exists (a dataset was started here); will not "

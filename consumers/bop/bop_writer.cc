@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <limits>
 
 #include <nlohmann/json.hpp>
@@ -325,6 +326,86 @@ void WriteShards(const fs::path& chunk, int64_t scene_id,
   }
 }
 
+// writes a file of a scene (a path relative to its chunk folder) and remembers it
+using FileWriter = std::function<void(const std::string& relative, const std::vector<uint8_t>&)>;
+
+// a scene's ground truths in BOP's records, by instance id
+struct GroundTruths {
+  json gt = json::array();       // scene_gt: pose and class
+  json gt_info = json::array();  // scene_gt_info: boxes and pixel counts
+  json coco = json::array();     // scene_gt_coco: the visible ones
+  json masks = json::array();    // the full and visible masks' RLEs, for the journal
+  int64_t count = 0;
+};
+
+// the ground truths of `scene` (image `im_id`), ordered by instance id; writes each one's full
+// and visible mask images through `write` and notes its class in `classes`
+GroundTruths MakeGroundTruths(const scene& scene, int64_t im_id, const cv::Mat& depth,
+                              const FileWriter& write, std::map<int32_t, std::string>* classes) {
+  const camera_info& camera = scene.camera;
+  GroundTruths out;
+  std::vector<const instance*> objects;
+  for (const instance& object : scene.instances) objects.push_back(&object);
+  std::sort(objects.begin(), objects.end(),
+            [](const instance* a, const instance* b) { return a->instance_id < b->instance_id; });
+  cv::Mat mask(camera.height, camera.width, CV_8UC1);
+  for (size_t gt_id = 0; gt_id < objects.size(); ++gt_id) {
+    const instance& object = *objects[gt_id];
+    const std::string mask_name = Six(im_id) + "_" + Six(static_cast<int64_t>(gt_id)) + ".png";
+    // the full mask: its pixels with a depth are BOP's px_count_valid
+    mask.setTo(0);
+    DecodeRleInto(object.mask_obj_rle, camera.height, camera.width, mask.data);
+    const int64_t valid = cv::countNonZero(mask & (depth > 0));
+    write(std::string(kMaskFolder) + "/" + mask_name, EncodeImage(mask * 255, kMaskPngCompression));
+    mask.setTo(0);
+    DecodeRleInto(object.mask_visib_rle, camera.height, camera.width, mask.data);
+    write(std::string(kMaskVisibFolder) + "/" + mask_name,
+          EncodeImage(mask * 255, kMaskPngCompression));
+
+    const pose& camera_from_object = object.camera_from_object;
+    out.gt.push_back({{"cam_R_m2c", std::vector<double>(camera_from_object.rotation,
+                                                        camera_from_object.rotation + 9)},
+                      {"cam_t_m2c", std::vector<double>(camera_from_object.translation_mm,
+                                                        camera_from_object.translation_mm + 3)},
+                      {"obj_id", object.class_id}});
+    out.gt_info.push_back(
+        {{"bbox_obj",
+          ToolkitBox(object.bbox_obj, object.px_count_visib > 0 ? object.px_count_all : 0)},
+         {"bbox_visib", ToolkitBox(object.bbox_visib, object.px_count_visib)},
+         {"px_count_all", object.px_count_all},
+         {"px_count_valid", valid},
+         {"px_count_visib", object.px_count_visib},
+         {"visib_fract", object.visib_fract}});
+    if (object.px_count_visib > 0) {
+      out.coco.push_back(
+          {{"area", object.px_count_visib},
+           {"bbox", std::vector<int32_t>(object.bbox_obj, object.bbox_obj + 4)},
+           {"category_id", object.class_id},
+           {"height", camera.height},
+           {"ignore", object.visib_fract < kIgnoreBelowVisibFract},
+           {"image_id", im_id},
+           {"iscrowd", 0},
+           {"segmentation",
+            {{"counts", object.mask_visib_rle}, {"size", {camera.height, camera.width}}}},
+           {"width", camera.width}});
+    }
+    out.masks.push_back({object.mask_obj_rle, object.mask_visib_rle});
+    classes->emplace(object.class_id, object.class_name);
+  }
+  out.count = static_cast<int64_t>(objects.size());
+  return out;
+}
+
+// a scene's camera record: K, world to camera, depth scale
+json SceneCamera(const camera_info& camera) {
+  std::vector<double> rotation, translation;
+  Invert(camera.world_from_camera, &rotation, &translation);
+  return {{"cam_K", {camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0}},
+          {"cam_R_w2c", rotation},
+          {"cam_t_w2c", translation},
+          {"depth_scale", camera.depth_scale_mm}};
+}
+
 }  // namespace
 
 int64_t BopWriter::SceneId(int32_t generator_id, int64_t seq) {
@@ -575,7 +656,7 @@ bool BopWriter::Add(const scene& scene) {
          {gray ? "gray" : "rgb", kDepthFolder, kMaskFolder, kMaskVisibFolder}) {
       CreateFolders(chunk_path / folder);
     }
-    const auto write = [&](const std::string& relative, const std::vector<uint8_t>& bytes) {
+    const FileWriter write = [&](const std::string& relative, const std::vector<uint8_t>& bytes) {
       const fs::path path = chunk_path / relative;
       staged.files.push_back(path.string());
       WriteFileAtomically(path, reinterpret_cast<const char*>(bytes.data()), bytes.size(), false);
@@ -588,67 +669,11 @@ bool BopWriter::Add(const scene& scene) {
     write(std::string(kDepthFolder) + "/" + Six(im_id) + ".png",
           scene.depth.encoding == image::ENCODING_PNG ? scene.depth.data : EncodeImage(depth, -1));
 
-    // the ground truths, by instance id
-    std::vector<const instance*> objects;
-    for (const instance& object : scene.instances) objects.push_back(&object);
-    std::sort(objects.begin(), objects.end(),
-              [](const instance* a, const instance* b) { return a->instance_id < b->instance_id; });
-    json gt = json::array(), gt_info = json::array(), coco = json::array(), masks = json::array();
-    cv::Mat mask(camera.height, camera.width, CV_8UC1);
-    for (size_t gt_id = 0; gt_id < objects.size(); ++gt_id) {
-      const instance& object = *objects[gt_id];
-      const std::string mask_name = Six(im_id) + "_" + Six(static_cast<int64_t>(gt_id)) + ".png";
-      // the full mask: its pixels with a depth are BOP's px_count_valid
-      mask.setTo(0);
-      DecodeRleInto(object.mask_obj_rle, camera.height, camera.width, mask.data);
-      const int64_t valid = cv::countNonZero(mask & (depth > 0));
-      write(std::string(kMaskFolder) + "/" + mask_name,
-            EncodeImage(mask * 255, kMaskPngCompression));
-      mask.setTo(0);
-      DecodeRleInto(object.mask_visib_rle, camera.height, camera.width, mask.data);
-      write(std::string(kMaskVisibFolder) + "/" + mask_name,
-            EncodeImage(mask * 255, kMaskPngCompression));
+    // the ground truths, by instance id, and their mask images
+    GroundTruths truths = MakeGroundTruths(scene, im_id, depth, write, &staged.classes);
+    staged.ground_truths = truths.count;
 
-      const pose& camera_from_object = object.camera_from_object;
-      gt.push_back({{"cam_R_m2c", std::vector<double>(camera_from_object.rotation,
-                                                      camera_from_object.rotation + 9)},
-                    {"cam_t_m2c", std::vector<double>(camera_from_object.translation_mm,
-                                                      camera_from_object.translation_mm + 3)},
-                    {"obj_id", object.class_id}});
-      gt_info.push_back(
-          {{"bbox_obj",
-            ToolkitBox(object.bbox_obj, object.px_count_visib > 0 ? object.px_count_all : 0)},
-           {"bbox_visib", ToolkitBox(object.bbox_visib, object.px_count_visib)},
-           {"px_count_all", object.px_count_all},
-           {"px_count_valid", valid},
-           {"px_count_visib", object.px_count_visib},
-           {"visib_fract", object.visib_fract}});
-      if (object.px_count_visib > 0) {
-        coco.push_back(
-            {{"area", object.px_count_visib},
-             {"bbox", std::vector<int32_t>(object.bbox_obj, object.bbox_obj + 4)},
-             {"category_id", object.class_id},
-             {"height", camera.height},
-             {"ignore", object.visib_fract < kIgnoreBelowVisibFract},
-             {"image_id", im_id},
-             {"iscrowd", 0},
-             {"segmentation",
-              {{"counts", object.mask_visib_rle}, {"size", {camera.height, camera.width}}}},
-             {"width", camera.width}});
-      }
-      masks.push_back({object.mask_obj_rle, object.mask_visib_rle});
-      staged.classes.emplace(object.class_id, object.class_name);
-    }
-    staged.ground_truths = static_cast<int64_t>(objects.size());
-
-    // the camera: K, world to camera, depth scale
-    std::vector<double> rotation, translation;
-    Invert(camera.world_from_camera, &rotation, &translation);
-    const json scene_camera = {
-        {"cam_K", {camera.fx, 0.0, camera.cx, 0.0, camera.fy, camera.cy, 0.0, 0.0, 1.0}},
-        {"cam_R_w2c", rotation},
-        {"cam_t_w2c", translation},
-        {"depth_scale", camera.depth_scale_mm}};
+    const json scene_camera = SceneCamera(camera);
     if (!camera_written_) {
       // the first scene's camera describes the dataset's sensor
       WriteToolkitObject(fs::path(dir_) / kCameraFile, {{"cx", camera.cx},
@@ -682,9 +707,9 @@ bool BopWriter::Add(const scene& scene) {
                          {"width", camera.width}};
     const auto run = runs_.find(generator_id);
     if (run != runs_.end()) record_scene["run"] = run->second;
-    const json record = {{"camera", scene_camera},    {"coco", std::move(coco)},
-                         {"gt", std::move(gt)},       {"gt_info", std::move(gt_info)},
-                         {"masks", std::move(masks)}, {"scene", std::move(record_scene)}};
+    const json record = {{"camera", scene_camera},           {"coco", std::move(truths.coco)},
+                         {"gt", std::move(truths.gt)},       {"gt_info", std::move(truths.gt_info)},
+                         {"masks", std::move(truths.masks)}, {"scene", std::move(record_scene)}};
     staged.line = record.dump() + "\n";
   } catch (...) {
     for (const std::string& path : staged.files) unlink(path.c_str());

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <memory>
 #include <sstream>
@@ -43,6 +44,23 @@ struct Line {
     return text == other.text && offset == other.offset && number == other.number;
   }
 };
+
+// runs `body` with files of this process limited to `bytes` (RLIMIT_FSIZE, as a full disk
+// would stop a write half-way: the write fails with EFBIG, SIGXFSZ ignored), then lifts it
+void WithFileSizeLimit(rlim_t bytes, const std::function<void()>& body) {
+  struct sigaction ignore = {}, old_action = {};
+  ignore.sa_handler = SIG_IGN;
+  sigaction(SIGXFSZ, &ignore, &old_action);
+  rlimit old_limit{};
+  getrlimit(RLIMIT_FSIZE, &old_limit);
+  rlimit small = old_limit;
+  small.rlim_cur = bytes;
+  const bool limited = setrlimit(RLIMIT_FSIZE, &small) == 0;
+  EXPECT_TRUE(limited);
+  if (limited) body();
+  setrlimit(RLIMIT_FSIZE, &old_limit);
+  sigaction(SIGXFSZ, &old_action, nullptr);
+}
 
 std::vector<Line> LoadAll(Journal* journal, int64_t* cut = nullptr) {
   std::vector<Line> lines;
@@ -112,23 +130,14 @@ TEST(JournalTest, FailedAppendIsCutBack) {
   Journal journal(path);
   LoadAll(&journal);
   journal.Append("kept\n");
-  struct sigaction ignore {
-  }, old_action{};
-  ignore.sa_handler = SIG_IGN;
-  sigaction(SIGXFSZ, &ignore, &old_action);
-  rlimit old_limit{};
-  getrlimit(RLIMIT_FSIZE, &old_limit);
-  rlimit small = old_limit;
-  small.rlim_cur = 16;
-  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
   std::string what;
-  try {
-    journal.Append(std::string(40, 'x') + "\n");
-  } catch (const std::runtime_error& error) {
-    what = error.what();
-  }
-  setrlimit(RLIMIT_FSIZE, &old_limit);
-  sigaction(SIGXFSZ, &old_action, nullptr);
+  WithFileSizeLimit(16, [&] {
+    try {
+      journal.Append(std::string(40, 'x') + "\n");
+    } catch (const std::runtime_error& error) {
+      what = error.what();
+    }
+  });
   EXPECT_EQ(what.rfind("cannot write " + path + ": ", 0), 0u) << what;
   EXPECT_FALSE(journal.broken());
   EXPECT_EQ(Contents(path), "kept\n");
@@ -152,19 +161,10 @@ TEST(JournalTest, GroupCommitRecordsOrRemovesItsFiles) {
 
   const std::string lost = scratch.path() + "/b.png";
   std::ofstream(lost) << "png";
-  struct sigaction ignore {
-  }, old_action{};
-  ignore.sa_handler = SIG_IGN;
-  sigaction(SIGXFSZ, &ignore, &old_action);
-  rlimit old_limit{};
-  getrlimit(RLIMIT_FSIZE, &old_limit);
-  rlimit small = old_limit;
-  small.rlim_cur = 20;
-  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
-  EXPECT_THROW(CommitGroup(&journal, {std::string(30, 'x') + "\n"}, {lost}, false, ""),
-               std::runtime_error);
-  setrlimit(RLIMIT_FSIZE, &old_limit);
-  sigaction(SIGXFSZ, &old_action, nullptr);
+  WithFileSizeLimit(20, [&] {
+    EXPECT_THROW(CommitGroup(&journal, {std::string(30, 'x') + "\n"}, {lost}, false, ""),
+                 std::runtime_error);
+  });
   EXPECT_FALSE(fs::exists(lost));
   EXPECT_EQ(Contents(path), "before\none\ntwo\n");
 }

@@ -489,6 +489,63 @@ void CocoWriter::WriteImageFile(const stackgen::scene& scene, const std::string&
   WriteFileAtomically(path, reinterpret_cast<const char*>(png.data()), png.size(), sync);
 }
 
+namespace {
+
+// a scene's image record: id, file, size, and stackgen's own fields (ids, seed, camera)
+json ImageRecord(const stackgen::scene& scene, int64_t image_id, const std::string& file_name) {
+  const stackgen::camera_info& camera = scene.camera;
+  json camera_json = {{"fx", camera.fx},
+                      {"fy", camera.fy},
+                      {"cx", camera.cx},
+                      {"cy", camera.cy},
+                      {"world_from_camera", PoseJson(camera.world_from_camera)},
+                      {"depth_scale_mm", camera.depth_scale_mm}};
+  return {{"id", image_id},
+          {"file_name", file_name},
+          {"width", camera.width},
+          {"height", camera.height},
+          {"stackgen",
+           {{"seq", scene.header.seq},
+            {"generator_id", scene.header.generator_id},
+            {"seed", scene.header.seed},
+            {"camera", std::move(camera_json)}}}};
+}
+
+// one instance's annotation record: COCO's fields, the full (amodal) mask and box, and
+// stackgen's labels (visibility, pixel counts, posture, poses)
+json AnnotationRecord(const stackgen::instance& instance, int64_t image_id,
+                      const stackgen::camera_info& camera, json segmentation, bool crowd) {
+  const stackgen::pose& camera_from_object = instance.camera_from_object;
+  const stackgen::pose& world_from_object = instance.world_from_object;
+  return {{"id", CocoWriter::AnnotationId(image_id, instance.instance_id)},
+          {"image_id", image_id},
+          {"category_id", instance.class_id},
+          {"segmentation", std::move(segmentation)},
+          {"area", instance.px_count_visib},
+          {"bbox", std::vector<int32_t>(instance.bbox_visib, instance.bbox_visib + 4)},
+          {"iscrowd", crowd ? 1 : 0},
+          {"amodal_segmentation",
+           {{"size", {camera.height, camera.width}}, {"counts", instance.mask_obj_rle}}},
+          {"amodal_bbox", std::vector<int32_t>(instance.bbox_obj, instance.bbox_obj + 4)},
+          {"instance_id", instance.instance_id},
+          {"visib_fract", instance.visib_fract},
+          {"px_count_all", instance.px_count_all},
+          {"px_count_visib", instance.px_count_visib},
+          {"bbox_obj", std::vector<int32_t>(instance.bbox_obj, instance.bbox_obj + 4)},
+          {"posture_deg", std::vector<double>(instance.posture_deg, instance.posture_deg + 3)},
+          {"resting_face", instance.resting_face},
+          {"cam_R_m2c",
+           std::vector<double>(camera_from_object.rotation, camera_from_object.rotation + 9)},
+          {"cam_t_m2c", std::vector<double>(camera_from_object.translation_mm,
+                                            camera_from_object.translation_mm + 3)},
+          {"world_R_m2w",
+           std::vector<double>(world_from_object.rotation, world_from_object.rotation + 9)},
+          {"world_t_m2w", std::vector<double>(world_from_object.translation_mm,
+                                              world_from_object.translation_mm + 3)}};
+}
+
+}  // namespace
+
 bool CocoWriter::Add(const stackgen::scene& scene) {
   // store each (generator_id, seq) once; the same ids with another seed come from another run
   const std::string scene_name = SceneName(scene);
@@ -506,21 +563,7 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
   // the image record
   const stackgen::camera_info& camera = scene.camera;
   const std::string file_name = ImageFileName(scene);
-  json camera_json = {{"fx", camera.fx},
-                      {"fy", camera.fy},
-                      {"cx", camera.cx},
-                      {"cy", camera.cy},
-                      {"world_from_camera", PoseJson(camera.world_from_camera)},
-                      {"depth_scale_mm", camera.depth_scale_mm}};
-  const json image = {{"id", image_id},
-                      {"file_name", file_name},
-                      {"width", camera.width},
-                      {"height", camera.height},
-                      {"stackgen",
-                       {{"seq", scene.header.seq},
-                        {"generator_id", scene.header.generator_id},
-                        {"seed", scene.header.seed},
-                        {"camera", std::move(camera_json)}}}};
+  const json image = ImageRecord(scene, image_id, file_name);
 
   // the annotation records, by instance id (= by annotation id)
   std::vector<const stackgen::instance*> instances;
@@ -542,8 +585,6 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
       ++scene_dropped;
       continue;
     }
-    const stackgen::pose& camera_from_object = instance->camera_from_object;
-    const stackgen::pose& world_from_object = instance->world_from_object;
     json segmentation = {{"size", {camera.height, camera.width}},
                          {"counts", instance->mask_visib_rle}};
     if (options_.polygons && !crowd) {
@@ -551,32 +592,8 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
       DecodeRleInto(instance->mask_visib_rle, camera.height, camera.width, mask.data);
       segmentation = MaskPolygons(mask);
     }
-    const json annotation = {
-        {"id", AnnotationId(image_id, instance->instance_id)},
-        {"image_id", image_id},
-        {"category_id", instance->class_id},
-        {"segmentation", std::move(segmentation)},
-        {"area", instance->px_count_visib},
-        {"bbox", std::vector<int32_t>(instance->bbox_visib, instance->bbox_visib + 4)},
-        {"iscrowd", crowd ? 1 : 0},
-        {"amodal_segmentation",
-         {{"size", {camera.height, camera.width}}, {"counts", instance->mask_obj_rle}}},
-        {"amodal_bbox", std::vector<int32_t>(instance->bbox_obj, instance->bbox_obj + 4)},
-        {"instance_id", instance->instance_id},
-        {"visib_fract", instance->visib_fract},
-        {"px_count_all", instance->px_count_all},
-        {"px_count_visib", instance->px_count_visib},
-        {"bbox_obj", std::vector<int32_t>(instance->bbox_obj, instance->bbox_obj + 4)},
-        {"posture_deg", std::vector<double>(instance->posture_deg, instance->posture_deg + 3)},
-        {"resting_face", instance->resting_face},
-        {"cam_R_m2c",
-         std::vector<double>(camera_from_object.rotation, camera_from_object.rotation + 9)},
-        {"cam_t_m2c", std::vector<double>(camera_from_object.translation_mm,
-                                          camera_from_object.translation_mm + 3)},
-        {"world_R_m2w",
-         std::vector<double>(world_from_object.rotation, world_from_object.rotation + 9)},
-        {"world_t_m2w", std::vector<double>(world_from_object.translation_mm,
-                                            world_from_object.translation_mm + 3)}};
+    const json annotation =
+        AnnotationRecord(*instance, image_id, camera, std::move(segmentation), crowd);
     if (!annotations.empty()) annotations += ",";
     annotations += annotation.dump();
     if (crowd) {

@@ -208,10 +208,10 @@ struct Bus::Impl {
       slots.erase(std::remove_if(slots.begin(), slots.end(),
                                  [](const auto& slot) { return !slot->handler; }),
                   slots.end());
-      // a copy: a handler may end its own or another's subscription, or subscribe anew
-      const std::vector<std::shared_ptr<Subscription::Slot>> now = slots;
-      for (const std::shared_ptr<Subscription::Slot>& slot : now) {
-        const auto handler = slot->handler;  // alive through the call, whatever it ends
+      // by index, over the handlers there now: a handler may end its own or another's
+      // subscription (its slot stays until the next message), or subscribe anew (appended)
+      for (size_t i = 0, count = slots.size(); i < count; ++i) {
+        const auto handler = slots[i]->handler;  // alive through the call, whatever it ends
         if (handler) (*handler)(data, static_cast<size_t>(size));
       }
     } catch (...) {

@@ -48,10 +48,6 @@ constexpr const char* kMaskFolder = "mask";
 constexpr const char* kMaskVisibFolder = "mask_visib";
 const char* const kImageFolders[] = {"rgb", "gray", kDepthFolder, kMaskFolder, kMaskVisibFolder};
 
-[[noreturn]] void Fail(const std::string& scene_name, const std::string& text) {
-  throw InvalidSceneError(scene_name + ": " + text);
-}
-
 // six digits, as BOP names its files and folders
 std::string Six(int64_t value) {
   char text[32];
@@ -589,20 +585,20 @@ void BopWriter::Index(const Entry& entry) {
 }
 
 void BopWriter::Validate(const scene& scene) const {
-  const std::string name = SceneName(scene);
   std::string why;
-  if (!CheckScene(scene, &why)) Fail(name, why);
-  if (scene.depth.size == 0) Fail(name, "depth is empty: a BOP dataset needs the depth image");
+  if (!CheckScene(scene, &why)) FailScene(scene, why);
+  if (scene.depth.size == 0)
+    FailScene(scene, "depth is empty: a BOP dataset needs the depth image");
   // what BOP needs beyond the contract: obj ids of six digits, JSON text, one name per class
   std::map<int32_t, std::string> scene_classes;
   for (size_t i = 0; i < scene.instances.size(); ++i) {
     const instance& object = scene.instances[i];
     const std::string field = "instances[" + std::to_string(i) + "]";
     if (object.class_id > kMaxObjId) {
-      Fail(name, field + ".class_id " + std::to_string(object.class_id) + " outside 1.." +
-                     std::to_string(kMaxObjId) + " (BOP obj ids have six digits)");
+      FailScene(scene, field + ".class_id " + std::to_string(object.class_id) + " outside 1.." +
+                           std::to_string(kMaxObjId) + " (BOP obj ids have six digits)");
     }
-    if (!IsUtf8(object.class_name)) Fail(name, field + ".class_name is not valid UTF-8");
+    if (!IsUtf8(object.class_name)) FailScene(scene, field + ".class_name is not valid UTF-8");
     std::string known = scene_classes.emplace(object.class_id, object.class_name).first->second;
     const auto stored = classes_.find(object.class_id);
     if (stored != classes_.end()) known = stored->second;
@@ -611,15 +607,14 @@ void BopWriter::Validate(const scene& scene) const {
       if (in_staged != staged.classes.end()) known = in_staged->second;
     }
     if (known != object.class_name) {
-      Fail(name, field + ".class_name \"" + object.class_name + "\" differs from \"" + known +
-                     "\" seen before for class_id " + std::to_string(object.class_id));
+      FailScene(scene, field + ".class_name \"" + object.class_name + "\" differs from \"" + known +
+                           "\" seen before for class_id " + std::to_string(object.class_id));
     }
   }
 }
 
 bool BopWriter::Add(const scene& scene) {
   // store each (generator_id, seq) once; the same ids with another seed come from another run
-  const std::string scene_name = SceneName(scene);
   const int32_t generator_id = scene.header.generator_id;
   const int64_t seq = scene.header.seq;
   CheckSceneIds(scene);
@@ -638,9 +633,9 @@ bool BopWriter::Add(const scene& scene) {
   // the images, decoded whole: a PNG or JPEG is checked before it is stored
   std::string why;
   const cv::Mat color = DecodeImage(scene.color, &why);
-  if (color.empty()) Fail(scene_name, "color." + why);
+  if (color.empty()) FailScene(scene, "color." + why);
   const cv::Mat depth = DecodeImage(scene.depth, &why);
-  if (depth.empty()) Fail(scene_name, "depth." + why);
+  if (depth.empty()) FailScene(scene, "depth." + why);
 
   // where its files go
   const camera_info& camera = scene.camera;

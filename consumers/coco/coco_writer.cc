@@ -88,10 +88,6 @@ constexpr std::string_view kImagePrefix = "{\"image\":";
 constexpr std::string_view kAnnotationsPrefix = ",\"annotations\":[";
 constexpr std::string_view kScenePrefix = "],\"scene\":";
 
-[[noreturn]] void Fail(const std::string& scene_name, const std::string& text) {
-  throw InvalidSceneError(scene_name + ": " + text);
-}
-
 // images/<generator_id>_<seq:06>.png, .jpg for a JPEG scene
 std::string ImageFileName(const stackgen::scene& scene) {
   char seq[32];
@@ -435,15 +431,14 @@ int64_t CocoWriter::AnnotationId(int64_t image_id, int32_t instance_id) {
 }
 
 void CocoWriter::Validate(const stackgen::scene& scene) const {
-  const std::string name = SceneName(scene);
   // the contract every consumer checks (bus/scene_contract.h)
   std::string why;
-  if (!CheckScene(scene, &why)) Fail(name, why);
+  if (!CheckScene(scene, &why)) FailScene(scene, why);
 
   // a PNG or JPEG file is stored as it came: it must decode, whole
   if (scene.color.encoding != stackgen::image::ENCODING_RAW &&
       DecodeImage(scene.color, &why).empty()) {
-    Fail(name, "color." + why);
+    FailScene(scene, "color." + why);
   }
 
   // what COCO and this dataset need beyond it: annotation ids (image id * 1000 + instance_id),
@@ -453,11 +448,11 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
     const stackgen::instance& instance = scene.instances[i];
     const std::string field = "instances[" + std::to_string(i) + "]";
     if (instance.instance_id > kMaxCocoInstanceId) {
-      Fail(name, field + ".instance_id " + std::to_string(instance.instance_id) + " outside 1.." +
-                     std::to_string(kMaxCocoInstanceId) +
-                     " (annotation id = image id * 1000 + instance_id)");
+      FailScene(scene, field + ".instance_id " + std::to_string(instance.instance_id) +
+                           " outside 1.." + std::to_string(kMaxCocoInstanceId) +
+                           " (annotation id = image id * 1000 + instance_id)");
     }
-    if (!IsUtf8(instance.class_name)) Fail(name, field + ".class_name is not valid UTF-8");
+    if (!IsUtf8(instance.class_name)) FailScene(scene, field + ".class_name is not valid UTF-8");
     // the name stored (or staged) before for this class
     const std::string* known = nullptr;
     for (const auto* seen : {&categories_, &staged_categories_}) {
@@ -467,9 +462,9 @@ void CocoWriter::Validate(const stackgen::scene& scene) const {
     const auto in_scene = scene_categories.emplace(instance.class_id, instance.class_name).first;
     if ((known != nullptr && *known != instance.class_name) ||
         in_scene->second != instance.class_name) {
-      Fail(name, field + ".class_name \"" + instance.class_name + "\" differs from \"" +
-                     (known != nullptr ? *known : in_scene->second) +
-                     "\" seen before for class_id " + std::to_string(instance.class_id));
+      FailScene(scene, field + ".class_name \"" + instance.class_name + "\" differs from \"" +
+                           (known != nullptr ? *known : in_scene->second) +
+                           "\" seen before for class_id " + std::to_string(instance.class_id));
     }
   }
 }
@@ -548,7 +543,6 @@ json AnnotationRecord(const stackgen::instance& instance, int64_t image_id,
 
 bool CocoWriter::Add(const stackgen::scene& scene) {
   // store each (generator_id, seq) once; the same ids with another seed come from another run
-  const std::string scene_name = SceneName(scene);
   CheckSceneIds(scene);
   const int64_t image_id = ImageId(scene.header.generator_id, scene.header.seq);
   std::optional<int64_t> seen_seed;

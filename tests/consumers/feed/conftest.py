@@ -20,6 +20,16 @@ TINY_CONFIG = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.pbtxt")
 TINY_LOG = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.lcmlog")
 
 
+def coco_of_fixture_log(folder):
+    """Writes the fixture log's 4 scenes into a COCO folder `folder` with stackgen-coco (labelled
+    images standing for photos, or a held-out test set)."""
+    made = subprocess.run([os.path.join(BIN, "stackgen-coco"), "--lcm-url",
+                           "file://%s?speed=0" % TINY_LOG, "--open-bus", "--out", str(folder)],
+                          capture_output=True, text=True, timeout=120)
+    assert made.returncode == 0, made.stderr
+    return str(folder)
+
+
 def free_url():
     """A multicast URL on this host only, on a port nothing is bound to."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:

@@ -3,8 +3,6 @@ over 1,000 samples, the labels a real sample carries, the same draws for the sam
 readers of the folders (COCO and labelme)."""
 
 import json
-import os
-import subprocess
 
 import cv2
 import numpy as np
@@ -15,18 +13,13 @@ from torch.utils.data import DataLoader
 import stackgen
 import stackgen.torch as sgt
 from stackgen.coco import CocoDataset, LabelmeDataset, open_labelled_folder
-from conftest import BIN, TINY_LOG
+from conftest import TINY_LOG, coco_of_fixture_log
 
 
 @pytest.fixture(scope="module")
 def photos(tmp_path_factory):
     """A COCO folder standing for labelled photos: stackgen-coco's dataset of the fixture log."""
-    folder = tmp_path_factory.mktemp("photos") / "coco"
-    made = subprocess.run([os.path.join(BIN, "stackgen-coco"), "--lcm-url",
-                           "file://%s?speed=0" % TINY_LOG, "--open-bus", "--out", str(folder)],
-                          capture_output=True, text=True, timeout=120)
-    assert made.returncode == 0, made.stderr
-    return str(folder)
+    return coco_of_fixture_log(tmp_path_factory.mktemp("photos") / "coco")
 
 
 @pytest.fixture(scope="module")

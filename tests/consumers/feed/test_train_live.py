@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import torch
 
-from conftest import BIN, SOURCE, TINY_CONFIG, TINY_LOG
+from conftest import BIN, SOURCE, TINY_CONFIG, TINY_LOG, coco_of_fixture_log
 
 TRAIN_LIVE = os.path.join(SOURCE, "tools", "train_live.py")
 
@@ -87,11 +87,7 @@ def test_readme_command_two_ranks_real_images_and_scores(tmp_path):
         command = [line for line in file.read().splitlines()
                    if line.startswith("tools/train-live --nproc 2 ")]
     assert len(command) == 1
-    made = subprocess.run([os.path.join(BIN, "stackgen-coco"), "--lcm-url",
-                           "file://%s?speed=0" % TINY_LOG, "--open-bus", "--out",
-                           str(tmp_path / "testset")], capture_output=True, text=True,
-                          timeout=120)
-    assert made.returncode == 0, made.stderr
+    coco_of_fixture_log(tmp_path / "testset")
     os.symlink("testset", tmp_path / "photos")
     run = subprocess.run(
         [sys.executable, TRAIN_LIVE, "--stackgen", os.path.join(BIN, "stackgen")] +

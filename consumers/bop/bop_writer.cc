@@ -4,18 +4,18 @@
 
 #include <algorithm>
 #include <cerrno>
-#include <charconv>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <functional>
-#include <limits>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
 #include "bus/rle.h"
 #include "bus/scene_contract.h"
+#include "consumers/bop/model_files.h"
+#include "consumers/bop/toolkit_json.h"
 #include "consumers/dataset/files.h"
 #include "consumers/dataset/images.h"
 #include "consumers/dataset/shards.h"
@@ -55,129 +55,10 @@ std::string Six(int64_t value) {
   return text;
 }
 
-}  // namespace
-
-std::string PythonFloat(double value) {
-  char buffer[64];
-  const auto result =
-      std::to_chars(buffer, buffer + sizeof(buffer), value, std::chars_format::scientific);
-  const std::string text(buffer, result.ptr);
-  // "-d.ddde-XX": the sign, the digits and the exponent
-  const size_t e = text.find('e');
-  std::string mantissa = text.substr(0, e);
-  const int exponent = std::stoi(text.substr(e + 1));
-  const bool negative = mantissa[0] == '-';
-  if (negative) mantissa.erase(0, 1);
-  std::string digits = mantissa.substr(0, 1) + (mantissa.size() > 2 ? mantissa.substr(2) : "");
-  std::string out = negative ? "-" : "";
-  if (exponent < -4 || exponent >= 16) {
-    out += digits.substr(0, 1);
-    if (digits.size() > 1) out += "." + digits.substr(1);
-    char exponent_text[16];
-    std::snprintf(exponent_text, sizeof(exponent_text), "e%c%02d", exponent < 0 ? '-' : '+',
-                  std::abs(exponent));
-    return out + exponent_text;
-  }
-  if (exponent < 0)
-    return out + "0." + std::string(static_cast<size_t>(-exponent - 1), '0') + digits;
-  const size_t whole = static_cast<size_t>(exponent) + 1;
-  if (digits.size() <= whole) return out + digits + std::string(whole - digits.size(), '0') + ".0";
-  return out + digits.substr(0, whole) + "." + digits.substr(whole);
-}
-
-namespace {
-
-// `value` as Python's json.dumps(value, sort_keys=True) writes it, which is how the toolkit's
-// inout.save_json writes every entry: ", " and ": " between items, keys sorted, non-ASCII
-// escaped, doubles as repr writes them (nlohmann's objects are sorted by key already)
-void AppendToolkitJson(const json& value, std::string* out) {
-  if (value.is_object()) {
-    out->push_back('{');
-    bool first = true;
-    for (const auto& [key, item] : value.items()) {
-      if (!first) out->append(", ");
-      first = false;
-      out->append(json(key).dump(-1, ' ', true)).append(": ");
-      AppendToolkitJson(item, out);
-    }
-    out->push_back('}');
-  } else if (value.is_array()) {
-    out->push_back('[');
-    bool first = true;
-    for (const json& item : value) {
-      if (!first) out->append(", ");
-      first = false;
-      AppendToolkitJson(item, out);
-    }
-    out->push_back(']');
-  } else if (value.is_number_float()) {
-    out->append(PythonFloat(value.get<double>()));
-  } else {
-    out->append(value.dump(-1, ' ', true));
-  }
-}
-
-// a file as inout.save_json writes a dict: "{\n", then '  "KEY": VALUE' per entry in key order
-// (`entries` is in that order already), ",\n" between them, "\n}"
-void WriteToolkitFile(const fs::path& path,
-                      const std::vector<std::pair<std::string, const json*>>& entries) {
-  WriteFileWhole(path, [&](OutputFile& out) {
-    out.Write("{\n");
-    std::string line;
-    for (size_t i = 0; i < entries.size(); ++i) {
-      line = "  " + json(entries[i].first).dump(-1, ' ', true) + ": ";
-      AppendToolkitJson(*entries[i].second, &line);
-      line += i + 1 < entries.size() ? ",\n" : "\n";
-      out.Write(line);
-    }
-    out.Write("}");
-  });
-}
-
-// what inout.save_json writes for `value`: a dict (keys in the order nlohmann holds them, or
-// numeric for `numeric_keys`) or a list one entry per line, anything else on one line
-std::string ToolkitText(const json& value, bool numeric_keys = false) {
-  std::string text;
-  if (value.is_object()) {
-    std::vector<std::pair<std::string, const json*>> entries;
-    for (const auto& [key, item] : value.items()) entries.emplace_back(key, &item);
-    if (numeric_keys) {
-      std::stable_sort(entries.begin(), entries.end(), [](const auto& a, const auto& b) {
-        return std::stoll(a.first) < std::stoll(b.first);
-      });
-    }
-    text = "{\n";
-    for (size_t i = 0; i < entries.size(); ++i) {
-      text += "  " + json(entries[i].first).dump(-1, ' ', true) + ": ";
-      AppendToolkitJson(*entries[i].second, &text);
-      text += i + 1 < entries.size() ? ",\n" : "\n";
-    }
-    return text + "}";
-  }
-  if (value.is_array()) {
-    text = "[\n";
-    for (size_t i = 0; i < value.size(); ++i) {
-      text += "  ";
-      AppendToolkitJson(value[i], &text);
-      text += i + 1 < value.size() ? ",\n" : "\n";
-    }
-    return text + "]";
-  }
-  AppendToolkitJson(value, &text);
-  return text;
-}
-
 // a mask in BOP-imagewise's mask.json form: uncompressed COCO RLE (pycoco_utils
 // binary_mask_to_rle)
 json UncompressedRle(const std::string& counts, int32_t height, int32_t width) {
   return {{"counts", StringToRuns(counts)}, {"size", {height, width}}};
-}
-
-// a JSON object with string keys, as WriteToolkitFile takes it
-void WriteToolkitObject(const fs::path& path, const json& object) {
-  std::vector<std::pair<std::string, const json*>> entries;
-  for (const auto& [key, value] : object.items()) entries.emplace_back(key, &value);
-  WriteToolkitFile(path, entries);
 }
 
 bool AllFinite(const std::vector<std::vector<float>>& rows) {
@@ -187,63 +68,6 @@ bool AllFinite(const std::vector<std::vector<float>>& rows) {
     }
   }
   return true;
-}
-
-// the model as an ASCII PLY file in millimetres, with normals (BOP's models all have them)
-std::string PlyText(const model& m) {
-  std::string text = "ply\nformat ascii 1.0\ncomment stackgen model of class " +
-                     std::to_string(m.class_id) + " (" + m.class_name + "), millimetres\n";
-  text += "element vertex " + std::to_string(m.num_vertices) +
-          "\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\n"
-          "property float ny\nproperty float nz\n";
-  text += "element face " + std::to_string(m.num_triangles) +
-          "\nproperty list uchar int vertex_indices\nend_header\n";
-  char line[256];
-  for (int32_t v = 0; v < m.num_vertices; ++v) {
-    const std::vector<float>& p = m.vertices_mm[static_cast<size_t>(v)];
-    const std::vector<float>& n = m.normals[static_cast<size_t>(v)];
-    // 9 significant digits give every float back exactly
-    std::snprintf(line, sizeof(line), "%.9g %.9g %.9g %.9g %.9g %.9g\n", p[0], p[1], p[2], n[0],
-                  n[1], n[2]);
-    text += line;
-  }
-  for (const std::vector<int32_t>& t : m.triangles) {
-    std::snprintf(line, sizeof(line), "3 %d %d %d\n", t[0], t[1], t[2]);
-    text += line;
-  }
-  return text;
-}
-
-// the model's entry of models_info.json
-json ModelInfo(const model& m) {
-  double low[3], high[3];
-  for (int a = 0; a < 3; ++a) {
-    low[a] = std::numeric_limits<double>::infinity();
-    high[a] = -low[a];
-  }
-  for (const std::vector<float>& p : m.vertices_mm) {
-    for (int a = 0; a < 3; ++a) {
-      low[a] = std::min(low[a], static_cast<double>(p[a]));
-      high[a] = std::max(high[a], static_cast<double>(p[a]));
-    }
-  }
-  json info = {{"diameter", m.diameter_mm},
-               {"min_x", low[0]},
-               {"min_y", low[1]},
-               {"min_z", low[2]},
-               {"size_x", high[0] - low[0]},
-               {"size_y", high[1] - low[1]},
-               {"size_z", high[2] - low[2]}};
-  if (!m.discrete_symmetries.empty()) info["symmetries_discrete"] = m.discrete_symmetries;
-  if (!m.continuous_axes.empty()) {
-    json continuous = json::array();
-    for (size_t i = 0; i < m.continuous_axes.size(); ++i) {
-      continuous.push_back(
-          {{"axis", m.continuous_axes[i]}, {"offset", m.continuous_offsets_mm[i]}});
-    }
-    info["symmetries_continuous"] = std::move(continuous);
-  }
-  return info;
 }
 
 // the rotation (row-major) and translation of target_from_source's inverse

@@ -16,11 +16,6 @@
 
 namespace stackgen {
 
-/// A finite double as Python's repr (and so the toolkit's json.dumps) writes it: the shortest
-/// digits that read back the same, fixed notation for decimal exponents -4..15 ("0.1", "1.0",
-/// "0.0001"), else "1e-05", "1.5e+16".
-std::string PythonFloat(double value);
-
 /// How a BopWriter builds its dataset.
 struct BopWriterOptions {
   /// The split folder the images go to (BOP: train_pbr for synthetic training images).

@@ -2,6 +2,7 @@
 // checked, a folder that holds a dataset refused.
 
 #include "consumers/bop/bop_writer.h"
+#include "consumers/bop/toolkit_json.h"
 
 #include <cmath>
 #include <filesystem>

@@ -19,12 +19,11 @@
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include "bus/bounded_decode.h"
 #include "bus/rle.h"
 #include "bus/scene_contract.h"
+#include "consumers/coco/coco_records.h"
 #include "consumers/dataset/files.h"
 #include "consumers/dataset/images.h"
 #include "consumers/dataset/shards.h"
@@ -52,35 +51,6 @@ constexpr const char* kImagesFolder = "images";
 constexpr const char* kShardsFolder = "shards";
 constexpr std::string_view kTemporarySuffix = ".tmp";
 
-// The polygons of a visible mask (CV_8UC1), as CocoWriterOptions::polygons says: one per outer
-// contour, through boundary pixel centres; a piece of one or two pixels as the square around them.
-json MaskPolygons(const cv::Mat& mask) {
-  std::vector<std::vector<cv::Point>> contours;
-  cv::findContours(mask.clone(), contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
-  json polygons = json::array();
-  for (const std::vector<cv::Point>& contour : contours) {
-    std::vector<double> points;
-    if (contour.size() >= 3) {
-      for (const cv::Point& point : contour) {
-        points.push_back(point.x + 0.5);
-        points.push_back(point.y + 0.5);
-      }
-    } else {
-      const cv::Rect box = cv::boundingRect(contour);
-      points = {static_cast<double>(box.x),
-                static_cast<double>(box.y),
-                static_cast<double>(box.x + box.width),
-                static_cast<double>(box.y),
-                static_cast<double>(box.x + box.width),
-                static_cast<double>(box.y + box.height),
-                static_cast<double>(box.x),
-                static_cast<double>(box.y + box.height)};
-    }
-    polygons.push_back(std::move(points));
-  }
-  return polygons;
-}
-
 // a journal line: {"image":IMAGE,"annotations":[ANNOTATIONS],"scene":SCENE}\n (see the header)
 // version 2: image ids generator_id * 1e8 + seq + 1 (version 1: * 1e9)
 constexpr int kJournalVersion = 2;
@@ -94,12 +64,6 @@ std::string ImageFileName(const stackgen::scene& scene) {
   std::snprintf(seq, sizeof(seq), "%06lld", static_cast<long long>(scene.header.seq));
   const bool jpeg = scene.color.encoding == stackgen::image::ENCODING_JPEG;
   return std::to_string(scene.header.generator_id) + "_" + seq + (jpeg ? ".jpg" : ".png");
-}
-
-json PoseJson(const stackgen::pose& pose) {
-  return {{"translation_mm", std::vector<double>(pose.translation_mm, pose.translation_mm + 3)},
-          {"rotation", std::vector<double>(pose.rotation, pose.rotation + 9)},
-          {"quaternion_wxyz", std::vector<double>(pose.quaternion_wxyz, pose.quaternion_wxyz + 4)}};
 }
 
 // writes `records` (JSON values separated by ',' as in a journal line) to `out` separated by
@@ -249,6 +213,96 @@ std::set<std::string> CocoWriter::LoadJournal() {
   return journaled_images;
 }
 
+namespace {
+
+// what is wrong with a journal line, thrown by the checks below (LoadJournalLine says where)
+struct LineFault : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+// where a journal line's image and annotation records lie, from the journal's start
+struct RecordSpans {
+  uint64_t image_offset = 0;
+  uint64_t image_length = 0;
+  uint64_t annotations_offset = 0;
+  uint64_t annotations_length = 0;
+};
+
+// The spans of the line at `offset`: {"image":IMAGE,"annotations":[ANNOTATIONS],"scene":...,
+// the lengths as `scene` gives them, checked against the line and its parsed `image`.
+RecordSpans ReadSpans(const std::string& line, uint64_t offset, const json& image,
+                      const json& scene) {
+  const uint64_t image_length = scene.at("image_length").get<uint64_t>();
+  const uint64_t annotations_length = scene.at("annotations_length").get<uint64_t>();
+  const uint64_t annotations_start = kImagePrefix.size() + image_length + kAnnotationsPrefix.size();
+  if (image_length > line.size() || annotations_length > line.size() ||
+      annotations_start + annotations_length + kScenePrefix.size() > line.size() ||
+      line.compare(0, kImagePrefix.size(), kImagePrefix) != 0 ||
+      line.compare(kImagePrefix.size() + image_length, kAnnotationsPrefix.size(),
+                   kAnnotationsPrefix) != 0 ||
+      line.compare(annotations_start + annotations_length, kScenePrefix.size(), kScenePrefix) !=
+          0 ||
+      json::parse(line.substr(kImagePrefix.size(), image_length)) != image) {
+    throw LineFault("image_length " + std::to_string(image_length) + " or annotations_length " +
+                    std::to_string(annotations_length) + " does not match the line");
+  }
+  return {offset + kImagePrefix.size(), image_length, offset + annotations_start,
+          annotations_length};
+}
+
+// A line's counts of annotations, crowd regions and dropped instances, checked against its
+// annotation records.
+void ReadCounts(const json& record, int64_t* annotations, int64_t* crowd, int64_t* dropped) {
+  const json& scene = record["scene"];
+  *annotations = scene.at("num_annotations").get<int64_t>();
+  *crowd = scene.at("num_crowd").get<int64_t>();
+  *dropped = scene.at("num_dropped").get<int64_t>();
+  const json& records = record["annotations"];
+  if (*annotations < 0 || *crowd < 0 || *dropped < 0 || !records.is_array() ||
+      records.size() != static_cast<uint64_t>(*annotations + *crowd)) {
+    throw LineFault("num_annotations " + std::to_string(*annotations) + " + num_crowd " +
+                    std::to_string(*crowd) + " does not match the " +
+                    std::to_string(records.size()) + " annotation records");
+  }
+}
+
+// Throws unless the line was written with the same filter and mask form as `options` say.
+void CheckSameOptions(const json& scene, const CocoWriterOptions& options) {
+  const json& min_visib_fract = scene.at("min_visib_fract");
+  const json own = options.min_visib_fract ? json(*options.min_visib_fract) : json(nullptr);
+  if (min_visib_fract != own) {
+    throw LineFault("written with min_visib_fract " + min_visib_fract.dump() +
+                    ", this writer has " + own.dump() + " (resume with the same min_visib_fract)");
+  }
+  const bool polygons = scene.contains("polygons") && scene.at("polygons") == true;
+  if (polygons != options.polygons) {
+    throw LineFault(std::string("written ") + (polygons ? "with" : "without") +
+                    " --polygons, this writer " + (options.polygons ? "with" : "without") +
+                    " (resume with the same choice)");
+  }
+}
+
+// A line's categories, which must agree with every earlier line's (`known`).
+std::map<int32_t, std::string> ReadCategories(const json& scene,
+                                              const std::map<int32_t, std::string>& known) {
+  std::map<int32_t, std::string> categories;
+  for (const json& category : scene.at("categories")) {
+    const int32_t class_id = category.at(0).get<int32_t>();
+    const std::string class_name = category.at(1).get<std::string>();
+    const auto earlier = known.find(class_id);
+    if (class_id < 1 || class_name.empty() ||
+        (earlier != known.end() && earlier->second != class_name)) {
+      throw LineFault("category " + category.dump() + " is not valid or differs from an earlier " +
+                      "line's" +
+                      (earlier != known.end() ? " \"" + earlier->second + "\"" : std::string()));
+    }
+    categories.emplace(class_id, class_name);
+  }
+  return categories;
+}
+
+}  // namespace
+
 void CocoWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64_t line_number,
                                  std::set<std::string>* journaled_images) {
   const std::string where = journal_path_ + " line " + std::to_string(line_number) + " (byte " +
@@ -304,67 +358,18 @@ void CocoWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64
       throw corrupt("image.file_name \"" + file_name + "\" is not a name this writer gives");
     }
 
-    // where the records lie: {"image":IMAGE,"annotations":[ANNOTATIONS],"scene":...
-    const uint64_t image_length = scene.at("image_length").get<uint64_t>();
-    const uint64_t annotations_length = scene.at("annotations_length").get<uint64_t>();
-    const uint64_t annotations_start =
-        kImagePrefix.size() + image_length + kAnnotationsPrefix.size();
-    if (image_length > line.size() || annotations_length > line.size() ||
-        annotations_start + annotations_length + kScenePrefix.size() > line.size() ||
-        line.compare(0, kImagePrefix.size(), kImagePrefix) != 0 ||
-        line.compare(kImagePrefix.size() + image_length, kAnnotationsPrefix.size(),
-                     kAnnotationsPrefix) != 0 ||
-        line.compare(annotations_start + annotations_length, kScenePrefix.size(), kScenePrefix) !=
-            0 ||
-        json::parse(line.substr(kImagePrefix.size(), image_length)) != image) {
-      throw corrupt("image_length " + std::to_string(image_length) + " or annotations_length " +
-                    std::to_string(annotations_length) + " does not match the line");
-    }
-    entry.image_offset = offset + kImagePrefix.size();
-    entry.image_length = image_length;
-    entry.annotations_offset = offset + annotations_start;
-    entry.annotations_length = annotations_length;
+    const RecordSpans spans = ReadSpans(line, offset, image, scene);
+    entry.image_offset = spans.image_offset;
+    entry.image_length = spans.image_length;
+    entry.annotations_offset = spans.annotations_offset;
+    entry.annotations_length = spans.annotations_length;
 
-    // its counts
-    counts.annotations = scene.at("num_annotations").get<int64_t>();
-    counts.crowd = scene.at("num_crowd").get<int64_t>();
-    counts.dropped = scene.at("num_dropped").get<int64_t>();
-    const json& annotations = record["annotations"];
-    if (counts.annotations < 0 || counts.crowd < 0 || counts.dropped < 0 ||
-        !annotations.is_array() ||
-        annotations.size() != static_cast<uint64_t>(counts.annotations + counts.crowd)) {
-      throw corrupt("num_annotations " + std::to_string(counts.annotations) + " + num_crowd " +
-                    std::to_string(counts.crowd) + " does not match the " +
-                    std::to_string(annotations.size()) + " annotation records");
-    }
-
-    // written with the same filter as this writer's
-    const json& min_visib_fract = scene.at("min_visib_fract");
-    const json own = options_.min_visib_fract ? json(*options_.min_visib_fract) : json(nullptr);
-    if (min_visib_fract != own) {
-      throw corrupt("written with min_visib_fract " + min_visib_fract.dump() +
-                    ", this writer has " + own.dump() + " (resume with the same min_visib_fract)");
-    }
-    const bool polygons = scene.contains("polygons") && scene.at("polygons") == true;
-    if (polygons != options_.polygons) {
-      throw corrupt(std::string("written ") + (polygons ? "with" : "without") +
-                    " --polygons, this writer " + (options_.polygons ? "with" : "without") +
-                    " (resume with the same choice)");
-    }
-
-    // categories agree with every other line's
-    for (const json& category : scene.at("categories")) {
-      const int32_t class_id = category.at(0).get<int32_t>();
-      const std::string class_name = category.at(1).get<std::string>();
-      const auto known = categories_.find(class_id);
-      if (class_id < 1 || class_name.empty() ||
-          (known != categories_.end() && known->second != class_name)) {
-        throw corrupt("category " + category.dump() + " is not valid or differs from an earlier " +
-                      "line's" +
-                      (known != categories_.end() ? " \"" + known->second + "\"" : std::string()));
-      }
-      scene_categories.emplace(class_id, class_name);
-    }
+    // its counts, written with this writer's options, and its categories
+    ReadCounts(record, &counts.annotations, &counts.crowd, &counts.dropped);
+    CheckSameOptions(scene, options_);
+    scene_categories = ReadCategories(scene, categories_);
+  } catch (const LineFault& fault) {
+    throw corrupt(fault.what());
   } catch (const json::parse_error& error) {
     throw corrupt("not a journal record: invalid JSON at byte " + std::to_string(error.byte) +
                   " of the line (the journal is damaged; annotations.journal lines are written "
@@ -484,62 +489,47 @@ void CocoWriter::WriteImageFile(const stackgen::scene& scene, const std::string&
   WriteFileAtomically(path, reinterpret_cast<const char*>(png.data()), png.size(), sync);
 }
 
-namespace {
-
-// a scene's image record: id, file, size, and stackgen's own fields (ids, seed, camera)
-json ImageRecord(const stackgen::scene& scene, int64_t image_id, const std::string& file_name) {
+std::string CocoWriter::AnnotationRecords(const stackgen::scene& scene, int64_t image_id,
+                                          SceneCounts* counts) const {
+  std::vector<const stackgen::instance*> instances;
+  for (const stackgen::instance& instance : scene.instances) instances.push_back(&instance);
+  std::sort(instances.begin(), instances.end(),
+            [](const stackgen::instance* a, const stackgen::instance* b) {
+              return a->instance_id < b->instance_id;
+            });
   const stackgen::camera_info& camera = scene.camera;
-  json camera_json = {{"fx", camera.fx},
-                      {"fy", camera.fy},
-                      {"cx", camera.cx},
-                      {"cy", camera.cy},
-                      {"world_from_camera", PoseJson(camera.world_from_camera)},
-                      {"depth_scale_mm", camera.depth_scale_mm}};
-  return {{"id", image_id},
-          {"file_name", file_name},
-          {"width", camera.width},
-          {"height", camera.height},
-          {"stackgen",
-           {{"seq", scene.header.seq},
-            {"generator_id", scene.header.generator_id},
-            {"seed", scene.header.seed},
-            {"camera", std::move(camera_json)}}}};
+  std::string annotations;
+  for (const stackgen::instance* instance : instances) {
+    // the generator's label decides: annotated -> iscrowd 0, ignored -> iscrowd 1, else nothing;
+    // a min_visib_fract of our own only drops more
+    const bool below_own_threshold =
+        options_.min_visib_fract && instance->visib_fract < *options_.min_visib_fract;
+    const bool crowd = instance->ignored;
+    const bool annotation_kept = instance->annotated && !below_own_threshold;
+    if (!annotation_kept && !crowd) {
+      ++counts->dropped;
+      continue;
+    }
+    json segmentation = {{"size", {camera.height, camera.width}},
+                         {"counts", instance->mask_visib_rle}};
+    if (options_.polygons && !crowd) {
+      cv::Mat mask(camera.height, camera.width, CV_8UC1, cv::Scalar(0));
+      DecodeRleInto(instance->mask_visib_rle, camera.height, camera.width, mask.data);
+      segmentation = MaskPolygons(mask);
+    }
+    const json annotation =
+        AnnotationRecord(*instance, AnnotationId(image_id, instance->instance_id), image_id, camera,
+                         std::move(segmentation), crowd);
+    if (!annotations.empty()) annotations += ",";
+    annotations += annotation.dump();
+    if (crowd) {
+      ++counts->crowd;
+    } else {
+      ++counts->annotations;
+    }
+  }
+  return annotations;
 }
-
-// one instance's annotation record: COCO's fields, the full (amodal) mask and box, and
-// stackgen's labels (visibility, pixel counts, posture, poses)
-json AnnotationRecord(const stackgen::instance& instance, int64_t image_id,
-                      const stackgen::camera_info& camera, json segmentation, bool crowd) {
-  const stackgen::pose& camera_from_object = instance.camera_from_object;
-  const stackgen::pose& world_from_object = instance.world_from_object;
-  return {{"id", CocoWriter::AnnotationId(image_id, instance.instance_id)},
-          {"image_id", image_id},
-          {"category_id", instance.class_id},
-          {"segmentation", std::move(segmentation)},
-          {"area", instance.px_count_visib},
-          {"bbox", std::vector<int32_t>(instance.bbox_visib, instance.bbox_visib + 4)},
-          {"iscrowd", crowd ? 1 : 0},
-          {"amodal_segmentation",
-           {{"size", {camera.height, camera.width}}, {"counts", instance.mask_obj_rle}}},
-          {"amodal_bbox", std::vector<int32_t>(instance.bbox_obj, instance.bbox_obj + 4)},
-          {"instance_id", instance.instance_id},
-          {"visib_fract", instance.visib_fract},
-          {"px_count_all", instance.px_count_all},
-          {"px_count_visib", instance.px_count_visib},
-          {"bbox_obj", std::vector<int32_t>(instance.bbox_obj, instance.bbox_obj + 4)},
-          {"posture_deg", std::vector<double>(instance.posture_deg, instance.posture_deg + 3)},
-          {"resting_face", instance.resting_face},
-          {"cam_R_m2c",
-           std::vector<double>(camera_from_object.rotation, camera_from_object.rotation + 9)},
-          {"cam_t_m2c", std::vector<double>(camera_from_object.translation_mm,
-                                            camera_from_object.translation_mm + 3)},
-          {"world_R_m2w",
-           std::vector<double>(world_from_object.rotation, world_from_object.rotation + 9)},
-          {"world_t_m2w", std::vector<double>(world_from_object.translation_mm,
-                                              world_from_object.translation_mm + 3)}};
-}
-
-}  // namespace
 
 bool CocoWriter::Add(const stackgen::scene& scene) {
   // store each (generator_id, seq) once; the same ids with another seed come from another run
@@ -555,47 +545,12 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
   Validate(scene);
 
   // the image record
-  const stackgen::camera_info& camera = scene.camera;
   const std::string file_name = ImageFileName(scene);
   const json image = ImageRecord(scene, image_id, file_name);
 
   // the annotation records, by instance id (= by annotation id)
-  std::vector<const stackgen::instance*> instances;
-  for (const stackgen::instance& instance : scene.instances) instances.push_back(&instance);
-  std::sort(instances.begin(), instances.end(),
-            [](const stackgen::instance* a, const stackgen::instance* b) {
-              return a->instance_id < b->instance_id;
-            });
-  std::string annotations;
-  int64_t scene_annotations = 0, scene_crowd = 0, scene_dropped = 0;
-  for (const stackgen::instance* instance : instances) {
-    // the generator's label decides: annotated -> iscrowd 0, ignored -> iscrowd 1, else nothing;
-    // a min_visib_fract of our own only drops more
-    const bool below_own_threshold =
-        options_.min_visib_fract && instance->visib_fract < *options_.min_visib_fract;
-    const bool crowd = instance->ignored;
-    const bool annotation_kept = instance->annotated && !below_own_threshold;
-    if (!annotation_kept && !crowd) {
-      ++scene_dropped;
-      continue;
-    }
-    json segmentation = {{"size", {camera.height, camera.width}},
-                         {"counts", instance->mask_visib_rle}};
-    if (options_.polygons && !crowd) {
-      cv::Mat mask(camera.height, camera.width, CV_8UC1, cv::Scalar(0));
-      DecodeRleInto(instance->mask_visib_rle, camera.height, camera.width, mask.data);
-      segmentation = MaskPolygons(mask);
-    }
-    const json annotation =
-        AnnotationRecord(*instance, image_id, camera, std::move(segmentation), crowd);
-    if (!annotations.empty()) annotations += ",";
-    annotations += annotation.dump();
-    if (crowd) {
-      ++scene_crowd;
-    } else {
-      ++scene_annotations;
-    }
-  }
+  SceneCounts counts;
+  const std::string annotations = AnnotationRecords(scene, image_id, &counts);
 
   // the journal line: the records, then the scene's counts and categories
   const std::string image_text = image.dump();
@@ -610,9 +565,9 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
   json scene_record = {{"journal_version", kJournalVersion},
                        {"generator_id", scene.header.generator_id},
                        {"seq", scene.header.seq},
-                       {"num_annotations", scene_annotations},
-                       {"num_crowd", scene_crowd},
-                       {"num_dropped", scene_dropped},
+                       {"num_annotations", counts.annotations},
+                       {"num_crowd", counts.crowd},
+                       {"num_dropped", counts.dropped},
                        {"categories", std::move(categories)},
                        {"min_visib_fract",
                         options_.min_visib_fract ? json(*options_.min_visib_fract) : json(nullptr)},
@@ -638,7 +593,7 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
   entry.image_length = image_text.size();
   entry.annotations_offset = entry.image_offset + image_text.size() + kAnnotationsPrefix.size();
   entry.annotations_length = annotations.size();
-  staged_scene.counts = SceneCounts{scene_annotations, scene_crowd, scene_dropped};
+  staged_scene.counts = counts;
   staged_scene.line = std::move(line);
   staged_scene.image_path = image_path;
   staged_.push_back(std::move(staged_scene));

@@ -223,6 +223,10 @@ class CocoWriter : public DatasetSink {
   };
 
   void Validate(const stackgen::scene& scene) const;
+  // the scene's annotation records as a journal line holds them (comma-separated, by instance
+  // id), and their counts: annotated instances, crowd regions, and dropped ones
+  std::string AnnotationRecords(const stackgen::scene& scene, int64_t image_id,
+                                SceneCounts* counts) const;
   // writes the scene's colour image to `path` (see Add); `sync`: synced before it is renamed
   // into place, and the folder after
   void WriteImageFile(const stackgen::scene& scene, const std::string& path, bool sync) const;

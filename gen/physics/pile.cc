@@ -10,12 +10,14 @@
 #include <stdexcept>
 #include <utility>
 
-#include "gen/physics/convex_pieces.h"
-#include "gen/physics/mass_properties.h"
+#include "gen/physics/pile_internal.h"
 #include "gen/physics/settle_detector.h"
 #include "gen/randomize/uniform.h"
 
 namespace stackgen {
+
+using namespace pile_internal;
+
 namespace {
 
 // Bullet runs in centimetres (and kg, s): millimetre parts would sit below Bullet's built-in
@@ -23,12 +25,13 @@ namespace {
 constexpr double kSimPerMm = 0.1;
 constexpr double kGravityMmS2 = 9810.0;
 
-// collision margin of the part pieces and the bin, mm; hull pieces are shrunk by it first, so
-// the rounded shape Bullet collides has the mesh's size
-constexpr double kMarginMm = 0.2;
-
-// contact solver: iterations per step, and impacts slower than this (mm/s) do not bounce
-constexpr int kSolverIterations = 20;
+// contact solver: each step starts from this share of the last step's impulses, and impacts
+// slower than this (mm/s) do not bounce. With Bullet's default start (0.85 of the last impulses)
+// and 20 iterations the solver never converged on a resting pile: the heaps crept on for tens
+// of seconds after they were published (stackgen-rest-check, 100 piles: 55 % of the parts moved
+// more than 1 mm or 1 degree when simulated on); the whole last impulse and 50 iterations (the
+// default SimulationParams::solver_iterations) let a resting pile's impulses converge
+constexpr double kWarmStartingFactor = 1;
 constexpr double kRestitutionThresholdMmS = 50;
 
 // angular damping, fraction of angular velocity lost per second: kills the slow rocking that
@@ -38,16 +41,9 @@ constexpr double kAngularDamping = 0.3;
 // the floor's collision box reaches at least this far down (nothing tunnels through it), mm
 constexpr double kMinFloorThicknessMm = 20;
 
-// released parts: gap between their bounding boxes, and to the walls, mm
-constexpr double kReleaseGapMm = 2;
-constexpr double kReleaseWallMarginMm = 2;
-
 // a body slower than this, mm/s, released at least kFallS ago, rests in the pile
 constexpr double kPileSpeedMmS = 100;
 constexpr double kFallS = 0.1;
-
-// after this long without a release, the first waiting part goes above whatever blocks it, s
-constexpr double kStallS = 0.5;
 
 // sequential drops: a part has landed once it moved less than kLandedMm and kLandedDeg over
 // kLandedWindowS, or kLandedMaxS after its release
@@ -67,16 +63,6 @@ constexpr int kChecksPerWindow = 25;
 // rays that may meet another part first with the part still counting as on top (grazing edges)
 constexpr double kPickRayPitchMm = 2;
 constexpr double kPickCoveredFraction = 0.02;
-
-// Throws unless lo <= value <= hi.
-void CheckRange(const char* object, const char* field, double value, double lo, double hi) {
-  if (!(std::isfinite(value) && value >= lo && value <= hi)) {
-    std::ostringstream message;
-    message << "PileSimulator: " << object << "." << field << " must be in [" << lo << ", " << hi
-            << "], got " << value;
-    throw std::runtime_error(message.str());
-  }
-}
 
 btScalar ToSim(double mm) { return static_cast<btScalar>(mm * kSimPerMm); }
 
@@ -100,75 +86,6 @@ Eigen::Isometry3d FromSim(const btTransform& pose) {
   return result;
 }
 
-// An axis-aligned box, mm.
-struct Box {
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(HUGE_VAL);
-  Eigen::Vector3d hi = Eigen::Vector3d::Constant(-HUGE_VAL);
-
-  void Add(const Eigen::Vector3d& p) {
-    lo = lo.cwiseMin(p);
-    hi = hi.cwiseMax(p);
-  }
-  // true if the boxes come closer than `gap`
-  bool Overlaps(const Box& other, double gap) const {
-    for (int axis = 0; axis < 3; ++axis) {
-      if (hi[axis] + gap <= other.lo[axis] || other.hi[axis] + gap <= lo[axis]) return false;
-    }
-    return true;
-  }
-};
-
-// One convex piece of the part, ready to become a Bullet shape.
-struct Piece {
-  bool is_box = false;
-  Eigen::Vector3d half_extents_mm = Eigen::Vector3d::Zero();          // boxes (margin inside)
-  Eigen::Isometry3d body_from_piece = Eigen::Isometry3d::Identity();  // mm
-  std::vector<Eigen::Vector3d> points_mm;  // hulls: body frame, shrunk by margin_mm
-  double margin_mm = kMarginMm;
-};
-
-// Turns convex pieces (object frame) into box or hull pieces in the body frame.
-std::vector<Piece> MakePieces(const std::vector<std::vector<Eigen::Vector3d>>& pieces_mm,
-                              const Eigen::Isometry3d& body_from_object) {
-  std::vector<Piece> result;
-  for (const auto& points : pieces_mm) {
-    Box bounds;
-    for (const auto& p : points) bounds.Add(p);
-    const Eigen::Vector3d size = bounds.hi - bounds.lo;
-    Piece piece;
-    piece.margin_mm = std::min(kMarginMm, size.minCoeff() / 4);
-
-    // an axis-aligned box collides best as a btBoxShape (box-box gives full contact manifolds)
-    if (ConvexHullVolume(points) >= (1 - 1e-6) * size.prod()) {
-      piece.is_box = true;
-      piece.half_extents_mm = size / 2;
-      piece.body_from_piece = body_from_object * Eigen::Translation3d((bounds.lo + bounds.hi) / 2);
-      result.push_back(std::move(piece));
-      continue;
-    }
-
-    // any other hull is shrunk by the margin Bullet adds around it
-    std::vector<Eigen::Vector3d> body_points;
-    for (const auto& p : points) body_points.push_back(body_from_object * p);
-    btConvexHullComputer computer;
-    const btScalar shrunk = computer.compute(
-        body_points[0].data(), sizeof(Eigen::Vector3d), static_cast<int>(body_points.size()),
-        static_cast<btScalar>(piece.margin_mm), static_cast<btScalar>(0.25));
-    if (shrunk > 0 && computer.vertices.size() >= 4) {
-      piece.margin_mm = shrunk;
-      for (int i = 0; i < computer.vertices.size(); ++i) {
-        const btVector3& v = computer.vertices[i];
-        piece.points_mm.emplace_back(v.x(), v.y(), v.z());
-      }
-    } else {
-      piece.margin_mm = 0;
-      piece.points_mm = body_points;
-    }
-    result.push_back(std::move(piece));
-  }
-  return result;
-}
-
 // Everything one Simulate() call owns. Members are destroyed in reverse order: the world first,
 // then the bodies and shapes it referred to.
 struct World {
@@ -180,9 +97,15 @@ struct World {
   std::vector<std::unique_ptr<btRigidBody>> bodies;
   std::unique_ptr<btDiscreteDynamicsWorld> world;
 
+  // convex pairs get a whole contact manifold in one step (Bullet's perturbation of the first
+  // contact, 3 times), not one point per step: a part lying on a face is held at its corners at
+  // once instead of rocking on one point while the manifold fills
   World()
       : world(std::make_unique<btDiscreteDynamicsWorld>(&dispatcher, &broadphase, &solver,
-                                                        &configuration)) {}
+                                                        &configuration)) {
+    configuration.setConvexConvexMultipointIterations();
+    configuration.setPlaneConvexMultipointIterations();
+  }
   ~World() {
     for (auto& body : bodies) world->removeRigidBody(body.get());
     world.reset();
@@ -202,178 +125,6 @@ struct World {
     return bodies.back().get();
   }
 };
-
-// How one part is dropped, drawn up front from the seed's engine.
-struct Release {
-  int type = 0;
-  Eigen::Quaterniond world_from_object_rotation = Eigen::Quaterniond::Identity();
-  Eigen::Vector3d object_origin_in_box_mm = Eigen::Vector3d::Zero();  // from the box's low corner
-  Eigen::Vector3d size_mm = Eigen::Vector3d::Zero();                  // rotated bounding box
-  Eigen::Vector2d box_lo_xy_mm = Eigen::Vector2d::Zero();             // its low corner, x and y
-
-  Box BoxAt(double z_mm) const {
-    Box box;
-    box.lo = Eigen::Vector3d(box_lo_xy_mm.x(), box_lo_xy_mm.y(), z_mm);
-    box.hi = box.lo + size_mm;
-    return box;
-  }
-  Eigen::Isometry3d WorldFromObjectAt(double z_mm) const {
-    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
-    pose.linear() = world_from_object_rotation.toRotationMatrix();
-    pose.translation() = BoxAt(z_mm).lo + object_origin_in_box_mm;
-    return pose;
-  }
-};
-
-// Parts waiting above the bin, released in quick waves so none falls far: a part goes when its
-// box at the release height is free; one blocked only by parts resting in the pile (a pile
-// higher than the release height) goes just above them; after kStallS without any release the
-// first waiting part goes above whatever blocks it.
-//
-// Sequential: only the first waiting part may go, and only once the previous one has landed; it
-// goes at the release height, or just above whatever is there.
-class ReleaseQueue {
- public:
-  ReleaseQueue(std::vector<Release> releases, double release_z_mm, bool sequential)
-      : releases_(std::move(releases)), release_z_mm_(release_z_mm), sequential_(sequential) {
-    for (size_t i = 0; i < releases_.size(); ++i) waiting_.push_back(static_cast<int>(i));
-  }
-
-  bool empty() const { return waiting_.empty(); }
-  const Release& release(int part) const { return releases_[part]; }
-  double release_z_mm() const { return release_z_mm_; }
-
-  // Given the boxes of the bodies in the bin, whether each rests in the pile and whether the last
-  // released part has landed, returns the parts to release now with the height of their boxes'
-  // bottoms.
-  std::vector<std::pair<int, double>> Next(double time_s, std::vector<Box> boxes,
-                                           const std::vector<bool>& in_pile, bool landed) {
-    auto free_at = [&](const Release& r, double z) {
-      const Box box = r.BoxAt(z);
-      return std::none_of(boxes.begin(), boxes.end(),
-                          [&](const Box& other) { return box.Overlaps(other, kReleaseGapMm); });
-    };
-    auto blocked_by_pile_only = [&](const Release& r) {
-      Box column = r.BoxAt(release_z_mm_);
-      column.hi.z() = HUGE_VAL;
-      for (size_t b = 0; b < boxes.size(); ++b) {
-        const bool resting = b < in_pile.size() && in_pile[b];
-        if (!resting && column.Overlaps(boxes[b], kReleaseGapMm)) return false;
-      }
-      return true;
-    };
-    auto lowest_free = [&](const Release& r) {
-      std::vector<double> heights = {release_z_mm_};
-      for (const Box& box : boxes) heights.push_back(box.hi.z() + kReleaseGapMm);
-      std::sort(heights.begin(), heights.end());
-      for (double z : heights) {
-        if (z >= release_z_mm_ && free_at(r, z)) return z;
-      }
-      return heights.back();  // unreachable: the highest candidate is always free
-    };
-
-    // sequential: the next part, once the previous one has landed
-    if (sequential_) {
-      if (waiting_.empty() || !landed) return {};
-      const int part = waiting_.front();
-      waiting_.erase(waiting_.begin());
-      const Release& r = releases_[part];
-      last_release_s_ = time_s;
-      return {{part, free_at(r, release_z_mm_) ? release_z_mm_ : lowest_free(r)}};
-    }
-
-    // every waiting part in order; each released box blocks the ones after it
-    const bool stalled = time_s - last_release_s_ >= kStallS;
-    std::vector<std::pair<int, double>> released;
-    std::vector<int> still_waiting;
-    for (int part : waiting_) {
-      const Release& r = releases_[part];
-      double z = release_z_mm_;
-      if (!free_at(r, z)) {
-        if (!(stalled && released.empty()) && !blocked_by_pile_only(r)) {
-          still_waiting.push_back(part);
-          continue;
-        }
-        z = lowest_free(r);
-      }
-      released.emplace_back(part, z);
-      boxes.push_back(r.BoxAt(z));
-    }
-    if (!released.empty()) last_release_s_ = time_s;
-    waiting_ = std::move(still_waiting);
-    return released;
-  }
-
- private:
-  std::vector<Release> releases_;
-  double release_z_mm_;
-  bool sequential_;
-  std::vector<int> waiting_;
-  double last_release_s_ = 0;
-};
-
-// One part type, ready to simulate.
-struct TypeModel {
-  PartPhysics physics;
-  MassProperties mass;
-  // the body frame: at the centre of mass, along the principal axes of inertia; mm
-  Eigen::Isometry3d body_from_object = Eigen::Isometry3d::Identity();
-  Eigen::Isometry3d object_from_body = Eigen::Isometry3d::Identity();
-  std::vector<Piece> pieces;
-  std::vector<Eigen::Vector3d> hull_vertices_mm;  // object frame, for release boxes
-  std::vector<HullFace> hull_faces;
-  double max_extent_mm = 0;
-  std::string description;
-};
-
-// Builds a part type; errors start with `what`.
-TypeModel MakeTypeModel(const PartType& type, const std::string& what,
-                        const std::string& cache_dir) {
-  const PartPhysics& physics = type.physics;
-  CheckRange((what + "PartPhysics").c_str(), "density_kg_m3", physics.density_kg_m3, 1e-3, 1e6);
-  CheckRange((what + "PartPhysics").c_str(), "friction", physics.friction, 0, 10);
-  CheckRange((what + "PartPhysics").c_str(), "restitution", physics.restitution, 0, 1);
-  CheckRange((what + "PartPhysics").c_str(), "rolling_friction_mm", physics.rolling_friction_mm, 0,
-             100);
-  if (type.mesh.triangles.empty()) {
-    throw std::runtime_error("PileSimulator: " + what + "the part mesh is empty");
-  }
-  TypeModel model;
-  model.physics = physics;
-
-  // mass properties from the closed mesh; the body frame is the principal frame at the centre
-  // of mass
-  model.mass = ComputeMassProperties(type.mesh, physics.density_kg_m3,
-                                     "PileSimulator: " + what + "part mesh");
-  model.body_from_object = model.mass.principal_from_object;
-  model.object_from_body = model.body_from_object.inverse();
-
-  // collision pieces, in the body frame
-  ConvexPieces convex;
-  try {
-    convex = MakeConvexPieces(type.mesh, type.collision_pieces, cache_dir);
-  } catch (const std::runtime_error& e) {
-    throw std::runtime_error("PileSimulator: " + what + e.what());
-  }
-  model.pieces = MakePieces(convex.points_mm, model.body_from_object);
-  model.description = convex.description;
-
-  // the part's hull: its vertices give each released part's bounding box, its faces the
-  // resting face
-  std::vector<Eigen::Vector3d> points;
-  for (const auto& p : type.mesh.positions_mm) points.push_back(p.cast<double>());
-  btConvexHullComputer computer;
-  computer.compute(points[0].data(), sizeof(Eigen::Vector3d), static_cast<int>(points.size()), 0,
-                   0);
-  Box bounds;
-  for (int i = 0; i < computer.vertices.size(); ++i) {
-    model.hull_vertices_mm.push_back(points[computer.original_vertex_index[i]]);
-    bounds.Add(model.hull_vertices_mm.back());
-  }
-  model.max_extent_mm = (bounds.hi - bounds.lo).maxCoeff();
-  model.hull_faces = HullFaces(model.hull_vertices_mm);
-  return model;
-}
 
 }  // namespace
 
@@ -411,6 +162,7 @@ PileSimulator::PileSimulator(const std::vector<PartType>& types, const BinSpec& 
   CheckRange("SimulationParams", "settle_window_s", params.settle_window_s, params.time_step_s,
              params.max_sim_time_s);
   CheckRange("SimulationParams", "drop_height_mm", params.drop_height_mm, 0, 1e6);
+  CheckRange("SimulationParams", "solver_iterations", params.solver_iterations, 5, 500);
   CheckRange("SimulationParams", "drop_point_mm.x", params.drop_point_mm.x(),
              -bin.inner_length_mm / 2, bin.inner_length_mm / 2);
   CheckRange("SimulationParams", "drop_point_mm.y", params.drop_point_mm.y(),
@@ -494,13 +246,14 @@ class PileWorld {
   // has left the bin, and the drop stops there (a table cost every part a collision test per
   // step and caught only parts that make the drop a redraw anyway)
   PileWorld(const BinSpec& bin, const std::vector<TypeModel>& types, btCollisionShape* tote_shape,
-            double tote_bottom_z_mm)
+            double tote_bottom_z_mm, int solver_iterations)
       : types_(types), shape_of_type_(types.size(), nullptr), inertia_of_type_(types.size()) {
     // gravity and the contact solver: split impulse always (position fixes add no energy), two
     // cached friction directions (less creep in piles)
     w_.world->setGravity(btVector3(0, 0, ToSim(-kGravityMmS2)));
     btContactSolverInfo& solver = w_.world->getSolverInfo();
-    solver.m_numIterations = kSolverIterations;
+    solver.m_numIterations = solver_iterations;
+    solver.m_warmstartingFactor = static_cast<btScalar>(kWarmStartingFactor);
     solver.m_splitImpulse = true;
     solver.m_splitImpulsePenetrationThreshold = 0;
     solver.m_restitutionVelocityThreshold = ToSim(kRestitutionThresholdMmS);
@@ -670,6 +423,110 @@ void CheckRule(const RestRule& rule) {
   }
 }
 
+// How each part drops, all drawn now from `engine`: orientation, bounding box, and x, y inside
+// the opening (centred where the box is wider than the bin; sequential: centred on the drop
+// point, kept inside the opening where it fits).
+std::vector<Release> DrawReleases(const std::vector<TypeModel>& type_models,
+                                  const std::vector<int>& types, const BinSpec& bin,
+                                  const SimulationParams& params, std::mt19937_64& engine) {
+  const bool sequential = params.drop_mode == DropMode::kSequential;
+  std::vector<Release> releases;
+  const double half_inner[2] = {bin.inner_length_mm / 2, bin.inner_width_mm / 2};
+  for (int type : types) {
+    Release release;
+    release.type = type;
+    release.world_from_object_rotation = UniformRotation(engine);
+    Box box;
+    for (const auto& v : type_models[type].hull_vertices_mm) {
+      box.Add(release.world_from_object_rotation * v);
+    }
+    release.object_origin_in_box_mm = -box.lo;
+    release.size_mm = box.hi - box.lo;
+    for (int axis = 0; axis < 2; ++axis) {
+      const double room = 2 * (half_inner[axis] - kReleaseWallMarginMm) - release.size_mm[axis];
+      const double lowest = -half_inner[axis] + kReleaseWallMarginMm;
+      if (room <= 0) {
+        release.box_lo_xy_mm[axis] = -release.size_mm[axis] / 2;
+      } else if (sequential) {
+        release.box_lo_xy_mm[axis] = std::clamp(
+            params.drop_point_mm[axis] - release.size_mm[axis] / 2, lowest, lowest + room);
+      } else {
+        release.box_lo_xy_mm[axis] = lowest + Uniform01(engine) * room;
+      }
+    }
+    releases.push_back(release);
+  }
+  return releases;
+}
+
+// Puts the parts a ReleaseQueue lets go into the world, at rest, and keeps what the queue asks
+// about the bodies already in: their boxes, which rest in the pile, whether the last one landed.
+class Dropper {
+ public:
+  Dropper(const std::vector<TypeModel>& type_models, ReleaseQueue* queue, PileWorld* w, int count)
+      : type_models_(type_models), queue_(*queue), w_(*w), body_of_part_(count, nullptr) {}
+
+  // Releases what the queue lets go at `time_s`; returns whether any part was released.
+  bool ReleaseDue(double time_s) {
+    const bool landed = LastLanded(time_s);
+    // the released bodies' boxes, and which of them rest in the pile
+    std::vector<Box> boxes;
+    std::vector<bool> in_pile;
+    for (size_t b = 0; b < bodies_.size(); ++b) {
+      const TypeModel& tm = type_models_[types_[b]];
+      const Eigen::Isometry3d world_from_object = w_.WorldFromObject(bodies_[b], types_[b]);
+      Box box;
+      for (const auto& v : tm.hull_vertices_mm) box.Add(world_from_object * v);
+      boxes.push_back(box);
+      const double speed_mm_s = bodies_[b]->getLinearVelocity().length() / kSimPerMm;
+      in_pile.push_back(speed_mm_s < kPileSpeedMmS && time_s - released_at_s_[b] >= kFallS);
+    }
+    // the new bodies, at rest
+    const auto parts = queue_.Next(time_s, std::move(boxes), in_pile, landed);
+    for (const auto& [part, z] : parts) {
+      const int type = queue_.release(part).type;
+      btRigidBody* body = w_.AddPart(type, queue_.release(part).WorldFromObjectAt(z));
+      body_of_part_[part] = body;
+      bodies_.push_back(body);
+      types_.push_back(type);
+      released_at_s_.push_back(time_s);
+      last_poses_.clear();
+    }
+    return !parts.empty();
+  }
+
+  // each part's body; null while it waits
+  const std::vector<btRigidBody*>& body_of_part() const { return body_of_part_; }
+
+ private:
+  // whether the last released part has landed (sequential drops wait for it)
+  bool LastLanded(double time_s) {
+    if (bodies_.empty()) return true;
+    const Eigen::Isometry3d now = FromSim(bodies_.back()->getWorldTransform());
+    last_poses_.emplace_back(time_s, now);
+    if (time_s - released_at_s_.back() >= kLandedMaxS) return true;
+    for (auto it = last_poses_.rbegin(); it != last_poses_.rend(); ++it) {
+      if (it->first > time_s - kLandedWindowS + 1e-9) continue;
+      const double moved_mm = (now.translation() - it->second.translation()).norm();
+      const double turned_deg =
+          Eigen::AngleAxisd(now.linear() * it->second.linear().transpose()).angle() * 180 / M_PI;
+      return moved_mm < kLandedMm && turned_deg < kLandedDeg;
+    }
+    return false;
+  }
+
+  const std::vector<TypeModel>& type_models_;
+  ReleaseQueue& queue_;
+  PileWorld& w_;
+  std::vector<btRigidBody*> body_of_part_;
+  // the released bodies in order of release, their types and release times
+  std::vector<btRigidBody*> bodies_;
+  std::vector<int> types_;
+  std::vector<double> released_at_s_;
+  // the last released body's poses since its release, for sequential drops
+  std::vector<std::pair<double, Eigen::Isometry3d>> last_poses_;
+};
+
 // Goes on stepping the world `w` of `bodies` (of `types`) until they are at rest by `rule` or
 // rule.max_time_s more has passed; `after` gets the poses and checks then, settled (at rest by
 // the rule) and the time it went on. With `from_now`, the window reaches back to the poses now
@@ -721,7 +578,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
   const BinSpec& bin = m.bin;
   const SimulationParams& params = m.params;
   const double dt = params.time_step_s;
-  PileWorld w(bin, m.types, m.tote_shape.get(), m.table_z_mm);
+  PileWorld w(bin, m.types, m.tote_shape.get(), m.table_z_mm, params.solver_iterations);
   if (count == 0) {
     PileResult empty;
     empty.settled = true;
@@ -730,89 +587,13 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
   }
   w.AddShapes(types);
 
-  // how each part drops, all drawn now: orientation, bounding box, and x, y inside the opening
-  // (centred where the box is wider than the bin)
-  // (sequential: centred on the drop point, kept inside the opening where it fits)
-  const bool sequential = params.drop_mode == DropMode::kSequential;
   std::mt19937_64 engine(seed);
-  std::vector<Release> releases;
-  const double half_inner[2] = {bin.inner_length_mm / 2, bin.inner_width_mm / 2};
-  for (int i = 0; i < count; ++i) {
-    Release release;
-    release.type = types[i];
-    release.world_from_object_rotation = UniformRotation(engine);
-    Box box;
-    for (const auto& v : m.types[types[i]].hull_vertices_mm) {
-      box.Add(release.world_from_object_rotation * v);
-    }
-    release.object_origin_in_box_mm = -box.lo;
-    release.size_mm = box.hi - box.lo;
-    for (int axis = 0; axis < 2; ++axis) {
-      const double room = 2 * (half_inner[axis] - kReleaseWallMarginMm) - release.size_mm[axis];
-      const double lowest = -half_inner[axis] + kReleaseWallMarginMm;
-      if (room <= 0) {
-        release.box_lo_xy_mm[axis] = -release.size_mm[axis] / 2;
-      } else if (sequential) {
-        release.box_lo_xy_mm[axis] = std::clamp(
-            params.drop_point_mm[axis] - release.size_mm[axis] / 2, lowest, lowest + room);
-      } else {
-        release.box_lo_xy_mm[axis] = lowest + Uniform01(engine) * room;
-      }
-    }
-    releases.push_back(release);
-  }
-  ReleaseQueue queue(std::move(releases), bin.inner_height_mm + params.drop_height_mm, sequential);
-
-  // releases what the queue lets go; returns whether any part was released
-  std::vector<btRigidBody*> body_of_part(count, nullptr);
-  std::vector<btRigidBody*> released_bodies;
-  std::vector<int> released_types;
-  std::vector<double> released_at_s;
-  // the last released body's poses since its release, for sequential drops
-  std::vector<std::pair<double, Eigen::Isometry3d>> last_poses;
-  auto release = [&](double time_s) {
-    // whether the last released part has landed
-    bool landed = released_bodies.empty();
-    if (!landed) {
-      const Eigen::Isometry3d now = FromSim(released_bodies.back()->getWorldTransform());
-      last_poses.emplace_back(time_s, now);
-      landed = time_s - released_at_s.back() >= kLandedMaxS;
-      for (auto it = last_poses.rbegin(); it != last_poses.rend() && !landed; ++it) {
-        if (it->first > time_s - kLandedWindowS + 1e-9) continue;
-        const double moved_mm = (now.translation() - it->second.translation()).norm();
-        const double turned_deg =
-            Eigen::AngleAxisd(now.linear() * it->second.linear().transpose()).angle() * 180 / M_PI;
-        landed = moved_mm < kLandedMm && turned_deg < kLandedDeg;
-        break;
-      }
-    }
-    // the released bodies' boxes, and which of them rest in the pile
-    std::vector<Box> boxes;
-    std::vector<bool> in_pile;
-    for (size_t b = 0; b < released_bodies.size(); ++b) {
-      const TypeModel& tm = m.types[released_types[b]];
-      const Eigen::Isometry3d world_from_object =
-          w.WorldFromObject(released_bodies[b], released_types[b]);
-      Box box;
-      for (const auto& v : tm.hull_vertices_mm) box.Add(world_from_object * v);
-      boxes.push_back(box);
-      const double speed_mm_s = released_bodies[b]->getLinearVelocity().length() / kSimPerMm;
-      in_pile.push_back(speed_mm_s < kPileSpeedMmS && time_s - released_at_s[b] >= kFallS);
-    }
-    // the new bodies, at rest
-    const auto parts = queue.Next(time_s, std::move(boxes), in_pile, landed);
-    for (const auto& [part, z] : parts) {
-      const int type = queue.release(part).type;
-      btRigidBody* body = w.AddPart(type, queue.release(part).WorldFromObjectAt(z));
-      body_of_part[part] = body;
-      released_bodies.push_back(body);
-      released_types.push_back(type);
-      released_at_s.push_back(time_s);
-      last_poses.clear();
-    }
-    return !parts.empty();
-  };
-  release(0);
+  ReleaseQueue queue(DrawReleases(m.types, types, bin, params, engine),
+                     bin.inner_height_mm + params.drop_height_mm,
+                     params.drop_mode == DropMode::kSequential);
+  Dropper dropper(m.types, &queue, &w, count);
+  dropper.ReleaseDue(0);
+  const std::vector<btRigidBody*>& body_of_part = dropper.body_of_part();
 
   // step at the fixed step until every part is released and the pile has settled, or the cap
   // (max_sim_time_s after the last release; releases get kLandedMaxS per part at most, waves
@@ -835,7 +616,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
     if (w.FellOut()) break;
     const double time_s = step * dt;
     if (!queue.empty()) {
-      if (release(time_s)) last_release_step = step;
+      if (dropper.ReleaseDue(time_s)) last_release_step = step;
       continue;
     }
     // the settle window starts with the last release
@@ -887,7 +668,7 @@ PileResult PileSimulator::Resettle(const std::vector<int>& types,
   CheckRule(rule);
   const SimulationParams& params = m.params;
   const double dt = params.time_step_s;
-  PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm);
+  PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm, m.params.solver_iterations);
   w.AddShapes(types);
   std::vector<btRigidBody*> bodies;
   for (size_t i = 0; i < types.size(); ++i)
@@ -914,7 +695,7 @@ std::vector<int> PileSimulator::PickOrder(
                                 " types but " + std::to_string(world_from_object.size()) +
                                 " poses");
   }
-  PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm);
+  PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm, m.params.solver_iterations);
   double top_mm = m.bin.inner_height_mm;
   for (size_t i = 0; i < types.size(); ++i) {
     // a ray's hit tells the part by its index (the bin keeps Bullet's -1)

@@ -233,6 +233,7 @@ SimulationParams SimulationParamsOf(const config::PhysicsConfig& p) {
   params.drop_mode = p.drop_mode() == config::PhysicsConfig::SEQUENTIAL ? DropMode::kSequential
                                                                         : DropMode::kRandomVolume;
   params.drop_point_mm = Eigen::Vector2d(p.drop_point_x_mm(), p.drop_point_y_mm());
+  params.solver_iterations = p.solver_iterations();
 
   return params;
 }

@@ -120,6 +120,9 @@ TEST(ConfigTest, CountRangeRoleAndDropChecks) {
             std::string::npos);
   EXPECT_NE(ErrorOf("physics { views_per_pile: 0 }").find("physics.views_per_pile"),
             std::string::npos);
+  EXPECT_NE(ErrorOf("physics { solver_iterations: 4 }").find("physics.solver_iterations"),
+            std::string::npos);
+  EXPECT_EQ(ErrorOf("physics { solver_iterations: 20 }"), "");
 }
 
 // min above max is refused.

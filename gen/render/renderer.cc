@@ -363,9 +363,11 @@ int Renderer::AddEnvironment(const PrefilteredEnvironment& environment) {
   return static_cast<int>(impl_->environments.size()) - 1;
 }
 
-int Renderer::AddMesh(const TriangleMesh& mesh) {
-  static_assert(sizeof(std::array<uint32_t, 3>) == 3 * sizeof(uint32_t), "packed triangles");
-  // check the mesh
+namespace {
+
+// Throws unless `mesh` can be uploaded: triangles, a normal (and a uv, if any) per position,
+// indices in range, a material per triangle when it has materials, CV_8UC3 textures with uvs.
+void CheckMeshForGl(const TriangleMesh& mesh) {
   const size_t vertex_count = mesh.positions_mm.size();
   if (mesh.triangles.empty()) throw std::runtime_error("Renderer::AddMesh: mesh has no triangles");
   if (mesh.normals.size() != vertex_count) {
@@ -412,8 +414,11 @@ int Renderer::AddMesh(const TriangleMesh& mesh) {
     }
     if (mesh.uvs.empty()) throw std::runtime_error(what + ": the mesh has no texture coordinates");
   }
+}
 
-  // interleave position, normal and texture coordinate
+// Position, normal and texture coordinate of each vertex, interleaved (8 floats).
+std::vector<float> InterleavedVertices(const TriangleMesh& mesh) {
+  const size_t vertex_count = mesh.positions_mm.size();
   std::vector<float> vertices;
   vertices.reserve(vertex_count * 8);
   for (size_t i = 0; i < vertex_count; ++i) {
@@ -422,9 +427,14 @@ int Renderer::AddMesh(const TriangleMesh& mesh) {
     const Eigen::Vector2f uv = mesh.uvs.empty() ? Eigen::Vector2f::Zero() : mesh.uvs[i];
     vertices.insert(vertices.end(), uv.data(), uv.data() + 2);
   }
+  return vertices;
+}
 
-  // triangles grouped by material, in their order within each group
-  MeshBuffers buffers;
+// The triangles grouped by material, in their order within each group; each group's range and
+// material go into `buffers`.
+std::vector<std::array<uint32_t, 3>> TrianglesByMaterial(const TriangleMesh& mesh,
+                                                         MeshBuffers* buffers) {
+  const size_t material_count = mesh.materials.size();
   std::vector<std::array<uint32_t, 3>> triangles;
   if (material_count == 0) {
     triangles = mesh.triangles;
@@ -439,11 +449,22 @@ int Renderer::AddMesh(const TriangleMesh& mesh) {
       }
       const GLsizei count = static_cast<GLsizei>(triangles.size() * 3) - first;
       if (count == 0) continue;
-      buffers.range_firsts.push_back(first);
-      buffers.range_counts.push_back(count);
-      buffers.range_materials.push_back(static_cast<int>(m));
+      buffers->range_firsts.push_back(first);
+      buffers->range_counts.push_back(count);
+      buffers->range_materials.push_back(static_cast<int>(m));
     }
   }
+  return triangles;
+}
+
+}  // namespace
+
+int Renderer::AddMesh(const TriangleMesh& mesh) {
+  static_assert(sizeof(std::array<uint32_t, 3>) == 3 * sizeof(uint32_t), "packed triangles");
+  CheckMeshForGl(mesh);
+  const std::vector<float> vertices = InterleavedVertices(mesh);
+  MeshBuffers buffers;
+  const std::vector<std::array<uint32_t, 3>> triangles = TrianglesByMaterial(mesh, &buffers);
 
   // the materials, each texture uploaded once
   std::map<const uint8_t*, int> texture_ids;
@@ -500,12 +521,9 @@ RenderResult Renderer::Render(const CameraModel& camera, const std::vector<Light
   return result;
 }
 
-void Renderer::Render(const CameraModel& camera, const std::vector<Light>& lights,
-                      const RenderOptions& options, const std::vector<DrawItem>& items,
-                      RenderResult* result) {
-  Impl& impl = *impl_;
-  impl.context.MakeCurrent();
-  impl.Validate(camera, items);
+void Renderer::Impl::CheckOptions(const CameraModel& camera, const std::vector<Light>& lights,
+                                  const RenderOptions& options, int max_samples,
+                                  const std::string& description) const {
   if (lights.size() > static_cast<size_t>(kMaxLights)) {
     throw std::runtime_error("Renderer::Render: " + std::to_string(lights.size()) +
                              " lights, at most " + std::to_string(kMaxLights));
@@ -526,20 +544,18 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
                              std::to_string(kMinShadowMapSize) + ".." +
                              std::to_string(kMaxShadowMapSize));
   }
-  const bool pbr = options.shading == Shading::kPbr;
-  if (pbr) {
+  if (options.shading == Shading::kPbr) {
     const int samples = options.msaa_samples;
-    const int max_samples = MaxMsaaSamples();
     if ((samples != 1 && samples != 2 && samples != 4) || samples > max_samples) {
       throw std::runtime_error("Renderer::Render: msaa_samples " + std::to_string(samples) +
                                " is not 1, 2 or 4 up to " + std::to_string(max_samples) +
-                               ", the most this GL takes (" + Description() + ")");
+                               ", the most this GL takes (" + description + ")");
     }
     if (options.environment_id < -1 ||
-        options.environment_id >= static_cast<int>(impl.environments.size())) {
+        options.environment_id >= static_cast<int>(environments.size())) {
       throw std::runtime_error("Renderer::Render: unknown environment_id " +
                                std::to_string(options.environment_id) + " (" +
-                               std::to_string(impl.environments.size()) + " environments added)");
+                               std::to_string(environments.size()) + " environments added)");
     }
     if (!(options.environment_intensity >= 0) || !std::isfinite(options.environment_intensity) ||
         !(options.background_scale >= 0) || !std::isfinite(options.background_scale) ||
@@ -552,19 +568,15 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   } else if (options.shading != Shading::kPhong) {
     throw std::runtime_error("Renderer::Render: unknown shading");
   }
-  for (size_t i = 0; i < items.size(); ++i) {
-    const MeshBuffers& mesh = impl.meshes[items[i].mesh_id];
-    if (!items[i].use_mesh_materials || mesh.materials.empty()) {
-      impl.ValidateMaterial(items[i].material, mesh,
-                            "Renderer::Render: item " + std::to_string(i) + "'s material");
-    }
-  }
-  const Eigen::Isometry3d camera_from_world = camera.world_from_camera.inverse();
+}
 
+void Renderer::Impl::SetLights(const Eigen::Isometry3d& camera_from_world,
+                               const std::vector<Light>& lights, bool shadows,
+                               const std::vector<DrawItem>& items) {
   // lights in the camera frame: towards a directional light, the position of a point light
-  FrameUniforms& frame = impl.frame_uniforms;
+  FrameUniforms& frame = frame_uniforms;
   frame.light_count = static_cast<int>(lights.size());
-  frame.shadows = options.shadows && !lights.empty() &&
+  frame.shadows = shadows && !lights.empty() &&
                   std::any_of(items.begin(), items.end(),
                               [](const DrawItem& item) { return item.casts_shadow; });
   for (size_t i = 0; i < lights.size(); ++i) {
@@ -596,29 +608,112 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
     for (int c = 0; c < 3; ++c)
       frame.light_irradiance[i][c] = static_cast<float>(M_PI) * light.diffuse;
   }
+}
 
-  // shadow maps, from each light over the box of all items
-  if (frame.shadows) {
-    impl.RenderShadowMaps(lights, options.shadow_map_size, items);
-    // from the camera frame to (s, t, depth) in [0, 1] of each map
-    Eigen::Matrix4d texture_from_clip = 0.5 * Eigen::Matrix4d::Identity();
-    texture_from_clip.topRightCorner<3, 1>().setConstant(0.5);
-    texture_from_clip(3, 3) = 1;
-    for (size_t i = 0; i < lights.size(); ++i) {
-      const ShadowView& view = impl.shadow_views[i];
-      const Eigen::Matrix4f shadow_from_camera =
-          (texture_from_clip * view.clip_from_world * camera.world_from_camera.matrix())
-              .cast<float>();
-      std::memcpy(frame.shadow_from_camera[i], shadow_from_camera.data(),
-                  sizeof(frame.shadow_from_camera[i]));
-      frame.shadow_normal_offset_mm[i] = static_cast<float>(view.normal_offset_mm);
-      frame.shadow_depth_bias[i] = static_cast<float>(view.depth_bias);
-    }
-    frame.shadow_texel = 1.f / static_cast<float>(options.shadow_map_size);
-    glActiveTexture(GL_TEXTURE0 + kShadowMapUnit);
-    glBindTexture(GL_TEXTURE_2D_ARRAY, impl.shadow_maps);
-    glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+// shadow maps, from each light over the box of all items
+void Renderer::Impl::SetShadows(const CameraModel& camera, const std::vector<Light>& lights,
+                                int shadow_map_size, const std::vector<DrawItem>& items) {
+  RenderShadowMaps(lights, shadow_map_size, items);
+  // from the camera frame to (s, t, depth) in [0, 1] of each map
+  Eigen::Matrix4d texture_from_clip = 0.5 * Eigen::Matrix4d::Identity();
+  texture_from_clip.topRightCorner<3, 1>().setConstant(0.5);
+  texture_from_clip(3, 3) = 1;
+  for (size_t i = 0; i < lights.size(); ++i) {
+    const ShadowView& view = shadow_views[i];
+    const Eigen::Matrix4f shadow_from_camera =
+        (texture_from_clip * view.clip_from_world * camera.world_from_camera.matrix())
+            .cast<float>();
+    std::memcpy(frame_uniforms.shadow_from_camera[i], shadow_from_camera.data(),
+                sizeof(frame_uniforms.shadow_from_camera[i]));
+    frame_uniforms.shadow_normal_offset_mm[i] = static_cast<float>(view.normal_offset_mm);
+    frame_uniforms.shadow_depth_bias[i] = static_cast<float>(view.depth_bias);
   }
+  frame_uniforms.shadow_texel = 1.f / static_cast<float>(shadow_map_size);
+  glActiveTexture(GL_TEXTURE0 + kShadowMapUnit);
+  glBindTexture(GL_TEXTURE_2D_ARRAY, shadow_maps);
+  glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+}
+
+void Renderer::Impl::RenderPhong(const CameraModel& camera, const RenderOptions& options,
+                                 const std::vector<DrawItem>& items,
+                                 const Eigen::Isometry3d& camera_from_world, RenderResult* result) {
+  // clear: background colour, id 0, camera z 0, far depth
+  Resize(camera.width, camera.height);
+  glBindFramebuffer(GL_FRAMEBUFFER, scene_framebuffer);
+  glViewport(0, 0, width, height);
+  glDisable(GL_COLOR_LOGIC_OP);
+  glEnable(GL_DEPTH_TEST);
+  const Eigen::Vector3f& background_rgb = options.background_rgb;
+  const GLfloat background[4] = {background_rgb.x(), background_rgb.y(), background_rgb.z(), 1};
+  const GLuint zero_id[4] = {0, 0, 0, 0};
+  const GLfloat zero_z[4] = {0, 0, 0, 0};
+  const GLfloat far_depth = 1;
+  glClearBufferfv(GL_COLOR, 0, background);
+  glClearBufferuiv(GL_COLOR, 1, zero_id);
+  glClearBufferfv(GL_COLOR, 2, zero_z);
+  glClearBufferfv(GL_DEPTH, 0, &far_depth);
+
+  // each material of a mesh (or the item's material) in one draw, near items first
+  for (const auto& [z, index] : draw_order) {
+    const DrawItem& item = items[index];
+    const MeshBuffers& mesh = meshes[item.mesh_id];
+    if (!item.use_mesh_materials || mesh.materials.empty()) {
+      DrawSurface(item, camera_from_world, mesh, item.material, 0, mesh.index_count);
+      continue;
+    }
+    for (size_t k = 0; k < mesh.range_firsts.size(); ++k) {
+      DrawSurface(item, camera_from_world, mesh, mesh.materials[mesh.range_materials[k]],
+                  mesh.range_firsts[k], mesh.range_counts[k]);
+    }
+  }
+  glBindVertexArray(0);
+
+  // read back; framebuffer row 0 is image row 0 already (see projection.glsl)
+  EnsureImage(&result->color, height, width, CV_8UC3);
+  EnsureImage(&result->depth_mm, height, width, CV_32FC1);
+  EnsureImage(&result->instance, height, width, CV_16UC1);
+  glReadBuffer(GL_COLOR_ATTACHMENT0);
+  glReadPixels(0, 0, width, height, GL_RGB, GL_UNSIGNED_BYTE, result->color.data);
+  glReadBuffer(GL_COLOR_ATTACHMENT1);
+  glReadPixels(0, 0, width, height, GL_RED_INTEGER, GL_UNSIGNED_SHORT, result->instance.data);
+  glReadBuffer(GL_COLOR_ATTACHMENT2);
+  glReadPixels(0, 0, width, height, GL_RED, GL_FLOAT, result->depth_mm.data);
+  result->color_linear.release();
+  CheckGlError("Renderer::Render");
+
+  // the background image where nothing was drawn (camera z 0), copied exactly
+  if (!options.background_image.empty()) {
+    for (int v = 0; v < height; ++v) {
+      const float* depth = result->depth_mm.ptr<float>(v);
+      const uint8_t* background_row = options.background_image.ptr<uint8_t>(v);
+      uint8_t* color = result->color.ptr<uint8_t>(v);
+      for (int u = 0; u < width; ++u) {
+        if (depth[u] == 0.f) std::memcpy(color + 3 * u, background_row + 3 * u, 3);
+      }
+    }
+  }
+}
+
+void Renderer::Render(const CameraModel& camera, const std::vector<Light>& lights,
+                      const RenderOptions& options, const std::vector<DrawItem>& items,
+                      RenderResult* result) {
+  Impl& impl = *impl_;
+  impl.context.MakeCurrent();
+  impl.Validate(camera, items);
+  const bool pbr = options.shading == Shading::kPbr;
+  impl.CheckOptions(camera, lights, options, pbr ? MaxMsaaSamples() : 0,
+                    pbr ? Description() : std::string());
+  for (size_t i = 0; i < items.size(); ++i) {
+    const MeshBuffers& mesh = impl.meshes[items[i].mesh_id];
+    if (!items[i].use_mesh_materials || mesh.materials.empty()) {
+      impl.ValidateMaterial(items[i].material, mesh,
+                            "Renderer::Render: item " + std::to_string(i) + "'s material");
+    }
+  }
+  const Eigen::Isometry3d camera_from_world = camera.world_from_camera.inverse();
+
+  impl.SetLights(camera_from_world, lights, options.shadows, items);
+  if (impl.frame_uniforms.shadows) impl.SetShadows(camera, lights, options.shadow_map_size, items);
 
   // draw near items first so the depth test rejects hidden fragments before shading
   impl.draw_order.clear();
@@ -634,6 +729,7 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   impl.bound_texture = 0;
   if (pbr) {
     // the environment turned about world z, seen from the camera
+    FrameUniforms& frame = impl.frame_uniforms;
     frame.environment =
         options.environment_id >= 0 ? &impl.environments[options.environment_id] : nullptr;
     frame.environment_intensity = options.environment_intensity;
@@ -648,62 +744,7 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
     return;
   }
 
-  // clear: background colour, id 0, camera z 0, far depth
-  impl.Resize(camera.width, camera.height);
-  glBindFramebuffer(GL_FRAMEBUFFER, impl.scene_framebuffer);
-  glViewport(0, 0, impl.width, impl.height);
-  glDisable(GL_COLOR_LOGIC_OP);
-  glEnable(GL_DEPTH_TEST);
-  const Eigen::Vector3f& background_rgb = options.background_rgb;
-  const GLfloat background[4] = {background_rgb.x(), background_rgb.y(), background_rgb.z(), 1};
-  const GLuint zero_id[4] = {0, 0, 0, 0};
-  const GLfloat zero_z[4] = {0, 0, 0, 0};
-  const GLfloat far_depth = 1;
-  glClearBufferfv(GL_COLOR, 0, background);
-  glClearBufferuiv(GL_COLOR, 1, zero_id);
-  glClearBufferfv(GL_COLOR, 2, zero_z);
-  glClearBufferfv(GL_DEPTH, 0, &far_depth);
-
-  // each material of a mesh (or the item's material) in one draw, near items first
-  for (const auto& [z, index] : impl.draw_order) {
-    const DrawItem& item = items[index];
-    const MeshBuffers& mesh = impl.meshes[item.mesh_id];
-    if (!item.use_mesh_materials || mesh.materials.empty()) {
-      impl.DrawSurface(item, camera_from_world, mesh, item.material, 0, mesh.index_count);
-      continue;
-    }
-    for (size_t k = 0; k < mesh.range_firsts.size(); ++k) {
-      impl.DrawSurface(item, camera_from_world, mesh, mesh.materials[mesh.range_materials[k]],
-                       mesh.range_firsts[k], mesh.range_counts[k]);
-    }
-  }
-  glBindVertexArray(0);
-
-  // read back; framebuffer row 0 is image row 0 already (see projection.glsl)
-  EnsureImage(&result->color, impl.height, impl.width, CV_8UC3);
-  EnsureImage(&result->depth_mm, impl.height, impl.width, CV_32FC1);
-  EnsureImage(&result->instance, impl.height, impl.width, CV_16UC1);
-  glReadBuffer(GL_COLOR_ATTACHMENT0);
-  glReadPixels(0, 0, impl.width, impl.height, GL_RGB, GL_UNSIGNED_BYTE, result->color.data);
-  glReadBuffer(GL_COLOR_ATTACHMENT1);
-  glReadPixels(0, 0, impl.width, impl.height, GL_RED_INTEGER, GL_UNSIGNED_SHORT,
-               result->instance.data);
-  glReadBuffer(GL_COLOR_ATTACHMENT2);
-  glReadPixels(0, 0, impl.width, impl.height, GL_RED, GL_FLOAT, result->depth_mm.data);
-  result->color_linear.release();
-  CheckGlError("Renderer::Render");
-
-  // the background image where nothing was drawn (camera z 0), copied exactly
-  if (!options.background_image.empty()) {
-    for (int v = 0; v < impl.height; ++v) {
-      const float* depth = result->depth_mm.ptr<float>(v);
-      const uint8_t* background_row = options.background_image.ptr<uint8_t>(v);
-      uint8_t* color = result->color.ptr<uint8_t>(v);
-      for (int u = 0; u < impl.width; ++u) {
-        if (depth[u] == 0.f) std::memcpy(color + 3 * u, background_row + 3 * u, 3);
-      }
-    }
-  }
+  impl.RenderPhong(camera, options, items, camera_from_world, result);
 }
 
 std::string Renderer::Description() const { return impl_->context.Description(); }

@@ -319,6 +319,18 @@ struct Renderer::Impl {
   void CompositeBackground(const RenderOptions& options, RenderResult* result);
   void RenderPbr(const CameraModel& camera, const RenderOptions& options,
                  const std::vector<DrawItem>& items, RenderResult* result);
+  // Render's parts: its options checked (max_samples and description: the GL's, for PBR), the
+  // lights and shadow maps set for the frame, and the Blinn-Phong pass read back
+  void CheckOptions(const CameraModel& camera, const std::vector<Light>& lights,
+                    const RenderOptions& options, int max_samples,
+                    const std::string& description) const;
+  void SetLights(const Eigen::Isometry3d& camera_from_world, const std::vector<Light>& lights,
+                 bool shadows, const std::vector<DrawItem>& items);
+  void SetShadows(const CameraModel& camera, const std::vector<Light>& lights, int shadow_map_size,
+                  const std::vector<DrawItem>& items);
+  void RenderPhong(const CameraModel& camera, const RenderOptions& options,
+                   const std::vector<DrawItem>& items, const Eigen::Isometry3d& camera_from_world,
+                   RenderResult* result);
   void Resize(int new_width, int new_height);
   void Validate(const CameraModel& camera, const std::vector<DrawItem>& items) const;
   void ValidateMaterial(const Material& material, const MeshBuffers& mesh,

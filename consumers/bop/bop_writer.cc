@@ -226,6 +226,41 @@ json SceneCamera(const camera_info& camera) {
           {"depth_scale", camera.depth_scale_mm}};
 }
 
+// camera.json: the first scene's camera, which describes the dataset's sensor.
+void WriteCameraFile(const fs::path& path, const camera_info& camera) {
+  WriteToolkitObject(path, {{"cx", camera.cx},
+                            {"cy", camera.cy},
+                            {"depth_scale", camera.depth_scale_mm},
+                            {"fx", camera.fx},
+                            {"fy", camera.fy},
+                            {"height", camera.height},
+                            {"width", camera.width}});
+}
+
+// The "scene" part of a scene's journal line: its ids, size, seed, colour file, classes and
+// files (relative to `dir`).
+json JournalScene(const scene& scene, int64_t scene_id, const std::string& rgb_name,
+                  const std::map<int32_t, std::string>& class_names,
+                  const std::vector<std::string>& paths, const std::string& dir) {
+  json classes = json::array();
+  for (const auto& [class_id, class_name] : class_names) classes.push_back({class_id, class_name});
+  json files = json::array();
+  for (const std::string& path : paths) {
+    files.push_back(fs::path(path).lexically_relative(dir).string());
+  }
+  return {{"classes", std::move(classes)},
+          {"files", std::move(files)},
+          {"generator_id", scene.header.generator_id},
+          {"height", scene.camera.height},
+          {"im_id", BopWriter::ImageId(scene.header.seq)},
+          {"journal_version", kJournalVersion},
+          {"rgb", rgb_name},
+          {"scene_id", scene_id},
+          {"seed", scene.header.seed},
+          {"seq", scene.header.seq},
+          {"width", scene.camera.width}};
+}
+
 }  // namespace
 
 int64_t BopWriter::SceneId(int32_t generator_id, int64_t seq) {
@@ -492,41 +527,17 @@ bool BopWriter::Add(const scene& scene) {
     GroundTruths truths = MakeGroundTruths(scene, im_id, depth, write, &staged.classes);
     staged.ground_truths = truths.count;
 
-    const json scene_camera = SceneCamera(camera);
     if (!camera_written_) {
       // the first scene's camera describes the dataset's sensor
-      WriteToolkitObject(fs::path(dir_) / kCameraFile, {{"cx", camera.cx},
-                                                        {"cy", camera.cy},
-                                                        {"depth_scale", camera.depth_scale_mm},
-                                                        {"fx", camera.fx},
-                                                        {"fy", camera.fy},
-                                                        {"height", camera.height},
-                                                        {"width", camera.width}});
+      WriteCameraFile(fs::path(dir_) / kCameraFile, camera);
       camera_written_ = true;
     }
 
     // its journal line
-    json classes = json::array();
-    for (const auto& [class_id, class_name] : staged.classes)
-      classes.push_back({class_id, class_name});
-    json files = json::array();
-    for (const std::string& path : staged.files) {
-      files.push_back(fs::path(path).lexically_relative(dir_).string());
-    }
-    json record_scene = {{"classes", std::move(classes)},
-                         {"files", std::move(files)},
-                         {"generator_id", generator_id},
-                         {"height", camera.height},
-                         {"im_id", im_id},
-                         {"journal_version", kJournalVersion},
-                         {"rgb", rgb_name},
-                         {"scene_id", scene_id},
-                         {"seed", scene.header.seed},
-                         {"seq", seq},
-                         {"width", camera.width}};
+    json record_scene = JournalScene(scene, scene_id, rgb_name, staged.classes, staged.files, dir_);
     const auto run = runs_.find(generator_id);
     if (run != runs_.end()) record_scene["run"] = run->second;
-    const json record = {{"camera", scene_camera},           {"coco", std::move(truths.coco)},
+    const json record = {{"camera", SceneCamera(camera)},    {"coco", std::move(truths.coco)},
                          {"gt", std::move(truths.gt)},       {"gt_info", std::move(truths.gt_info)},
                          {"masks", std::move(truths.masks)}, {"scene", std::move(record_scene)}};
     staged.line = record.dump() + "\n";
@@ -534,10 +545,8 @@ bool BopWriter::Add(const scene& scene) {
     for (const std::string& path : staged.files) unlink(path.c_str());
     throw;
   }
-  staged.entry.generator_id = generator_id;
-  staged.entry.seq = seq;
-  staged.entry.seed = scene.header.seed;
-  staged.entry.length = staged.line.size() - 1;
+  // where it lies in the line: from its start, without the '\n'
+  staged.entry = Entry{generator_id, seq, scene.header.seed, 0, staged.line.size() - 1};
   staged_seeds_.emplace(key, scene.header.seed);
   staged_.push_back(std::move(staged));
   if (!options_.group_commit) Commit();

@@ -122,6 +122,99 @@ bool CheckMask(const std::string& counts, int32_t expected, int64_t area, const 
   return true;
 }
 
+// The camera: a size within the decode limits, positive focal lengths and depth scale, a finite
+// principal point and pose.
+bool CheckCamera(const camera_info& camera, std::string* why) {
+  const int width = camera.width, height = camera.height;
+  if (width <= 0 || height <= 0 || int64_t{width} * height > DecodeLimits{}.max_image_pixels) {
+    return Refuse("camera.width x camera.height " + std::to_string(width) + " x " +
+                      std::to_string(height) + " is not a positive size of at most " +
+                      std::to_string(DecodeLimits{}.max_image_pixels) + " pixels",
+                  why);
+  }
+  const std::pair<const char*, double> positive[3] = {
+      {"camera.fx", camera.fx},
+      {"camera.fy", camera.fy},
+      {"camera.depth_scale_mm", camera.depth_scale_mm}};
+  for (const auto& [field, value] : positive) {
+    if (!(std::isfinite(value) && value > 0)) {
+      return Refuse(std::string(field) + " " + Number(value) + " is not a positive number", why);
+    }
+  }
+  const double principal[2] = {camera.cx, camera.cy};
+  if (!CheckFinite(principal, 2, "camera.cx, camera.cy", why) ||
+      !CheckPose(camera.world_from_camera, "camera.world_from_camera", why)) {
+    return false;
+  }
+  return true;
+}
+
+// The images of `message`: colour always, depth and the instance map when sent, each of the
+// camera's size and of a pixel format it may have.
+bool CheckImages(const scene& message, std::string* why) {
+  const int width = message.camera.width, height = message.camera.height;
+  if (message.color.size == 0) return Refuse("the scene has no color image", why);
+  if (!CheckImage(message.color, "color", width, height, {image::PIXEL_RGB8, image::PIXEL_GRAY8},
+                  "RGB8 or GRAY8", why)) {
+    return false;
+  }
+  if (message.depth.size != 0 &&
+      !CheckImage(message.depth, "depth", width, height, {image::PIXEL_DEPTH16}, "DEPTH16", why)) {
+    return false;
+  }
+  if (message.instance_map.size != 0 &&
+      !CheckImage(message.instance_map, "instance_map", width, height, {image::PIXEL_INSTANCE16},
+                  "INSTANCE16", why)) {
+    return false;
+  }
+  return true;
+}
+
+// One instance (`field` names it) after its id: class, poses, visibility, pixel counts, boxes
+// and masks, and the generator's label.
+bool CheckInstance(const instance& object, const std::string& field, int width, int height,
+                   std::string* why) {
+  const int64_t area = int64_t{width} * height;
+  if (object.class_id < 1) {
+    return Refuse(field + ".class_id " + std::to_string(object.class_id) + " is not >= 1", why);
+  }
+  if (object.class_name.empty()) return Refuse(field + ".class_name is empty", why);
+  if (!CheckPose(object.camera_from_object, field + ".camera_from_object", why) ||
+      !CheckPose(object.world_from_object, field + ".world_from_object", why) ||
+      !CheckFinite(object.posture_deg, 3, field + ".posture_deg", why)) {
+    return false;
+  }
+  if (!(object.visib_fract >= 0.0 && object.visib_fract <= 1.0)) {
+    return Refuse(field + ".visib_fract " + Number(object.visib_fract) + " outside [0, 1]", why);
+  }
+  if (object.px_count_visib < 0 || object.px_count_visib > object.px_count_all) {
+    return Refuse(field + ".px_count_visib " + std::to_string(object.px_count_visib) +
+                      " is not in 0..px_count_all (" + std::to_string(object.px_count_all) + ")",
+                  why);
+  }
+  // the whole silhouette may reach past the image's edges (bbox_obj and px_count_all count
+  // that part too); its mask holds the part in the image, all of it when bbox_obj lies inside
+  const bool whole_in_image = BoxInside(object.bbox_obj, width, height);
+  if (!CheckAmodalBox(object.bbox_obj, field + ".bbox_obj", width, height, why) ||
+      !CheckBox(object.bbox_visib, field + ".bbox_visib", width, height, why) ||
+      !CheckMask(object.mask_visib_rle, object.px_count_visib, area, field + ".mask_visib_rle",
+                 "px_count_visib", why) ||
+      !CheckMask(object.mask_obj_rle, object.px_count_all, area, field + ".mask_obj_rle",
+                 "px_count_all", why, !whole_in_image)) {
+    return false;
+  }
+  // the generator's label: annotated, ignored or neither; both need visible pixels
+  if (object.annotated && object.ignored) {
+    return Refuse(field + ".ignored and " + field + ".annotated are both true", why);
+  }
+  if ((object.annotated || object.ignored) && object.px_count_visib == 0) {
+    return Refuse(
+        field + (object.annotated ? ".annotated" : ".ignored") + " is true but px_count_visib is 0",
+        why);
+  }
+  return true;
+}
+
 }  // namespace
 
 int64_t MaskPixels(const std::string& counts, int64_t image_pixels, std::string* why) {
@@ -162,45 +255,9 @@ bool CheckScene(const scene& message, std::string* why) {
                   why);
   }
 
-  // the camera
-  const camera_info& camera = message.camera;
-  const int width = camera.width, height = camera.height;
-  if (width <= 0 || height <= 0 || int64_t{width} * height > DecodeLimits{}.max_image_pixels) {
-    return Refuse("camera.width x camera.height " + std::to_string(width) + " x " +
-                      std::to_string(height) + " is not a positive size of at most " +
-                      std::to_string(DecodeLimits{}.max_image_pixels) + " pixels",
-                  why);
-  }
-  const std::pair<const char*, double> positive[3] = {
-      {"camera.fx", camera.fx},
-      {"camera.fy", camera.fy},
-      {"camera.depth_scale_mm", camera.depth_scale_mm}};
-  for (const auto& [field, value] : positive) {
-    if (!(std::isfinite(value) && value > 0)) {
-      return Refuse(std::string(field) + " " + Number(value) + " is not a positive number", why);
-    }
-  }
-  const double principal[2] = {camera.cx, camera.cy};
-  if (!CheckFinite(principal, 2, "camera.cx, camera.cy", why) ||
-      !CheckPose(camera.world_from_camera, "camera.world_from_camera", why)) {
-    return false;
-  }
-
-  // the images: colour always, depth and the instance map when sent
-  if (message.color.size == 0) return Refuse("the scene has no color image", why);
-  if (!CheckImage(message.color, "color", width, height, {image::PIXEL_RGB8, image::PIXEL_GRAY8},
-                  "RGB8 or GRAY8", why)) {
-    return false;
-  }
-  if (message.depth.size != 0 &&
-      !CheckImage(message.depth, "depth", width, height, {image::PIXEL_DEPTH16}, "DEPTH16", why)) {
-    return false;
-  }
-  if (message.instance_map.size != 0 &&
-      !CheckImage(message.instance_map, "instance_map", width, height, {image::PIXEL_INSTANCE16},
-                  "INSTANCE16", why)) {
-    return false;
-  }
+  // the camera and the images: colour always, depth and the instance map when sent
+  const int width = message.camera.width, height = message.camera.height;
+  if (!CheckCamera(message.camera, why) || !CheckImages(message, why)) return false;
 
   // the instances
   if (message.num_instances < 0 ||
@@ -229,43 +286,7 @@ bool CheckScene(const scene& message, std::string* why) {
       return Refuse(field + ".instance_id " + std::to_string(object.instance_id) + " repeated",
                     why);
     }
-    if (object.class_id < 1) {
-      return Refuse(field + ".class_id " + std::to_string(object.class_id) + " is not >= 1", why);
-    }
-    if (object.class_name.empty()) return Refuse(field + ".class_name is empty", why);
-    if (!CheckPose(object.camera_from_object, field + ".camera_from_object", why) ||
-        !CheckPose(object.world_from_object, field + ".world_from_object", why) ||
-        !CheckFinite(object.posture_deg, 3, field + ".posture_deg", why)) {
-      return false;
-    }
-    if (!(object.visib_fract >= 0.0 && object.visib_fract <= 1.0)) {
-      return Refuse(field + ".visib_fract " + Number(object.visib_fract) + " outside [0, 1]", why);
-    }
-    if (object.px_count_visib < 0 || object.px_count_visib > object.px_count_all) {
-      return Refuse(field + ".px_count_visib " + std::to_string(object.px_count_visib) +
-                        " is not in 0..px_count_all (" + std::to_string(object.px_count_all) + ")",
-                    why);
-    }
-    // the whole silhouette may reach past the image's edges (bbox_obj and px_count_all count
-    // that part too); its mask holds the part in the image, all of it when bbox_obj lies inside
-    const bool whole_in_image = BoxInside(object.bbox_obj, width, height);
-    if (!CheckAmodalBox(object.bbox_obj, field + ".bbox_obj", width, height, why) ||
-        !CheckBox(object.bbox_visib, field + ".bbox_visib", width, height, why) ||
-        !CheckMask(object.mask_visib_rle, object.px_count_visib, area, field + ".mask_visib_rle",
-                   "px_count_visib", why) ||
-        !CheckMask(object.mask_obj_rle, object.px_count_all, area, field + ".mask_obj_rle",
-                   "px_count_all", why, !whole_in_image)) {
-      return false;
-    }
-    // the generator's label: annotated, ignored or neither; both need visible pixels
-    if (object.annotated && object.ignored) {
-      return Refuse(field + ".ignored and " + field + ".annotated are both true", why);
-    }
-    if ((object.annotated || object.ignored) && object.px_count_visib == 0) {
-      return Refuse(field + (object.annotated ? ".annotated" : ".ignored") +
-                        " is true but px_count_visib is 0",
-                    why);
-    }
+    if (!CheckInstance(object, field, width, height, why)) return false;
   }
   return true;
 }

@@ -26,16 +26,12 @@ void BoxOfMask(const cv::Mat& mask, int32_t box[4]) {
   if (rect.area() == 0) std::fill(box, box + 4, 0);
 }
 
-}  // namespace
-
-std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
-                                               const std::vector<cv::Mat>& silhouettes,
-                                               const std::vector<cv::Mat>& beyond,
-                                               const std::vector<ObjectTruth>& objects,
-                                               const Eigen::Isometry3d& world_from_camera,
-                                               double min_visib_fract, bool ignore_occluded,
-                                               int min_visible_px) {
-  // check the inputs agree
+// Throws unless the inputs agree: a CV_16UC1 instance map, a CV_8UC1 silhouette of its size per
+// object (and a larger beyond canvas, or none), instance ids 1..65535 once each, min_visib_fract
+// in [0, 1].
+void CheckLabelInputs(const cv::Mat& instance_map, const std::vector<cv::Mat>& silhouettes,
+                      const std::vector<cv::Mat>& beyond, const std::vector<ObjectTruth>& objects,
+                      double min_visib_fract) {
   if (instance_map.type() != CV_16UC1) {
     throw std::runtime_error("LabelInstances: instance_map must be CV_16UC1, got type " +
                              std::to_string(instance_map.type()));
@@ -81,6 +77,42 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
                                std::to_string(canvas.type()) + " of " + SizeText(canvas));
     }
   }
+}
+
+// Adds the part of an object's silhouette outside the image (`canvas`: the image of
+// `image_size` in the middle of a larger one; `outside` is scratch) to its px_count_all and
+// bbox_obj.
+void AddBeyond(const cv::Mat& canvas, const cv::Size& image_size, cv::Mat* outside,
+               stackgen::instance* label) {
+  const cv::Point image_corner((canvas.cols - image_size.width) / 2,
+                               (canvas.rows - image_size.height) / 2);
+  *outside = canvas.clone();
+  (*outside)(cv::Rect(image_corner, image_size)).setTo(0);
+  const int outside_pixels = cv::countNonZero(*outside);
+  if (outside_pixels > 0) {
+    cv::Rect box = cv::boundingRect(*outside) - image_corner;
+    if (label->px_count_all > 0) {
+      box |=
+          cv::Rect(label->bbox_obj[0], label->bbox_obj[1], label->bbox_obj[2], label->bbox_obj[3]);
+    }
+    label->px_count_all += outside_pixels;
+    label->bbox_obj[0] = box.x;
+    label->bbox_obj[1] = box.y;
+    label->bbox_obj[2] = box.width;
+    label->bbox_obj[3] = box.height;
+  }
+}
+
+}  // namespace
+
+std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
+                                               const std::vector<cv::Mat>& silhouettes,
+                                               const std::vector<cv::Mat>& beyond,
+                                               const std::vector<ObjectTruth>& objects,
+                                               const Eigen::Isometry3d& world_from_camera,
+                                               double min_visib_fract, bool ignore_occluded,
+                                               int min_visible_px) {
+  CheckLabelInputs(instance_map, silhouettes, beyond, objects, min_visib_fract);
 
   const Eigen::Isometry3d camera_from_world = world_from_camera.inverse();
   std::vector<stackgen::instance> instances;
@@ -105,23 +137,7 @@ std::vector<stackgen::instance> LabelInstances(const cv::Mat& instance_map,
     BoxOfMask(silhouettes[i], label.bbox_obj);
     label.mask_obj_rle = EncodeRle(silhouettes[i]);
     if (!beyond.empty() && !beyond[i].empty()) {
-      const cv::Point image_corner((beyond[i].cols - instance_map.cols) / 2,
-                                   (beyond[i].rows - instance_map.rows) / 2);
-      outside = beyond[i].clone();
-      outside(cv::Rect(image_corner, instance_map.size())).setTo(0);
-      const int outside_pixels = cv::countNonZero(outside);
-      if (outside_pixels > 0) {
-        cv::Rect box = cv::boundingRect(outside) - image_corner;
-        if (label.px_count_all > 0) {
-          box |=
-              cv::Rect(label.bbox_obj[0], label.bbox_obj[1], label.bbox_obj[2], label.bbox_obj[3]);
-        }
-        label.px_count_all += outside_pixels;
-        label.bbox_obj[0] = box.x;
-        label.bbox_obj[1] = box.y;
-        label.bbox_obj[2] = box.width;
-        label.bbox_obj[3] = box.height;
-      }
+      AddBeyond(beyond[i], instance_map.size(), &outside, &label);
     }
 
     // the visible part from the instance map

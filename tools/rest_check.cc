@@ -69,6 +69,68 @@ std::string FaceShares(const std::vector<std::map<int, int64_t>>& faces, bool se
   return text;
 }
 
+// What the parts of the piles did, summed over the piles.
+struct Tally {
+  std::vector<std::map<int, int64_t>> faces_before, faces_after;  // per type: face -> parts
+  std::vector<double> physics_ms, resettle_s;                     // per pile
+  stackgen::StageTimes redraws;
+  int64_t parts = 0, moved = 0, moved_far = 0, at_rest = 0, shifted = 0, turned = 0;
+  std::vector<double> shifts_mm, turns_deg;  // per part
+  double sank_mm = 0;
+};
+
+// What one pile's parts did between being published (`pile`) and strict rest (`again`).
+void Count(const stackgen::PileSimulator& simulator, const stackgen::SettledPile& pile,
+           const stackgen::PileResult& again, Tally* t) {
+  t->resettle_s.push_back(again.simulated_s);
+  t->at_rest += again.settled ? 1 : 0;
+  for (size_t i = 0; i < pile.object_types.size(); ++i) {
+    const int type = pile.object_types[i];
+    const Eigen::Isometry3d& before = pile.world_from_object[i];
+    const Eigen::Isometry3d& after = again.world_from_object[i];
+    const double moved_mm = (after.translation() - before.translation()).norm();
+    const double turned_deg =
+        Eigen::AngleAxisd(after.linear() * before.linear().transpose()).angle() * 180 / M_PI;
+    ++t->parts;
+    t->moved += moved_mm > 1 || turned_deg > 1 ? 1 : 0;
+    t->shifted += moved_mm > 1 ? 1 : 0;
+    t->turned += turned_deg > 1 ? 1 : 0;
+    t->shifts_mm.push_back(moved_mm);
+    t->turns_deg.push_back(turned_deg);
+    t->moved_far += moved_mm > 5 || turned_deg > 10 ? 1 : 0;
+    t->sank_mm += before.translation().z() - after.translation().z();
+    const auto& hull = simulator.hull_faces(type);
+    ++t->faces_before[type][stackgen::RestingFace(hull, before.linear())];
+    ++t->faces_after[type][stackgen::RestingFace(hull, after.linear())];
+  }
+}
+
+// Prints the tally of `count` piles (after the line's start, which names the config).
+void Print(const Tally& t, const stackgen::RestRule& rule, int64_t count, bool several_types) {
+  std::printf(
+      "%lld parts; physics %.1f ms per pile (median), %d drops redrawn (%d unsettled, %d "
+      "outside the bin, %d interpenetrating)\n",
+      static_cast<long long>(t.parts), Median(t.physics_ms), t.redraws.redraws,
+      t.redraws.redraws_unsettled, t.redraws.redraws_outside, t.redraws.redraws_penetrating);
+  std::printf(
+      "stackgen-rest-check: going on to strict rest (every part < %g mm and < %g deg over %g s, "
+      "at most %g s more): %lld of %lld piles came to rest, in %.2f s (median)\n",
+      rule.translation_mm, rule.rotation_deg, rule.window_s, rule.max_time_s,
+      static_cast<long long>(t.at_rest), static_cast<long long>(count), Median(t.resettle_s));
+  std::printf(
+      "stackgen-rest-check: parts that moved: %.1f %% (%lld) more than 1 mm or 1 deg "
+      "(%.1f %% more than 1 mm, %.1f %% more than 1 deg), %.1f %% (%lld) more than 5 mm or "
+      "10 deg; median %.2f mm and %.2f deg; the parts sank %.2f mm on average\n",
+      Percent(t.moved, t.parts), static_cast<long long>(t.moved), Percent(t.shifted, t.parts),
+      Percent(t.turned, t.parts), Percent(t.moved_far, t.parts),
+      static_cast<long long>(t.moved_far), Median(t.shifts_mm), Median(t.turns_deg),
+      t.parts > 0 ? t.sank_mm / t.parts : 0.0);
+  std::printf("stackgen-rest-check: resting faces as published: %s\n",
+              FaceShares(t.faces_before, several_types).c_str());
+  std::printf("stackgen-rest-check: resting faces at strict rest: %s\n",
+              FaceShares(t.faces_after, several_types).c_str());
+}
+
 int Run(int argc, char** argv) {
   std::string config_path = stackgen::DefaultConfigPath(STACKGEN_DEFAULT_CONFIG);
   int64_t count = 20, seed = 0;
@@ -107,20 +169,17 @@ int Run(int argc, char** argv) {
                                            cache_dir);
   const stackgen::PileSimulator& simulator = generator.simulator();
   const int types = config.config.part_size();
-  std::vector<std::map<int, int64_t>> faces_before(types), faces_after(types);
-  std::vector<double> physics_ms, resettle_s;
-  stackgen::StageTimes redraws;
-  int64_t parts = 0, moved = 0, moved_far = 0, at_rest = 0, shifted = 0, turned = 0;
-  std::vector<double> shifts_mm, turns_deg;
-  double sank_mm = 0;
+  Tally tally;
+  tally.faces_before.resize(types);
+  tally.faces_after.resize(types);
   stackgen::SettledPile pile;
   for (int64_t k = 0; k < count; ++k) {
     // the next pile as dropped (states after picks come from a fresh world: skipped)
     do {
       pile = pile.object_types.empty() && k == 0 ? generator.Settle(0) : generator.SettleNext(pile);
     } while (pile.level != 0);
-    physics_ms.push_back(pile.times.physics_ms);
-    redraws.Add(pile.times);
+    tally.physics_ms.push_back(pile.times.physics_ms);
+    tally.redraws.Add(pile.times);
     // the same drop again, and on in the same world
     stackgen::PileResult again;
     const stackgen::PileResult published =
@@ -131,56 +190,15 @@ int Run(int argc, char** argv) {
                                  ": its drop did not give the published pile again");
       }
     }
-    resettle_s.push_back(again.simulated_s);
-    at_rest += again.settled ? 1 : 0;
-    for (size_t i = 0; i < pile.object_types.size(); ++i) {
-      const int type = pile.object_types[i];
-      const Eigen::Isometry3d& before = pile.world_from_object[i];
-      const Eigen::Isometry3d& after = again.world_from_object[i];
-      const double moved_mm = (after.translation() - before.translation()).norm();
-      const double turned_deg =
-          Eigen::AngleAxisd(after.linear() * before.linear().transpose()).angle() * 180 / M_PI;
-      ++parts;
-      moved += moved_mm > 1 || turned_deg > 1 ? 1 : 0;
-      shifted += moved_mm > 1 ? 1 : 0;
-      turned += turned_deg > 1 ? 1 : 0;
-      shifts_mm.push_back(moved_mm);
-      turns_deg.push_back(turned_deg);
-      moved_far += moved_mm > 5 || turned_deg > 10 ? 1 : 0;
-      sank_mm += before.translation().z() - after.translation().z();
-      const auto& hull = simulator.hull_faces(type);
-      ++faces_before[type][stackgen::RestingFace(hull, before.linear())];
-      ++faces_after[type][stackgen::RestingFace(hull, after.linear())];
-    }
+    Count(simulator, pile, again, &tally);
     std::fprintf(stderr, "\rstackgen-rest-check: pile %lld of %lld", static_cast<long long>(k + 1),
                  static_cast<long long>(count));
   }
   std::fprintf(stderr, "\n");
 
-  std::printf(
-      "stackgen-rest-check: %s, seed %lld, generator %d: %lld piles, %lld parts; "
-      "physics %.1f ms per pile (median), %d drops redrawn (%d unsettled, %d outside the "
-      "bin, %d interpenetrating)\n",
-      config.path.c_str(), static_cast<long long>(seed), generator_id,
-      static_cast<long long>(count), static_cast<long long>(parts), Median(physics_ms),
-      redraws.redraws, redraws.redraws_unsettled, redraws.redraws_outside,
-      redraws.redraws_penetrating);
-  std::printf(
-      "stackgen-rest-check: going on to strict rest (every part < %g mm and < %g deg over %g s, "
-      "at most %g s more): %lld of %lld piles came to rest, in %.2f s (median)\n",
-      rule.translation_mm, rule.rotation_deg, rule.window_s, rule.max_time_s,
-      static_cast<long long>(at_rest), static_cast<long long>(count), Median(resettle_s));
-  std::printf(
-      "stackgen-rest-check: parts that moved: %.1f %% (%lld) more than 1 mm or 1 deg "
-      "(%.1f %% more than 1 mm, %.1f %% more than 1 deg), %.1f %% (%lld) more than 5 mm or "
-      "10 deg; median %.2f mm and %.2f deg; the parts sank %.2f mm on average\n",
-      Percent(moved, parts), static_cast<long long>(moved), Percent(shifted, parts),
-      Percent(turned, parts), Percent(moved_far, parts), static_cast<long long>(moved_far),
-      Median(shifts_mm), Median(turns_deg), parts > 0 ? sank_mm / parts : 0.0);
-  std::printf("stackgen-rest-check: resting faces as published: %s\n",
-              FaceShares(faces_before, types > 1).c_str());
-  std::printf("stackgen-rest-check: resting faces at strict rest: %s\n",
-              FaceShares(faces_after, types > 1).c_str());
+  std::printf("stackgen-rest-check: %s, seed %lld, generator %d: %lld piles, ", config.path.c_str(),
+              static_cast<long long>(seed), generator_id, static_cast<long long>(count));
+  Print(tally, rule, count, types > 1);
   return 0;
 }
 

@@ -103,6 +103,68 @@ double Statistic(const Pooled& pooled, const std::vector<uint8_t>& group) {
   return pooled.kind == Kind::kCircle ? above + under : std::max(above, under);
 }
 
+// A measure's pooled values (value, pooled scene) of `kind` over `scenes` scenes, ready for
+// Statistic: per-scene counts of each category, or the scenes of the sorted values and their ties.
+Pooled Pool(std::vector<std::pair<double, int32_t>> values, Kind kind, int scenes) {
+  Pooled pooled;
+  pooled.kind = kind;
+  pooled.values_of_scene.assign(scenes, 0);
+  for (const auto& [value, scene] : values) ++pooled.values_of_scene[scene];
+  if (kind == Kind::kCategory) {
+    for (const auto& [value, scene] : values) {
+      pooled.categories = std::max(pooled.categories, static_cast<int>(value) + 1);
+    }
+    pooled.counts.assign(static_cast<size_t>(scenes) * pooled.categories, 0);
+    for (const auto& [value, scene] : values) {
+      ++pooled.counts[static_cast<size_t>(scene) * pooled.categories + static_cast<int>(value)];
+    }
+  } else {
+    std::sort(values.begin(), values.end());
+    for (size_t k = 0; k < values.size(); ++k) {
+      pooled.scene_of_value.push_back(values[k].second);
+      pooled.tie_end.push_back(k + 1 == values.size() || values[k + 1].first != values[k].first);
+    }
+  }
+  return pooled;
+}
+
+// How many categories of a category measure occur at all.
+int UsedCategories(const Pooled& pooled) {
+  const int scenes = static_cast<int>(pooled.values_of_scene.size());
+  int used = 0;
+  for (int c = 0; c < pooled.categories; ++c) {
+    int64_t total = 0;
+    for (int s = 0; s < scenes; ++s) {
+      total += pooled.counts[static_cast<size_t>(s) * pooled.categories + c];
+    }
+    used += total > 0 ? 1 : 0;
+  }
+  return used;
+}
+
+// For each measure, how many of options.permutations random reassignments of whole scenes
+// (piles_a to A, the rest to B; the same reassignments for every measure) give a statistic at
+// least the observed one (tests[m].value).
+std::vector<int64_t> CountAtLeast(const std::vector<Pooled>& measures,
+                                  const std::vector<PileTest>& tests, int64_t piles_a,
+                                  const PileOptions& options) {
+  const int scenes = measures.empty() ? 0 : static_cast<int>(measures[0].values_of_scene.size());
+  std::mt19937_64 engine(options.seed);
+  std::vector<int32_t> order(scenes);
+  std::iota(order.begin(), order.end(), 0);
+  std::vector<int64_t> at_least(measures.size(), 0);
+  std::vector<uint8_t> permuted(scenes);
+  for (int k = 0; k < options.permutations; ++k) {
+    std::shuffle(order.begin(), order.end(), engine);
+    for (int s = 0; s < scenes; ++s) permuted[order[s]] = s < piles_a ? 0 : 1;
+    for (size_t m = 0; m < measures.size(); ++m) {
+      const double observed = tests[m].value;
+      if (Statistic(measures[m], permuted) >= observed * (1.0 - kTieTolerance)) ++at_least[m];
+    }
+  }
+  return at_least;
+}
+
 }  // namespace
 
 std::vector<double> HolmAdjust(const std::vector<double>& p) {
@@ -174,25 +236,7 @@ PileComparison ComparePiles(const Dataset& a, const Dataset& b, const PileOption
                                     " does not give it");
       continue;
     }
-    Pooled pooled;
-    pooled.kind = measure.kind;
-    pooled.values_of_scene.assign(scenes, 0);
-    for (const auto& [value, scene] : values) ++pooled.values_of_scene[scene];
-    if (measure.kind == Kind::kCategory) {
-      for (const auto& [value, scene] : values) {
-        pooled.categories = std::max(pooled.categories, static_cast<int>(value) + 1);
-      }
-      pooled.counts.assign(static_cast<size_t>(scenes) * pooled.categories, 0);
-      for (const auto& [value, scene] : values) {
-        ++pooled.counts[static_cast<size_t>(scene) * pooled.categories + static_cast<int>(value)];
-      }
-    } else {
-      std::sort(values.begin(), values.end());
-      for (size_t k = 0; k < values.size(); ++k) {
-        pooled.scene_of_value.push_back(values[k].second);
-        pooled.tie_end.push_back(k + 1 == values.size() || values[k + 1].first != values[k].first);
-      }
-    }
+    Pooled pooled = Pool(values, measure.kind, scenes);
     PileTest test;
     test.name = measure.name;
     test.statistic =
@@ -200,35 +244,14 @@ PileComparison ComparePiles(const Dataset& a, const Dataset& b, const PileOption
     test.value = Statistic(pooled, group);
     test.n1 = n[0];
     test.n2 = n[1];
-    if (measure.kind == Kind::kCategory) {
-      int used = 0;
-      for (int c = 0; c < pooled.categories; ++c) {
-        int64_t total = 0;
-        for (int s = 0; s < scenes; ++s) {
-          total += pooled.counts[static_cast<size_t>(s) * pooled.categories + c];
-        }
-        used += total > 0 ? 1 : 0;
-      }
-      test.dof = std::max(0, used - 1);
-    }
+    if (measure.kind == Kind::kCategory) test.dof = std::max(0, UsedCategories(pooled) - 1);
     comparison.tests.push_back(test);
     measures.push_back(std::move(pooled));
   }
 
   // the same permutations of whole scenes for every measure
-  std::mt19937_64 engine(options.seed);
-  std::vector<int32_t> order(scenes);
-  std::iota(order.begin(), order.end(), 0);
-  std::vector<int64_t> at_least(measures.size(), 0);
-  std::vector<uint8_t> permuted(scenes);
-  for (int k = 0; k < options.permutations; ++k) {
-    std::shuffle(order.begin(), order.end(), engine);
-    for (int s = 0; s < scenes; ++s) permuted[order[s]] = s < comparison.piles_a ? 0 : 1;
-    for (size_t m = 0; m < measures.size(); ++m) {
-      const double observed = comparison.tests[m].value;
-      if (Statistic(measures[m], permuted) >= observed * (1.0 - kTieTolerance)) ++at_least[m];
-    }
-  }
+  const std::vector<int64_t> at_least =
+      CountAtLeast(measures, comparison.tests, comparison.piles_a, options);
 
   // p-values, corrected for the family
   std::vector<double> p;

@@ -284,6 +284,68 @@ std::vector<std::vector<Eigen::Vector3d>> Decompose(const TriangleMesh& part,
   return PruneContainedPieces(std::move(pieces), extent);
 }
 
+// Supplied collision pieces, checked: together they must span the part's box `part_box`, and
+// each must have volume.
+ConvexPieces SuppliedPieces(const std::vector<TriangleMesh>& supplied,
+                            const Eigen::AlignedBox3d& part_box) {
+  const double extent = part_box.sizes().maxCoeff();
+  ConvexPieces result;
+  Eigen::AlignedBox3d pieces_box;
+  for (const auto& piece : supplied) {
+    std::vector<Eigen::Vector3d> points;
+    for (const auto& p : piece.positions_mm) {
+      points.push_back(p.cast<double>());
+      pieces_box.extend(points.back());
+    }
+    result.points_mm.push_back(std::move(points));
+  }
+  const double tolerance = 0.1 * extent;
+  if ((pieces_box.min() - part_box.min()).cwiseAbs().maxCoeff() > tolerance ||
+      (pieces_box.max() - part_box.max()).cwiseAbs().maxCoeff() > tolerance) {
+    throw std::runtime_error("the collision pieces span " + FormatBox(pieces_box) +
+                             " but the part spans " + FormatBox(part_box) +
+                             "; are they in the part's units and frame?");
+  }
+  for (size_t i = 0; i < result.points_mm.size(); ++i) {
+    if (!(ConvexHullVolume(result.points_mm[i]) > 1e-6 * extent * extent * extent)) {
+      throw std::runtime_error("collision piece " + std::to_string(i) +
+                               " is flat (its hull has no volume)");
+    }
+  }
+  result.description =
+      "compound of " + std::to_string(supplied.size()) + " convex pieces (supplied)";
+  return result;
+}
+
+// The hull of a finely tessellated convex part from one point per cell of a grid (each Bullet
+// contact test walks every hull vertex), coarser until small enough; the hull moves by at most
+// a cell's diagonal. `extent`: the part's largest side, mm.
+ConvexPieces SimplifiedHull(const Hull& hull, double extent) {
+  ConvexPieces result;
+  for (int cells = 64; cells >= 4; cells /= 2) {
+    const double cell = extent / cells;
+    std::map<std::array<int64_t, 3>, Eigen::Vector3d> representative;
+    for (const Eigen::Vector3d& v : hull.vertices) {
+      const std::array<int64_t, 3> key = {static_cast<int64_t>(std::floor(v.x() / cell)),
+                                          static_cast<int64_t>(std::floor(v.y() / cell)),
+                                          static_cast<int64_t>(std::floor(v.z() / cell))};
+      representative.emplace(key, v);
+    }
+    std::vector<Eigen::Vector3d> points;
+    for (const auto& [key, v] : representative) points.push_back(v);
+    const Hull coarse = ComputeHull(points);
+    if (static_cast<int>(coarse.vertices.size()) <= kMaxHullVertices || cells == 4) {
+      result.points_mm.push_back(coarse.vertices);
+      std::ostringstream text;
+      text << "convex hull (" << coarse.vertices.size() << " vertices, simplified from "
+           << hull.vertices.size() << " on a " << cell << " mm grid)";
+      result.description = text.str();
+      return result;
+    }
+  }
+  return result;  // unreachable: the coarsest grid always returns
+}
+
 }  // namespace
 
 double ConvexHullVolume(const std::vector<Eigen::Vector3d>& points) {
@@ -298,33 +360,7 @@ ConvexPieces MakeConvexPieces(const TriangleMesh& part, const std::vector<Triang
   ConvexPieces result;
 
   // supplied pieces: together they must span the part, each must have volume
-  if (!supplied.empty()) {
-    Eigen::AlignedBox3d pieces_box;
-    for (const auto& piece : supplied) {
-      std::vector<Eigen::Vector3d> points;
-      for (const auto& p : piece.positions_mm) {
-        points.push_back(p.cast<double>());
-        pieces_box.extend(points.back());
-      }
-      result.points_mm.push_back(std::move(points));
-    }
-    const double tolerance = 0.1 * extent;
-    if ((pieces_box.min() - part_box.min()).cwiseAbs().maxCoeff() > tolerance ||
-        (pieces_box.max() - part_box.max()).cwiseAbs().maxCoeff() > tolerance) {
-      throw std::runtime_error("the collision pieces span " + FormatBox(pieces_box) +
-                               " but the part spans " + FormatBox(part_box) +
-                               "; are they in the part's units and frame?");
-    }
-    for (size_t i = 0; i < result.points_mm.size(); ++i) {
-      if (!(ConvexHullVolume(result.points_mm[i]) > 1e-6 * extent * extent * extent)) {
-        throw std::runtime_error("collision piece " + std::to_string(i) +
-                                 " is flat (its hull has no volume)");
-      }
-    }
-    result.description =
-        "compound of " + std::to_string(supplied.size()) + " convex pieces (supplied)";
-    return result;
-  }
+  if (!supplied.empty()) return SuppliedPieces(supplied, part_box);
 
   // a convex part is its own hull
   std::vector<Eigen::Vector3d> all_points;
@@ -337,30 +373,8 @@ ConvexPieces MakeConvexPieces(const TriangleMesh& part, const std::vector<Triang
       result.description = "convex hull (" + std::to_string(hull.vertices.size()) + " vertices)";
       return result;
     }
-    // a finely tessellated convex part: its hull from one point per cell of a grid (each
-    // Bullet contact test walks every hull vertex), coarser until small enough; the hull moves
-    // by at most a cell's diagonal
-    for (int cells = 64; cells >= 4; cells /= 2) {
-      const double cell = extent / cells;
-      std::map<std::array<int64_t, 3>, Eigen::Vector3d> representative;
-      for (const Eigen::Vector3d& v : hull.vertices) {
-        const std::array<int64_t, 3> key = {static_cast<int64_t>(std::floor(v.x() / cell)),
-                                            static_cast<int64_t>(std::floor(v.y() / cell)),
-                                            static_cast<int64_t>(std::floor(v.z() / cell))};
-        representative.emplace(key, v);
-      }
-      std::vector<Eigen::Vector3d> points;
-      for (const auto& [key, v] : representative) points.push_back(v);
-      const Hull coarse = ComputeHull(points);
-      if (static_cast<int>(coarse.vertices.size()) <= kMaxHullVertices || cells == 4) {
-        result.points_mm.push_back(coarse.vertices);
-        std::ostringstream text;
-        text << "convex hull (" << coarse.vertices.size() << " vertices, simplified from "
-             << hull.vertices.size() << " on a " << cell << " mm grid)";
-        result.description = text.str();
-        return result;
-      }
-    }
+    // a finely tessellated convex part: a simpler hull
+    return SimplifiedHull(hull, extent);
   }
 
   // a mesh this large takes HACD far too long (minutes and more, with no way to stop it)

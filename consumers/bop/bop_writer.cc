@@ -396,47 +396,22 @@ void BopWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64_
 void BopWriter::CleanFolders(const std::set<std::string>& journaled_files) const {
   const fs::path root(dir_);
   size_t present = 0;
-  std::error_code error;
   const auto clean = [&](const fs::path& folder, bool images) {
-    for (fs::directory_iterator it(folder, error), end; !error && it != end; it.increment(error)) {
-      std::error_code type_error;
-      if (!it->is_regular_file(type_error)) continue;
-      const std::string name = it->path().filename().string();
-      const std::string relative = fs::relative(it->path(), root).string();
-      if (journaled_files.count(relative) != 0) {
-        ++present;
-        continue;
-      }
-      // temporary files, and with resume image files no journal line names (an Add that never
-      // completed wrote them)
-      if ((IsTemporaryFile(name) || (images && IsImageFileName(name))) &&
-          unlink(it->path().c_str()) != 0) {
-        throw SystemError("cannot remove", it->path().string(), errno);
-      }
-    }
-    error.clear();
+    present += CleanUnrecorded(root, folder, journaled_files, images, IsImageFileName);
   };
   clean(root, false);
   clean(root / kModelsFolder, false);
   clean(root / kShardsFolder, false);
   const fs::path split = root / options_.split;
+  std::error_code error;
   for (fs::directory_iterator chunk(split, error), end; !error && chunk != end;
        chunk.increment(error)) {
     std::error_code type_error;
     if (!chunk->is_directory(type_error)) continue;
-    std::error_code inner;
     clean(chunk->path(), false);
     for (const char* images : kImageFolders) clean(chunk->path() / images, options_.resume);
   }
-  // every journaled file is there
-  if (present < journaled_files.size()) {
-    for (const std::string& name : journaled_files) {
-      if (!fs::exists(root / name, error)) {
-        throw std::runtime_error((root / name).string() + " is missing, though " +
-                                 journal_->path() + " records it (the dataset is damaged)");
-      }
-    }
-  }
+  CheckRecordedFiles(root, journaled_files, present, journal_->path());
 }
 
 void BopWriter::Index(const Entry& entry) {

@@ -386,35 +386,9 @@ void CocoWriter::LoadJournalLine(const std::string& line, uint64_t offset, int64
 
 void CocoWriter::CleanImagesFolder(const std::set<std::string>& journaled_images) const {
   const fs::path images = fs::path(dir_) / kImagesFolder;
-  size_t present = 0;
-  std::error_code error;
-  for (fs::directory_iterator it(images, error), end; !error && it != end; it.increment(error)) {
-    const std::string name = it->path().filename().string();
-    if (journaled_images.count(name) != 0) {
-      ++present;
-      continue;
-    }
-    // temporary files, and with resume image files no journal line names (an Add that never
-    // completed wrote them)
-    std::error_code type_error;
-    if (!it->is_regular_file(type_error)) continue;
-    const bool temporary = IsTemporaryFile(name);
-    if ((temporary || (options_.resume && IsImageFileName(name))) &&
-        unlink(it->path().c_str()) != 0) {
-      throw SystemError("cannot remove", it->path().string(), errno);
-    }
-  }
-  if (error) throw std::runtime_error("cannot read " + images.string() + ": " + error.message());
-
-  // every journaled scene has its image
-  if (present < journaled_images.size()) {
-    for (const std::string& name : journaled_images) {
-      if (!fs::exists(images / name, error)) {
-        throw std::runtime_error((images / name).string() + " is missing, though " + journal_path_ +
-                                 " records it (the dataset is damaged)");
-      }
-    }
-  }
+  const size_t present =
+      CleanUnrecorded(images, images, journaled_images, options_.resume, IsImageFileName);
+  CheckRecordedFiles(images, journaled_images, present, journal_path_);
 }
 
 void CocoWriter::Index(const JournalEntry& entry, const SceneCounts& counts) {

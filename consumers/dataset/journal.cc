@@ -6,6 +6,7 @@
 
 #include <cerrno>
 #include <cstring>
+#include <filesystem>
 #include <stdexcept>
 #include <vector>
 
@@ -116,6 +117,42 @@ uint64_t CommitGroup(Journal* journal, const std::vector<std::string>& lines,
       for (const std::string& path : files) unlink(path.c_str());
     }
     throw;
+  }
+}
+
+size_t CleanUnrecorded(const std::filesystem::path& root, const std::filesystem::path& folder,
+                       const std::set<std::string>& recorded, bool remove_unrecorded,
+                       const std::function<bool(const std::string& name)>& is_ours) {
+  namespace fs = std::filesystem;
+  std::error_code error;
+  if (!fs::is_directory(folder, error)) return 0;
+  size_t present = 0;
+  for (fs::directory_iterator it(folder, error), end; !error && it != end; it.increment(error)) {
+    std::error_code type_error;
+    if (!it->is_regular_file(type_error)) continue;
+    const std::string name = it->path().filename().string();
+    if (recorded.count(it->path().lexically_relative(root).string()) != 0) {
+      ++present;
+      continue;
+    }
+    if ((IsTemporaryFile(name) || (remove_unrecorded && is_ours(name))) &&
+        unlink(it->path().c_str()) != 0) {
+      throw SystemError("cannot remove", it->path().string(), errno);
+    }
+  }
+  if (error) throw std::runtime_error("cannot read " + folder.string() + ": " + error.message());
+  return present;
+}
+
+void CheckRecordedFiles(const std::filesystem::path& root, const std::set<std::string>& recorded,
+                        size_t present, const std::string& journal_path) {
+  if (present >= recorded.size()) return;
+  std::error_code error;
+  for (const std::string& name : recorded) {
+    if (!std::filesystem::exists(root / name, error)) {
+      throw std::runtime_error((root / name).string() + " is missing, though " + journal_path +
+                               " records it (the dataset is damaged)");
+    }
   }
 }
 

@@ -2,8 +2,11 @@
 // The durable record of a dataset writer: a file of lines, one per scene stored, each complete
 // once its '\n' is written and synced. A crash can leave a torn last line only; Load cuts it off.
 
+#include <cstddef>
 #include <cstdint>
+#include <filesystem>
 #include <functional>
+#include <set>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -62,5 +65,20 @@ class Journal {
 uint64_t CommitGroup(Journal* journal, const std::vector<std::string>& lines,
                      const std::vector<std::string>& files, bool sync_files,
                      const std::string& files_name);
+
+/// Opening a dataset again: clears what an interrupted run left in `folder` (nothing if the
+/// folder is missing): temporary files (IsTemporaryFile), and with `remove_unrecorded` the files
+/// `is_ours` accepts that `recorded` (paths relative to `root`, as the journal names them) does
+/// not name: an Add that never completed wrote them. Returns how many files of `recorded` it
+/// found in `folder`. Throws naming a file it cannot remove, or the folder if it cannot read it.
+size_t CleanUnrecorded(const std::filesystem::path& root, const std::filesystem::path& folder,
+                       const std::set<std::string>& recorded, bool remove_unrecorded,
+                       const std::function<bool(const std::string& name)>& is_ours);
+
+/// Throws unless every file `recorded` names (relative to `root`) is there ("... is missing,
+/// though JOURNAL records it (the dataset is damaged)"); `present`: how many CleanUnrecorded
+/// found, so that nothing is looked up when all were.
+void CheckRecordedFiles(const std::filesystem::path& root, const std::set<std::string>& recorded,
+                        size_t present, const std::string& journal_path);
 
 }  // namespace stackgen

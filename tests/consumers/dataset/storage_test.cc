@@ -12,6 +12,7 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <set>
 #include <sstream>
 #include <string>
 #include <utility>
@@ -173,6 +174,43 @@ TEST(JournalTest, StartedDatasetErrorSaysWhatToDo) {
   EXPECT_EQ(std::string(DatasetStartedError("/d/annotations.journal").what()),
             "/d/annotations.journal already exists (a dataset was started here); will not "
             "overwrite it (use --resume to continue it, or choose another output folder)");
+}
+
+// opening a dataset again: temporary files go; with remove_unrecorded, the writer's own files
+// that no journal line names go too (other files stay); recorded files are counted, and one
+// missing is named with the journal
+TEST(JournalTest, ReopeningCleansWhatNoLineRecords) {
+  testing::ScratchDir scratch("reopen");
+  const fs::path root = scratch.path();
+  const fs::path images = root / "chunk" / "rgb";
+  fs::create_directories(images);
+  for (const char* name : {"000000.png", "000001.png", "000002.png.tmp", "notes.txt"}) {
+    std::ofstream(images / name) << "x";
+  }
+  const std::set<std::string> recorded = {"chunk/rgb/000000.png"};
+  const auto png = [](const std::string& name) { return fs::path(name).extension() == ".png"; };
+  const auto names = [&] {
+    std::set<std::string> found;
+    for (const auto& entry : fs::directory_iterator(images)) {
+      found.insert(entry.path().filename().string());
+    }
+    return found;
+  };
+  EXPECT_EQ(CleanUnrecorded(root, images, recorded, false, png), 1u);
+  EXPECT_EQ(names(), (std::set<std::string>{"000000.png", "000001.png", "notes.txt"}));
+  EXPECT_EQ(CleanUnrecorded(root, images, recorded, true, png), 1u);
+  EXPECT_EQ(names(), (std::set<std::string>{"000000.png", "notes.txt"}));
+  EXPECT_EQ(CleanUnrecorded(root, root / "missing", recorded, true, png), 0u);
+  EXPECT_NO_THROW(CheckRecordedFiles(root, recorded, 1, "j"));
+  const std::set<std::string> more = {"chunk/rgb/000000.png", "chunk/rgb/000009.png"};
+  try {
+    CheckRecordedFiles(root, more, 1, "/d/bop.journal");
+    ADD_FAILURE() << "a missing recorded file was not found out";
+  } catch (const std::runtime_error& error) {
+    EXPECT_EQ(std::string(error.what()),
+              (root / "chunk/rgb/000009.png").string() +
+                  " is missing, though /d/bop.journal records it (the dataset is damaged)");
+  }
 }
 
 // a file is the old one or the whole new one, never a part; what fails leaves no .tmp behind

@@ -455,13 +455,7 @@ bool BopWriter::Add(const scene& scene) {
   const int64_t scene_id = SceneId(generator_id, seq);
   const int64_t im_id = ImageId(seq);
   const auto key = std::make_pair(scene_id, im_id);
-  std::optional<int64_t> seen_seed;
-  if (const auto stored = index_.find(key); stored != index_.end()) {
-    seen_seed = stored->second.seed;
-  } else if (const auto staged = staged_seeds_.find(key); staged != staged_seeds_.end()) {
-    seen_seed = staged->second;
-  }
-  if (IsRepeat(scene, seen_seed)) return false;
+  if (IsRepeat(scene, SeenSeed(index_, staged_seeds_, key))) return false;
   Validate(scene);
 
   // the images, decoded whole: a PNG or JPEG is checked before it is stored

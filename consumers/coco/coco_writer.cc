@@ -509,13 +509,7 @@ bool CocoWriter::Add(const stackgen::scene& scene) {
   // store each (generator_id, seq) once; the same ids with another seed come from another run
   CheckSceneIds(scene);
   const int64_t image_id = ImageId(scene.header.generator_id, scene.header.seq);
-  std::optional<int64_t> seen_seed;
-  if (const auto stored = index_.find(image_id); stored != index_.end()) {
-    seen_seed = stored->second.seed;
-  } else if (const auto staged = staged_seeds_.find(image_id); staged != staged_seeds_.end()) {
-    seen_seed = staged->second;
-  }
-  if (IsRepeat(scene, seen_seed)) return false;
+  if (IsRepeat(scene, SeenSeed(index_, staged_seeds_, image_id))) return false;
   Validate(scene);
 
   // the image record

@@ -71,6 +71,14 @@ void CheckSceneIds(const scene& scene);
 /// (none stored or staged: std::nullopt): true means store nothing. Throws InvalidSceneError when
 /// the seeds differ: another run with the same --generator-id.
 bool IsRepeat(const scene& scene, std::optional<int64_t> seen_seed);
+/// The seed the scene with `key` was stored with (`stored`: key -> an entry with a `seed`) or
+/// staged with (`staged`: key -> seed), for IsRepeat; std::nullopt when it is neither.
+template <typename Stored, typename Staged, typename Key>
+std::optional<int64_t> SeenSeed(const Stored& stored, const Staged& staged, const Key& key) {
+  if (const auto found = stored.find(key); found != stored.end()) return found->second.seed;
+  if (const auto found = staged.find(key); found != staged.end()) return found->second;
+  return std::nullopt;
+}
 
 /// Whether `text` is valid UTF-8, as the JSON files of a dataset must be (class names come from
 /// the bus).

@@ -1,5 +1,7 @@
 #include "consumers/dataset/dataset_sink.h"
 
+#include <map>
+#include <optional>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -37,6 +39,19 @@ TEST(DatasetSinkTest, IdsAndRepeats) {
               "scene 3/7: header.seed 12 differs from the stored scene's 11: another run with the "
               "same --generator-id (give each run its own id, or write it to another --out)");
   }
+}
+
+// the seed a scene was stored with comes first, then the one it was staged with
+TEST(DatasetSinkTest, SeenSeedLooksInStoredThenStaged) {
+  struct Entry {
+    int64_t seed;
+  };
+  const std::map<int64_t, Entry> stored = {{1, {5}}, {2, {6}}};
+  const std::map<int64_t, int64_t> staged = {{2, 8}, {3, 7}};
+  EXPECT_EQ(SeenSeed(stored, staged, int64_t{1}), std::optional<int64_t>(5));
+  EXPECT_EQ(SeenSeed(stored, staged, int64_t{2}), std::optional<int64_t>(6));
+  EXPECT_EQ(SeenSeed(stored, staged, int64_t{3}), std::optional<int64_t>(7));
+  EXPECT_EQ(SeenSeed(stored, staged, int64_t{4}), std::nullopt);
 }
 
 TEST(DatasetSinkTest, LostBetweenCountsTheGaps) {

@@ -116,6 +116,64 @@ const json& ImageRecords(const json& records, const std::string& key, const std:
   return *found;
 }
 
+// Each ground truth's visib_fract and px_count_visib, from the scene's scene_gt_info.json
+// (`keys`: each image id's key in the files).
+void ReadVisibility(const std::string& folder, const std::map<int64_t, std::string>& keys,
+                    BopScene* scene) {
+  const fs::path dir(folder);
+  const json info = ReadObjectFile(dir / "scene_gt_info.json");
+  for (BopImage& image : scene->images) {
+    const json& records =
+        ImageRecords(info, keys.at(image.im_id), folder, "scene_gt_info.json", image.im_id);
+    if (records.size() != image.ground_truths.size()) {
+      throw std::runtime_error(BopRecordName(folder, "scene_gt_info.json", image.im_id) + " has " +
+                               std::to_string(records.size()) + " ground truths, scene_gt.json " +
+                               std::to_string(image.ground_truths.size()));
+    }
+    for (size_t k = 0; k < records.size(); ++k) {
+      const std::string where =
+          BopRecordName(folder, "scene_gt_info.json", image.im_id, static_cast<int64_t>(k));
+      const auto found = records[k].find("visib_fract");
+      if (found == records[k].end() || !found->is_number()) {
+        throw std::runtime_error(where + ": visib_fract is missing or not a number");
+      }
+      const double visib_fract = found->get<double>();
+      if (!(visib_fract >= 0.0 && visib_fract <= 1.0)) {
+        throw std::runtime_error(where + ": visib_fract " + found->dump() + " is outside 0..1");
+      }
+      image.ground_truths[k].visib_fract = visib_fract;
+      const int64_t px_count_visib = ReadInteger(records[k], "px_count_visib", where);
+      if (px_count_visib < 0) {
+        throw std::runtime_error(where + ": px_count_visib " + std::to_string(px_count_visib) +
+                                 " is negative");
+      }
+      image.ground_truths[k].px_count_visib = px_count_visib;
+    }
+  }
+}
+
+// The class names of the scene's COCO file `coco_path` (scene_gt_coco.json), if it is there.
+void ReadClassNames(const fs::path& coco_path, BopScene* scene) {
+  std::error_code error;
+  if (!fs::exists(coco_path, error)) return;
+  const json coco = ReadObjectFile(coco_path);
+  const auto categories = coco.find("categories");
+  if (categories == coco.end() || !categories->is_array()) {
+    throw std::runtime_error(coco_path.string() + ": categories is missing or not a list");
+  }
+  for (size_t k = 0; k < categories->size(); ++k) {
+    const json& category = (*categories)[k];
+    const std::string where = coco_path.string() + ": categories[" + std::to_string(k) + "]";
+    if (!category.is_object()) throw std::runtime_error(where + " is not a JSON object");
+    const int64_t id = ReadInteger(category, "id", where);
+    const auto name = category.find("name");
+    if (name == category.end() || !name->is_string()) {
+      throw std::runtime_error(where + ": name is missing or not a string");
+    }
+    scene->class_names[id] = name->get<std::string>();
+  }
+}
+
 }  // namespace
 
 std::string BopRecordName(const std::string& folder, const std::string& file, int64_t im_id,
@@ -224,60 +282,10 @@ BopScene ReadBopScene(int64_t scene_id, const std::string& folder, const BopScen
   }
 
   // how much of every ground truth shows
-  if (files.info) {
-    const json info = ReadObjectFile(dir / "scene_gt_info.json");
-    for (BopImage& image : scene.images) {
-      const json& records =
-          ImageRecords(info, keys.at(image.im_id), folder, "scene_gt_info.json", image.im_id);
-      if (records.size() != image.ground_truths.size()) {
-        throw std::runtime_error(BopRecordName(folder, "scene_gt_info.json", image.im_id) +
-                                 " has " + std::to_string(records.size()) +
-                                 " ground truths, scene_gt.json " +
-                                 std::to_string(image.ground_truths.size()));
-      }
-      for (size_t k = 0; k < records.size(); ++k) {
-        const std::string where =
-            BopRecordName(folder, "scene_gt_info.json", image.im_id, static_cast<int64_t>(k));
-        const auto found = records[k].find("visib_fract");
-        if (found == records[k].end() || !found->is_number()) {
-          throw std::runtime_error(where + ": visib_fract is missing or not a number");
-        }
-        const double visib_fract = found->get<double>();
-        if (!(visib_fract >= 0.0 && visib_fract <= 1.0)) {
-          throw std::runtime_error(where + ": visib_fract " + found->dump() + " is outside 0..1");
-        }
-        image.ground_truths[k].visib_fract = visib_fract;
-        const int64_t px_count_visib = ReadInteger(records[k], "px_count_visib", where);
-        if (px_count_visib < 0) {
-          throw std::runtime_error(where + ": px_count_visib " + std::to_string(px_count_visib) +
-                                   " is negative");
-        }
-        image.ground_truths[k].px_count_visib = px_count_visib;
-      }
-    }
-  }
+  if (files.info) ReadVisibility(folder, keys, &scene);
 
   // the class names, when the COCO file is there
-  std::error_code error;
-  const fs::path coco_path = dir / "scene_gt_coco.json";
-  if (files.class_names && fs::exists(coco_path, error)) {
-    const json coco = ReadObjectFile(coco_path);
-    const auto categories = coco.find("categories");
-    if (categories == coco.end() || !categories->is_array()) {
-      throw std::runtime_error(coco_path.string() + ": categories is missing or not a list");
-    }
-    for (size_t k = 0; k < categories->size(); ++k) {
-      const json& category = (*categories)[k];
-      const std::string where = coco_path.string() + ": categories[" + std::to_string(k) + "]";
-      if (!category.is_object()) throw std::runtime_error(where + " is not a JSON object");
-      const int64_t id = ReadInteger(category, "id", where);
-      const auto name = category.find("name");
-      if (name == category.end() || !name->is_string()) {
-        throw std::runtime_error(where + ": name is missing or not a string");
-      }
-      scene.class_names[id] = name->get<std::string>();
-    }
-  }
+  if (files.class_names) ReadClassNames(dir / "scene_gt_coco.json", &scene);
   return scene;
 }
 

@@ -319,6 +319,12 @@ struct Renderer::Impl {
   void CompositeBackground(const RenderOptions& options, RenderResult* result);
   void RenderPbr(const CameraModel& camera, const RenderOptions& options,
                  const std::vector<DrawItem>& items, RenderResult* result);
+  // RenderPbr with MSAA: the surface each of `samples` samples sees (a cheap multisampled pass),
+  // resolved four to a texel into sample_surfaces, each centre's surface into centre_surfaces,
+  // and the sample positions into `positions` (2 per sample); leaves the shaded framebuffer bound
+  void ReadSampleSurfaces(const CameraModel& camera, const std::vector<DrawItem>& items,
+                          int samples, const Eigen::Isometry3d& camera_from_world,
+                          GLfloat* positions);
   // Render's parts: its options checked (max_samples and description: the GL's, for PBR), the
   // lights and shadow maps set for the frame, and the Blinn-Phong pass read back
   void CheckOptions(const CameraModel& camera, const std::vector<Light>& lights,

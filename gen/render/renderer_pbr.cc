@@ -330,6 +330,49 @@ void Renderer::Impl::CompositeBackground(const RenderOptions& options, RenderRes
   }
 }
 
+void Renderer::Impl::ReadSampleSurfaces(const CameraModel& camera,
+                                        const std::vector<DrawItem>& items, int samples,
+                                        const Eigen::Isometry3d& camera_from_world,
+                                        GLfloat* positions) {
+  const GLuint zero_id[4] = {0, 0, 0, 0};
+  const GLfloat far_depth = 1;
+  // the surface each sample sees: a cheap multisampled pass
+  glBindFramebuffer(GL_FRAMEBUFFER, coverage_framebuffer);
+  glClearBufferuiv(GL_COLOR, 0, zero_id);
+  glClearBufferfv(GL_DEPTH, 0, &far_depth);
+  glUseProgram(coverage_program);
+  SetProjection(coverage_projection, camera);
+  for (const auto& [z, index] : draw_order) {
+    const DrawItem& item = items[index];
+    SetCameraFromObject(coverage_projection, camera_from_world, item);
+    glUniform1ui(coverage_surface_id, static_cast<GLuint>(index + 1));
+    Draw(meshes[item.mesh_id]);
+  }
+
+  // the samples' surfaces, four to a texel, read back with the centres' colours and surfaces
+  for (int k = 0; k < samples; ++k) glGetMultisamplefv(GL_SAMPLE_POSITION, k, positions + 2 * k);
+  glBindFramebuffer(GL_FRAMEBUFFER, resolve_framebuffer);
+  glDisable(GL_DEPTH_TEST);
+  if (culling) {
+    glDisable(GL_CULL_FACE);
+    culling = false;
+  }
+  glUseProgram(ResolveProgram(samples));
+  glActiveTexture(GL_TEXTURE0 + kResolveCoverageUnit);
+  glBindTexture(GL_TEXTURE_2D_MULTISAMPLE, coverage_texture);
+  glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+  glBindVertexArray(empty_vertex_array);
+  glDrawArrays(GL_TRIANGLES, 0, 3);
+  glEnable(GL_DEPTH_TEST);
+  EnsureImage(&sample_surfaces, height, width, CV_16UC4);
+  EnsureImage(&centre_surfaces, height, width, CV_16UC1);
+  glReadBuffer(GL_COLOR_ATTACHMENT0);
+  glReadPixels(0, 0, width, height, GL_RGBA_INTEGER, GL_UNSIGNED_SHORT, sample_surfaces.data);
+  glBindFramebuffer(GL_FRAMEBUFFER, shaded_framebuffer);
+  glReadBuffer(GL_COLOR_ATTACHMENT3);
+  glReadPixels(0, 0, width, height, GL_RED_INTEGER, GL_UNSIGNED_SHORT, centre_surfaces.data);
+}
+
 void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& options,
                                const std::vector<DrawItem>& items, RenderResult* result) {
   EnsurePbrResources();
@@ -380,42 +423,9 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
     ReadLinearColor(&result->color_linear);
     CompositeBackground(options, result);
   } else {
-    // the surface each sample sees: a cheap multisampled pass
-    glBindFramebuffer(GL_FRAMEBUFFER, coverage_framebuffer);
-    glClearBufferuiv(GL_COLOR, 0, zero_id);
-    glClearBufferfv(GL_DEPTH, 0, &far_depth);
-    glUseProgram(coverage_program);
-    SetProjection(coverage_projection, camera);
-    for (const auto& [z, index] : draw_order) {
-      const DrawItem& item = items[index];
-      SetCameraFromObject(coverage_projection, camera_from_world, item);
-      glUniform1ui(coverage_surface_id, static_cast<GLuint>(index + 1));
-      Draw(meshes[item.mesh_id]);
-    }
-
-    // the samples' surfaces, four to a texel, read back with the centres' colours and surfaces
+    // the surface each sample sees, four to a texel, and each centre's surface
     GLfloat positions[2 * 4] = {};
-    for (int k = 0; k < samples; ++k) glGetMultisamplefv(GL_SAMPLE_POSITION, k, positions + 2 * k);
-    glBindFramebuffer(GL_FRAMEBUFFER, resolve_framebuffer);
-    glDisable(GL_DEPTH_TEST);
-    if (culling) {
-      glDisable(GL_CULL_FACE);
-      culling = false;
-    }
-    glUseProgram(ResolveProgram(samples));
-    glActiveTexture(GL_TEXTURE0 + kResolveCoverageUnit);
-    glBindTexture(GL_TEXTURE_2D_MULTISAMPLE, coverage_texture);
-    glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
-    glBindVertexArray(empty_vertex_array);
-    glDrawArrays(GL_TRIANGLES, 0, 3);
-    glEnable(GL_DEPTH_TEST);
-    EnsureImage(&sample_surfaces, height, width, CV_16UC4);
-    EnsureImage(&centre_surfaces, height, width, CV_16UC1);
-    glReadBuffer(GL_COLOR_ATTACHMENT0);
-    glReadPixels(0, 0, width, height, GL_RGBA_INTEGER, GL_UNSIGNED_SHORT, sample_surfaces.data);
-    glBindFramebuffer(GL_FRAMEBUFFER, shaded_framebuffer);
-    glReadBuffer(GL_COLOR_ATTACHMENT3);
-    glReadPixels(0, 0, width, height, GL_RED_INTEGER, GL_UNSIGNED_SHORT, centre_surfaces.data);
+    ReadSampleSurfaces(camera, items, samples, camera_from_world, positions);
     glReadBuffer(GL_COLOR_ATTACHMENT0);
     ReadLinearColor(&result->color_linear);
     CompositeBackground(options, result);

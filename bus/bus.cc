@@ -277,6 +277,45 @@ struct Bus::Impl {
   }
 };
 
+namespace {
+
+// LCM at `url`. LCM says why it cannot open a URL on stderr ("Error: LCM provider "x" not
+// found"): that text goes into the one error line instead (anything else it prints is passed on).
+std::unique_ptr<lcm::LCM> OpenLcm(const std::string& url) {
+  std::unique_ptr<lcm::LCM> opened;
+  std::string said;
+  {
+    std::fflush(stderr);
+    std::FILE* capture = std::tmpfile();
+    const int saved = capture != nullptr ? dup(STDERR_FILENO) : -1;
+    const bool capturing = saved >= 0 && dup2(fileno(capture), STDERR_FILENO) >= 0;
+    opened = std::make_unique<lcm::LCM>(url);
+    if (capturing) {
+      std::fflush(stderr);
+      dup2(saved, STDERR_FILENO);
+      std::rewind(capture);
+      char buffer[512];
+      for (size_t n; (n = std::fread(buffer, 1, sizeof(buffer), capture)) > 0;) {
+        said.append(buffer, n);
+      }
+    }
+    if (saved >= 0) close(saved);
+    if (capture != nullptr) std::fclose(capture);
+  }
+  if (!opened->good()) {
+    // "Error: Failed to open /x.log: No such file or directory\n" -> "Failed to open ..."
+    std::string why = said;
+    while (!why.empty() && (why.back() == '\n' || why.back() == ' ')) why.pop_back();
+    for (size_t line; (line = why.find('\n')) != std::string::npos;) why[line] = ';';
+    if (why.rfind("Error: ", 0) == 0) why.erase(0, 7);
+    throw std::runtime_error("cannot open the LCM bus at " + url + (why.empty() ? "" : ": " + why));
+  }
+  if (!said.empty()) std::fputs(said.c_str(), stderr);
+  return opened;
+}
+
+}  // namespace
+
 Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_unique<Impl>()) {
   for (const double fraction : {options.drop_receive_fraction, options.drop_publish_fraction}) {
     if (!(fraction >= 0.0 && fraction < 1.0)) {
@@ -302,36 +341,7 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
                    program_invocation_short_name, url.c_str());
     }
   }
-  // LCM says why it cannot open a URL on stderr ("Error: LCM provider "x" not found"): that text
-  // goes into the one error line instead (anything else it prints is passed on)
-  std::string said;
-  {
-    std::fflush(stderr);
-    std::FILE* capture = std::tmpfile();
-    const int saved = capture != nullptr ? dup(STDERR_FILENO) : -1;
-    const bool capturing = saved >= 0 && dup2(fileno(capture), STDERR_FILENO) >= 0;
-    impl_->lcm = std::make_unique<lcm::LCM>(url);
-    if (capturing) {
-      std::fflush(stderr);
-      dup2(saved, STDERR_FILENO);
-      std::rewind(capture);
-      char buffer[512];
-      for (size_t n; (n = std::fread(buffer, 1, sizeof(buffer), capture)) > 0;) {
-        said.append(buffer, n);
-      }
-    }
-    if (saved >= 0) close(saved);
-    if (capture != nullptr) std::fclose(capture);
-  }
-  if (!impl_->lcm->good()) {
-    // "Error: Failed to open /x.log: No such file or directory\n" -> "Failed to open ..."
-    std::string why = said;
-    while (!why.empty() && (why.back() == '\n' || why.back() == ' ')) why.pop_back();
-    for (size_t line; (line = why.find('\n')) != std::string::npos;) why[line] = ';';
-    if (why.rfind("Error: ", 0) == 0) why.erase(0, 7);
-    throw std::runtime_error("cannot open the LCM bus at " + url + (why.empty() ? "" : ": " + why));
-  }
-  if (!said.empty()) std::fputs(said.c_str(), stderr);
+  impl_->lcm = OpenLcm(url);
   if (is_udpm) {
     Impl* impl = impl_.get();
     if (impl_->auth->keyed()) {

@@ -321,6 +321,38 @@ EnvironmentMap MakeHallEnvironment(uint64_t variant, int height) {
   return out;
 }
 
+namespace {
+
+// Irradiance from the radiance pyramid: the radiance (at 64 x 32, or the base when smaller)
+// projected on the first 9 spherical harmonics, with the cosine lobe applied (pi, 2 pi / 3,
+// pi / 4 per band) and divided by pi.
+std::array<Eigen::Vector3f, 9> IrradianceSh(const std::vector<cv::Mat>& pyramid) {
+  size_t coarse_level = 0;
+  while (coarse_level + 1 < pyramid.size() && pyramid[coarse_level + 1].rows >= 32) ++coarse_level;
+  const cv::Mat& coarse = pyramid[coarse_level];
+  std::array<Eigen::Vector3d, 9> sh;
+  sh.fill(Eigen::Vector3d::Zero());
+  for (int v = 0; v < coarse.rows; ++v) {
+    const double theta = kPi * (v + 0.5) / coarse.rows;
+    const double solid_angle = (2 * kPi / coarse.cols) * (kPi / coarse.rows) * std::sin(theta);
+    for (int u = 0; u < coarse.cols; ++u) {
+      const cv::Vec3f& c = coarse.at<cv::Vec3f>(v, u);
+      const Eigen::Vector3d radiance(c[0], c[1], c[2]);
+      const std::array<double, 9> basis = ShBasis(DirectionOfPixel(u, v, coarse.cols, coarse.rows));
+      for (int i = 0; i < 9; ++i) sh[i] += radiance * (basis[i] * solid_angle);
+    }
+  }
+  std::array<Eigen::Vector3f, 9> irradiance;
+  const double band_factor[3] = {1.0, 2.0 / 3.0, 1.0 / 4.0};
+  for (int i = 0; i < 9; ++i) {
+    const int band = i == 0 ? 0 : (i < 4 ? 1 : 2);
+    irradiance[i] = (sh[i] * band_factor[band]).cast<float>();
+  }
+  return irradiance;
+}
+
+}  // namespace
+
 PrefilteredEnvironment Prefilter(const EnvironmentMap& environment, int base_width) {
   constexpr int kLevels = PrefilteredEnvironment::kLevels;
   if (environment.radiance.empty() || environment.radiance.type() != CV_32FC3) {
@@ -383,28 +415,8 @@ PrefilteredEnvironment Prefilter(const EnvironmentMap& environment, int base_wid
     out.levels.push_back(level);
   }
 
-  // irradiance: project the radiance (at 64 x 32, or the base when smaller) on the harmonics, then
-  // apply the cosine lobe (pi, 2 pi / 3, pi / 4 per band) and divide by pi
-  size_t coarse_level = 0;
-  while (coarse_level + 1 < pyramid.size() && pyramid[coarse_level + 1].rows >= 32) ++coarse_level;
-  const cv::Mat& coarse = pyramid[coarse_level];
-  std::array<Eigen::Vector3d, 9> sh;
-  sh.fill(Eigen::Vector3d::Zero());
-  for (int v = 0; v < coarse.rows; ++v) {
-    const double theta = kPi * (v + 0.5) / coarse.rows;
-    const double solid_angle = (2 * kPi / coarse.cols) * (kPi / coarse.rows) * std::sin(theta);
-    for (int u = 0; u < coarse.cols; ++u) {
-      const cv::Vec3f& c = coarse.at<cv::Vec3f>(v, u);
-      const Eigen::Vector3d radiance(c[0], c[1], c[2]);
-      const std::array<double, 9> basis = ShBasis(DirectionOfPixel(u, v, coarse.cols, coarse.rows));
-      for (int i = 0; i < 9; ++i) sh[i] += radiance * (basis[i] * solid_angle);
-    }
-  }
-  const double band_factor[3] = {1.0, 2.0 / 3.0, 1.0 / 4.0};
-  for (int i = 0; i < 9; ++i) {
-    const int band = i == 0 ? 0 : (i < 4 ? 1 : 2);
-    out.irradiance_sh[i] = (sh[i] * band_factor[band]).cast<float>();
-  }
+  // irradiance: the radiance's spherical harmonics with the cosine lobe applied
+  out.irradiance_sh = IrradianceSh(pyramid);
   return out;
 }
 

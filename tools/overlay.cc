@@ -25,20 +25,16 @@ written by stackgen-coco: each visible mask tinted in its own colour with its ou
 and its instance id and visible fraction.
 )";
 
-int Run(int argc, char** argv) {
-  // the command line: a bad one is one line and exit status 2
-  std::vector<std::string> paths;
-  int64_t image = 0;
-  stackgen::FlagParser parser("stackgen-overlay");
-  parser.Positional(&paths, "path", 2, 2);  // DATASET_DIR OUT.png
-  parser.Int("--image", &image, 0, INT32_MAX);
-  parser.ParseOrExit(argc, argv, [] { std::printf("%s", kUsage); });
-  const std::string dir = paths[0];
-  const std::string out = paths[1];
-  const size_t index = static_cast<size_t>(image);
+// The error for an annotation of image `image_id` in `json_path`: names it and says `what`.
+std::runtime_error AnnotationError(const std::string& json_path, int64_t image_id,
+                                   const nlohmann::json& annotation, const std::string& what) {
+  return std::runtime_error(json_path + ": annotation " +
+                            annotation.value("id", nlohmann::json()).dump() + " (image " +
+                            std::to_string(image_id) + "): " + what);
+}
 
-  // the dataset and the chosen image.
-  const std::string json_path = dir + "/annotations.json";
+// The COCO file `json_path`, with its images and annotations arrays.
+nlohmann::json ReadDataset(const std::string& json_path) {
   std::ifstream file(json_path);
   if (!file) throw std::runtime_error(json_path + ": cannot read");
   nlohmann::json dataset;
@@ -54,6 +50,95 @@ int Run(int argc, char** argv) {
                              ": not a COCO dataset (\"images\" and \"annotations\" "
                              "arrays expected)");
   }
+  return dataset;
+}
+
+// The annotations of image `image_id`, each with an RLE mask and a box (an error names it).
+std::vector<const nlohmann::json*> AnnotationsOf(const nlohmann::json& dataset, int64_t image_id,
+                                                 const std::string& json_path) {
+  std::vector<const nlohmann::json*> of_image;
+  for (const nlohmann::json& annotation : dataset["annotations"]) {
+    const auto image = annotation.find("image_id");
+    if (image == annotation.end() || !image->is_number_integer()) {
+      throw AnnotationError(json_path, image_id, annotation,
+                            "image_id is missing or not an integer");
+    }
+    if (image->get<int64_t>() != image_id) continue;
+    const auto segmentation = annotation.find("segmentation");
+    const auto bbox = annotation.find("bbox");
+    if (segmentation == annotation.end() || !segmentation->is_object() ||
+        !segmentation->contains("counts") || !(*segmentation)["counts"].is_string()) {
+      throw AnnotationError(json_path, image_id, annotation,
+                            "segmentation.counts is missing or not an RLE string");
+    }
+    if (bbox == annotation.end() || !bbox->is_array() || bbox->size() != 4 ||
+        !std::all_of(bbox->begin(), bbox->end(),
+                     [](const nlohmann::json& v) { return v.is_number(); })) {
+      throw AnnotationError(json_path, image_id, annotation, "bbox is missing or not 4 numbers");
+    }
+    of_image.push_back(&annotation);
+  }
+  return of_image;
+}
+
+// Draws `annotations` over `picture`: each mask tinted in its own colour with its outline, its
+// box, instance id and visible fraction; returns how many.
+int Draw(const std::vector<const nlohmann::json*>& annotations, int64_t image_id,
+         const std::string& json_path, cv::Mat* picture) {
+  cv::Mat tint = picture->clone();
+  int drawn = 0;
+  std::vector<std::pair<cv::Mat, cv::Scalar>> outlines;
+  for (const nlohmann::json* annotation_pointer : annotations) {
+    const nlohmann::json& annotation = *annotation_pointer;
+    cv::Mat mask;
+    try {
+      mask = stackgen::DecodeRle(annotation["segmentation"]["counts"].get<std::string>(),
+                                 picture->rows, picture->cols);
+    } catch (const std::exception& error) {
+      throw AnnotationError(json_path, image_id, annotation,
+                            std::string("segmentation.counts: ") + error.what());
+    }
+    const int id = annotation.value("instance_id", drawn + 1);
+    const cv::Scalar colour((id * 67) % 200 + 55, (id * 131) % 200 + 55, (id * 29) % 200 + 55);
+    tint.setTo(colour, mask);
+    outlines.emplace_back(mask, colour);
+    ++drawn;
+  }
+  cv::addWeighted(*picture, 0.55, tint, 0.45, 0, *picture);
+  for (const nlohmann::json* annotation_pointer : annotations) {
+    const nlohmann::json& annotation = *annotation_pointer;
+    const nlohmann::json& box = annotation["bbox"];
+    const cv::Rect rect(box[0].get<int>(), box[1].get<int>(), box[2].get<int>(), box[3].get<int>());
+    cv::rectangle(*picture, rect, cv::Scalar(255, 255, 255), 1);
+    char label[64];
+    std::snprintf(label, sizeof(label), "%d %.2f", annotation.value("instance_id", 0),
+                  annotation.value("visib_fract", 1.0));
+    cv::putText(*picture, label, rect.tl() + cv::Point(2, 12), cv::FONT_HERSHEY_SIMPLEX, 0.4,
+                cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
+  }
+  for (const auto& [mask, colour] : outlines) {
+    std::vector<std::vector<cv::Point>> contours;
+    cv::findContours(mask, contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
+    cv::drawContours(*picture, contours, -1, colour, 2, cv::LINE_AA);
+  }
+  return drawn;
+}
+
+int Run(int argc, char** argv) {
+  // the command line: a bad one is one line and exit status 2
+  std::vector<std::string> paths;
+  int64_t image = 0;
+  stackgen::FlagParser parser("stackgen-overlay");
+  parser.Positional(&paths, "path", 2, 2);  // DATASET_DIR OUT.png
+  parser.Int("--image", &image, 0, INT32_MAX);
+  parser.ParseOrExit(argc, argv, [] { std::printf("%s", kUsage); });
+  const std::string dir = paths[0];
+  const std::string out = paths[1];
+  const size_t index = static_cast<size_t>(image);
+
+  // the dataset and the chosen image.
+  const std::string json_path = dir + "/annotations.json";
+  const nlohmann::json dataset = ReadDataset(json_path);
   if (index >= dataset["images"].size()) {
     throw std::runtime_error(json_path + ": no image " + std::to_string(index) + " (it has " +
                              std::to_string(dataset["images"].size()) + ")");
@@ -74,67 +159,8 @@ int Run(int argc, char** argv) {
 
   // each mask tinted, outlined and labelled.
   const int64_t image_id = record["id"].get<int64_t>();
-  cv::Mat tint = picture.clone();
-  int drawn = 0;
-  std::vector<std::pair<cv::Mat, cv::Scalar>> outlines;
-  // every annotation of the image checked as it is used: an error names it
-  const auto annotation_error = [&](const nlohmann::json& annotation, const std::string& what) {
-    return std::runtime_error(json_path + ": annotation " +
-                              annotation.value("id", nlohmann::json()).dump() + " (image " +
-                              std::to_string(image_id) + "): " + what);
-  };
-  std::vector<const nlohmann::json*> of_image;
-  for (const nlohmann::json& annotation : dataset["annotations"]) {
-    const auto image = annotation.find("image_id");
-    if (image == annotation.end() || !image->is_number_integer()) {
-      throw annotation_error(annotation, "image_id is missing or not an integer");
-    }
-    if (image->get<int64_t>() != image_id) continue;
-    const auto segmentation = annotation.find("segmentation");
-    const auto bbox = annotation.find("bbox");
-    if (segmentation == annotation.end() || !segmentation->is_object() ||
-        !segmentation->contains("counts") || !(*segmentation)["counts"].is_string()) {
-      throw annotation_error(annotation, "segmentation.counts is missing or not an RLE string");
-    }
-    if (bbox == annotation.end() || !bbox->is_array() || bbox->size() != 4 ||
-        !std::all_of(bbox->begin(), bbox->end(),
-                     [](const nlohmann::json& v) { return v.is_number(); })) {
-      throw annotation_error(annotation, "bbox is missing or not 4 numbers");
-    }
-    of_image.push_back(&annotation);
-  }
-  for (const nlohmann::json* annotation_pointer : of_image) {
-    const nlohmann::json& annotation = *annotation_pointer;
-    cv::Mat mask;
-    try {
-      mask = stackgen::DecodeRle(annotation["segmentation"]["counts"].get<std::string>(),
-                                 picture.rows, picture.cols);
-    } catch (const std::exception& error) {
-      throw annotation_error(annotation, std::string("segmentation.counts: ") + error.what());
-    }
-    const int id = annotation.value("instance_id", drawn + 1);
-    const cv::Scalar colour((id * 67) % 200 + 55, (id * 131) % 200 + 55, (id * 29) % 200 + 55);
-    tint.setTo(colour, mask);
-    outlines.emplace_back(mask, colour);
-    ++drawn;
-  }
-  cv::addWeighted(picture, 0.55, tint, 0.45, 0, picture);
-  for (const nlohmann::json* annotation_pointer : of_image) {
-    const nlohmann::json& annotation = *annotation_pointer;
-    const nlohmann::json& box = annotation["bbox"];
-    const cv::Rect rect(box[0].get<int>(), box[1].get<int>(), box[2].get<int>(), box[3].get<int>());
-    cv::rectangle(picture, rect, cv::Scalar(255, 255, 255), 1);
-    char label[64];
-    std::snprintf(label, sizeof(label), "%d %.2f", annotation.value("instance_id", 0),
-                  annotation.value("visib_fract", 1.0));
-    cv::putText(picture, label, rect.tl() + cv::Point(2, 12), cv::FONT_HERSHEY_SIMPLEX, 0.4,
-                cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
-  }
-  for (const auto& [mask, colour] : outlines) {
-    std::vector<std::vector<cv::Point>> contours;
-    cv::findContours(mask, contours, cv::RETR_EXTERNAL, cv::CHAIN_APPROX_SIMPLE);
-    cv::drawContours(picture, contours, -1, colour, 2, cv::LINE_AA);
-  }
+  const std::vector<const nlohmann::json*> of_image = AnnotationsOf(dataset, image_id, json_path);
+  const int drawn = Draw(of_image, image_id, json_path, &picture);
   if (!cv::imwrite(out, picture)) throw std::runtime_error(out + ": cannot write");
   std::printf("stackgen-overlay: %s: %d annotations of %s\n", out.c_str(), drawn, path.c_str());
   return 0;

@@ -119,6 +119,30 @@ std::vector<double> NumbersAt(const json& record, const char* field, size_t coun
   return values;
 }
 
+// An annotation's rotation in the bin frame (world_R_m2w, else posture_deg), its position
+// (world_t_m2w, else NaN) and its resting face (-1 when it has none); errors name `where`.
+void ReadPose(const json& annotation, const std::string& where, Eigen::Matrix3d* world_R_object,
+              Eigen::Vector3d* position, int* resting_face) {
+  if (annotation.contains("world_R_m2w")) {
+    const std::vector<double> values = NumbersAt(annotation, "world_R_m2w", 9, where);
+    *world_R_object = RotationFromRowMajor(values.data(), where + ".world_R_m2w");
+  } else if (annotation.contains("posture_deg")) {
+    const std::vector<double> angles = NumbersAt(annotation, "posture_deg", 3, where);
+    *world_R_object = RotationFromPostureDeg(Eigen::Vector3d(angles[0], angles[1], angles[2]));
+  } else {
+    throw std::runtime_error(where + " has neither world_R_m2w nor posture_deg");
+  }
+  if (annotation.contains("resting_face")) {
+    *resting_face = static_cast<int>(NumberAt(annotation, "resting_face", where));
+  }
+  *position = Eigen::Vector3d::Constant(std::nan(""));
+  if (annotation.contains("world_t_m2w")) {
+    const std::vector<double> values = NumbersAt(annotation, "world_t_m2w", 3, where);
+    *position = Eigen::Vector3d(values[0], values[1], values[2]);
+    if (!position->allFinite()) throw std::runtime_error(where + ".world_t_m2w is not finite");
+  }
+}
+
 void ReadCoco(const std::string& path, const ReadOptions& options, Dataset* dataset) {
   dataset->kind = "COCO";
   json root;
@@ -178,25 +202,9 @@ void ReadCoco(const std::string& path, const ReadOptions& options, Dataset* data
                                " is not in categories");
     }
     Eigen::Matrix3d world_R_object;
-    if (annotation.contains("world_R_m2w")) {
-      const std::vector<double> values = NumbersAt(annotation, "world_R_m2w", 9, where);
-      world_R_object = RotationFromRowMajor(values.data(), where + ".world_R_m2w");
-    } else if (annotation.contains("posture_deg")) {
-      const std::vector<double> angles = NumbersAt(annotation, "posture_deg", 3, where);
-      world_R_object = RotationFromPostureDeg(Eigen::Vector3d(angles[0], angles[1], angles[2]));
-    } else {
-      throw std::runtime_error(where + " has neither world_R_m2w nor posture_deg");
-    }
+    Eigen::Vector3d position;
     int resting_face = -1;
-    if (annotation.contains("resting_face")) {
-      resting_face = static_cast<int>(NumberAt(annotation, "resting_face", where));
-    }
-    Eigen::Vector3d position = Eigen::Vector3d::Constant(std::nan(""));
-    if (annotation.contains("world_t_m2w")) {
-      const std::vector<double> values = NumbersAt(annotation, "world_t_m2w", 3, where);
-      position = Eigen::Vector3d(values[0], values[1], values[2]);
-      if (!position.allFinite()) throw std::runtime_error(where + ".world_t_m2w is not finite");
-    }
+    ReadPose(annotation, where, &world_R_object, &position, &resting_face);
     const auto image_id = static_cast<int64_t>(NumberAt(annotation, "image_id", where));
     const auto scene = scene_of_image.find(image_id);
     if (scene == scene_of_image.end()) {

@@ -181,6 +181,29 @@ void FlagParser::Positional(std::vector<std::string>* out, const std::string& wh
   positional_max_ = max;
 }
 
+void FlagParser::CheckGiven(int positional_count) const {
+  if (positional_ != nullptr) {
+    const std::string what = positional_what_;
+    if (positional_count == 0 && positional_min_ > 0) throw UsageError("no " + what + " given");
+    if (positional_count < positional_min_) {
+      throw UsageError("at least " + std::to_string(positional_min_) + " " + what + "s, got " +
+                       std::to_string(positional_count));
+    }
+    if (positional_count > positional_max_) {
+      throw UsageError("at most " + std::to_string(positional_max_) + " " + what + "s, got " +
+                       std::to_string(positional_count));
+    }
+  }
+  for (const auto& [name, flag] : flags_) {
+    if (flag.required && !flag.given) throw UsageError(name + " is required");
+  }
+  for (const auto& [a, b] : exclusive_) {
+    if (flags_.at(a).given && flags_.at(b).given) {
+      throw UsageError(a + " and " + b + " exclude each other");
+    }
+  }
+}
+
 bool FlagParser::Parse(int argc, const char* const* argv) {
   // every argument, in order; the first fault is kept and thrown at the end unless --help comes
   std::optional<UsageError> fault;
@@ -246,27 +269,7 @@ bool FlagParser::Parse(int argc, const char* const* argv) {
   if (help) return false;
   if (fault) throw *fault;
 
-  // what must be there
-  if (positional_ != nullptr) {
-    const std::string what = positional_what_;
-    if (positional_count == 0 && positional_min_ > 0) throw UsageError("no " + what + " given");
-    if (positional_count < positional_min_) {
-      throw UsageError("at least " + std::to_string(positional_min_) + " " + what + "s, got " +
-                       std::to_string(positional_count));
-    }
-    if (positional_count > positional_max_) {
-      throw UsageError("at most " + std::to_string(positional_max_) + " " + what + "s, got " +
-                       std::to_string(positional_count));
-    }
-  }
-  for (const auto& [name, flag] : flags_) {
-    if (flag.required && !flag.given) throw UsageError(name + " is required");
-  }
-  for (const auto& [a, b] : exclusive_) {
-    if (flags_.at(a).given && flags_.at(b).given) {
-      throw UsageError(a + " and " + b + " exclude each other");
-    }
-  }
+  CheckGiven(positional_count);
   return true;
 }
 

@@ -144,6 +144,10 @@ class FlagParser {
   bool Given(const std::string& name) const;
 
  private:
+  // Throws UsageError unless what must be there is: positional arguments within their count (of
+  // `positional_count` given), required flags, and no two flags that exclude each other.
+  void CheckGiven(int positional_count) const;
+
   struct Flag {
     bool takes_value = true;
     bool required = false;

@@ -608,11 +608,11 @@ std::tuple<int64_t, int64_t, int64_t, int64_t> SortKey(const Matrix3d& rotation)
 
 }  // namespace
 
-double MeshDiameter(const TriangleMesh& mesh) {
-  std::vector<Vector3d> points = UniquePositions(mesh.positions_mm);
-  if (points.size() < 2) return 0;
+namespace {
 
-  // a lower bound to prune with: a few rounds of "the vertex farthest from the last one"
+// A lower bound of the squared diameter of `points` to prune with: a few rounds of "the vertex
+// farthest from the last one".
+double DiameterLowerBound2(const std::vector<Vector3d>& points) {
   const auto farthest_from = [&](const Vector3d& q) {
     size_t best = 0;
     double best2 = -1;
@@ -632,34 +632,55 @@ double MeshDiameter(const TriangleMesh& mesh) {
     best2 = std::max(best2, d2);
     from = to;
   }
+  return best2;
+}
 
-  // a k-d tree of the vertices (leaves of at most 8), each node with its bounding box
-  struct Node {
-    Eigen::AlignedBox3d box;
-    size_t begin, end;
-    int children[2] = {-1, -1};
-  };
-  std::vector<Node> nodes;
-  std::function<int(size_t, size_t)> build = [&](size_t begin, size_t end) {
-    const int index = static_cast<int>(nodes.size());
-    nodes.push_back({Eigen::AlignedBox3d(), begin, end});
-    Eigen::AlignedBox3d box;
-    for (size_t i = begin; i < end; ++i) box.extend(points[i]);
-    nodes[index].box = box;
-    if (end - begin > 8) {
-      int axis = 0;
-      box.sizes().maxCoeff(&axis);
-      const size_t middle = (begin + end) / 2;
-      std::nth_element(points.begin() + begin, points.begin() + middle, points.begin() + end,
-                       [axis](const Vector3d& a, const Vector3d& b) { return a[axis] < b[axis]; });
-      const int left = build(begin, middle);
-      const int right = build(middle, end);
-      nodes[index].children[0] = left;
-      nodes[index].children[1] = right;
-    }
-    return index;
-  };
-  build(0, points.size());
+// A node of a k-d tree of points: its bounding box, its points [begin, end) and its children
+// (-1: a leaf).
+struct KdNode {
+  Eigen::AlignedBox3d box;
+  size_t begin, end;
+  int children[2] = {-1, -1};
+};
+
+// Adds the node of points [begin, end) and its subtree to `nodes` (leaves of at most 8 points,
+// split at the median of the box's longest axis, which reorders `points`); returns its index.
+int AddKdNode(std::vector<Vector3d>& points, size_t begin, size_t end, std::vector<KdNode>* nodes) {
+  const int index = static_cast<int>(nodes->size());
+  nodes->push_back({Eigen::AlignedBox3d(), begin, end});
+  Eigen::AlignedBox3d box;
+  for (size_t i = begin; i < end; ++i) box.extend(points[i]);
+  (*nodes)[index].box = box;
+  if (end - begin > 8) {
+    int axis = 0;
+    box.sizes().maxCoeff(&axis);
+    const size_t middle = (begin + end) / 2;
+    std::nth_element(points.begin() + begin, points.begin() + middle, points.begin() + end,
+                     [axis](const Vector3d& a, const Vector3d& b) { return a[axis] < b[axis]; });
+    const int left = AddKdNode(points, begin, middle, nodes);
+    const int right = AddKdNode(points, middle, end, nodes);
+    (*nodes)[index].children[0] = left;
+    (*nodes)[index].children[1] = right;
+  }
+  return index;
+}
+
+// A k-d tree of `points` (which it reorders), the root first.
+std::vector<KdNode> BuildKdTree(std::vector<Vector3d>* points) {
+  std::vector<KdNode> nodes;
+  AddKdNode(*points, 0, points->size(), &nodes);
+  return nodes;
+}
+
+}  // namespace
+
+double MeshDiameter(const TriangleMesh& mesh) {
+  std::vector<Vector3d> points = UniquePositions(mesh.positions_mm);
+  if (points.size() < 2) return 0;
+
+  // a lower bound to prune with, then a k-d tree of the vertices
+  double best2 = DiameterLowerBound2(points);
+  const std::vector<KdNode> nodes = BuildKdTree(&points);
 
   // branch and bound over pairs of nodes: a pair whose boxes are nowhere farther apart than the
   // best distance so far cannot hold a farther pair (the bound is grown by a few ulps, so
@@ -670,8 +691,8 @@ double MeshDiameter(const TriangleMesh& mesh) {
   };
   std::function<void(int, int)> search = [&](int a, int b) {
     if (bound2(a, b) <= best2) return;
-    const Node& na = nodes[a];
-    const Node& nb = nodes[b];
+    const KdNode& na = nodes[a];
+    const KdNode& nb = nodes[b];
     if (na.children[0] < 0 && nb.children[0] < 0) {
       for (size_t i = na.begin; i < na.end; ++i) {
         for (size_t j = a == b ? i + 1 : nb.begin; j < nb.end; ++j) {

@@ -227,50 +227,25 @@ std::vector<std::string> ListEnvironmentFiles(const std::string& folder) {
   return files;
 }
 
-EnvironmentMap MakeHallEnvironment(uint64_t variant, int height) {
-  if (height < 8) {
-    throw std::invalid_argument("MakeHallEnvironment: height " + std::to_string(height) +
-                                " is below 8");
-  }
-  // the hall of this variant: the bin stands at the origin on a table 0.9 m above the floor
-  std::mt19937_64 engine(SplitMixHash(variant ^ 0x68616c6cull));
-  // one engine value per draw, the same on every platform (std::uniform_real_distribution's
-  // results are left to the library)
-  const auto uniform = [&engine](double lo, double hi) {
-    return lo + (hi - lo) * (static_cast<double>(engine() >> 11) * 0x1.0p-53);
-  };
-  const double half_length = uniform(12, 40);  // m, along x
-  const double half_width = uniform(8, 25);    // m, along y
-  const double ceiling = uniform(3.5, 9);      // m above the table
-  const double floor = 0.9;                    // m below the table
-  const double ceiling_grey = uniform(0.03, 0.12);
-  const Eigen::Vector3d wall =
-      Eigen::Vector3d::Constant(uniform(0.15, 0.45))
-          .cwiseProduct(Eigen::Vector3d(uniform(0.9, 1.1), 1, uniform(0.85, 1.1)));
-  const double wall_band = uniform(1.2, 2.2);  // m above the floor: a darker band below it
-  const double band_grey = uniform(0.04, 0.15);
-  const double floor_grey = uniform(0.06, 0.2);
-  // light strips along x or y: rows, each cut into lamps
-  const bool strips_along_x = uniform(0, 1) < 0.5;
-  const int strip_rows = static_cast<int>(uniform(3, 9));
-  const double strip_width = uniform(0.12, 0.4);
-  const double lamp_length = uniform(1.2, 3.0);
-  const double lamp_gap = uniform(0.2, 2.5);
-  const double strip_offset = uniform(-0.5, 0.5);
-  const double lamp_phase = uniform(0, 1);
-  const double lamp_radiance = uniform(8, 25);
-  const Eigen::Vector3d lamp_tint(uniform(0.92, 1.05), 1, uniform(0.85, 1.1));
-  // windows: a band of panes on the walls, daylight
-  const double window_bottom = uniform(2.5, 4.0) - floor;
-  const double window_top = window_bottom + uniform(0.8, 2.0);
-  const double window_radiance = uniform(0.8, 4.0);
-  const double pane_period = uniform(1.5, 4.0);
-  const bool windows_on_x_walls = uniform(0, 1) < 0.5;
+namespace {
 
-  // what a ray from the origin sees first: ceiling, floor or one of the walls
-  const double strip_span = 2 * (strips_along_x ? half_width : half_length);
-  const double strip_spacing = strip_span / strip_rows;
-  const auto radiance = [&](const Eigen::Vector3d& d) -> Eigen::Vector3d {
+// A procedural industrial hall around the origin (metres): its size, greys, light strips cut
+// into lamps, and windows, as DrawHall draws them.
+struct Hall {
+  double half_length, half_width, ceiling, floor, ceiling_grey;
+  Eigen::Vector3d wall;
+  double wall_band, band_grey, floor_grey;
+  bool strips_along_x;
+  int strip_rows;
+  double strip_width, lamp_length, lamp_gap, strip_offset, lamp_phase, lamp_radiance;
+  Eigen::Vector3d lamp_tint;
+  double window_bottom, window_top, window_radiance, pane_period;
+  bool windows_on_x_walls;
+
+  // The radiance a ray from the origin along `d` sees first: ceiling, floor or one of the walls.
+  Eigen::Vector3d Radiance(const Eigen::Vector3d& d) const {
+    const double strip_span = 2 * (strips_along_x ? half_width : half_length);
+    const double strip_spacing = strip_span / strip_rows;
     double t = std::numeric_limits<double>::infinity();
     if (d.z() > 1e-9) t = std::min(t, ceiling / d.z());
     if (d.z() < -1e-9) t = std::min(t, floor / -d.z());
@@ -298,7 +273,57 @@ EnvironmentMap MakeHallEnvironment(uint64_t variant, int height) {
     }
     if (p.z() < wall_band - floor) return Eigen::Vector3d::Constant(band_grey);
     return wall;
+  }
+};
+
+// The hall of `variant`, each value one draw of its own engine, in a fixed order.
+Hall DrawHall(uint64_t variant) {
+  Hall h{};
+  std::mt19937_64 engine(SplitMixHash(variant ^ 0x68616c6cull));
+  // one engine value per draw, the same on every platform (std::uniform_real_distribution's
+  // results are left to the library)
+  const auto uniform = [&engine](double lo, double hi) {
+    return lo + (hi - lo) * (static_cast<double>(engine() >> 11) * 0x1.0p-53);
   };
+  h.half_length = uniform(12, 40);  // m, along x
+  h.half_width = uniform(8, 25);    // m, along y
+  h.ceiling = uniform(3.5, 9);      // m above the table
+  h.floor = 0.9;                    // m below the table
+  h.ceiling_grey = uniform(0.03, 0.12);
+  h.wall = Eigen::Vector3d::Constant(uniform(0.15, 0.45))
+               .cwiseProduct(Eigen::Vector3d(uniform(0.9, 1.1), 1, uniform(0.85, 1.1)));
+  h.wall_band = uniform(1.2, 2.2);  // m above the floor: a darker band below it
+  h.band_grey = uniform(0.04, 0.15);
+  h.floor_grey = uniform(0.06, 0.2);
+  // light strips along x or y: rows, each cut into lamps
+  h.strips_along_x = uniform(0, 1) < 0.5;
+  h.strip_rows = static_cast<int>(uniform(3, 9));
+  h.strip_width = uniform(0.12, 0.4);
+  h.lamp_length = uniform(1.2, 3.0);
+  h.lamp_gap = uniform(0.2, 2.5);
+  h.strip_offset = uniform(-0.5, 0.5);
+  h.lamp_phase = uniform(0, 1);
+  h.lamp_radiance = uniform(8, 25);
+  h.lamp_tint = Eigen::Vector3d(uniform(0.92, 1.05), 1, uniform(0.85, 1.1));
+  // windows: a band of panes on the walls, daylight
+  h.window_bottom = uniform(2.5, 4.0) - h.floor;
+  h.window_top = h.window_bottom + uniform(0.8, 2.0);
+  h.window_radiance = uniform(0.8, 4.0);
+  h.pane_period = uniform(1.5, 4.0);
+  h.windows_on_x_walls = uniform(0, 1) < 0.5;
+  return h;
+}
+
+}  // namespace
+
+EnvironmentMap MakeHallEnvironment(uint64_t variant, int height) {
+  if (height < 8) {
+    throw std::invalid_argument("MakeHallEnvironment: height " + std::to_string(height) +
+                                " is below 8");
+  }
+  // the hall of this variant: the bin stands at the origin on a table 0.9 m above the floor
+  const Hall hall = DrawHall(variant);
+  const auto radiance = [&hall](const Eigen::Vector3d& d) { return hall.Radiance(d); };
 
   // 2 x 2 samples per pixel, so the strips' edges are smooth; rows in parallel
   EnvironmentMap out;

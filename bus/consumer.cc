@@ -1,5 +1,7 @@
 #include "bus/consumer.h"
 
+#include <csignal>
+
 #include "bus/auth.h"
 
 namespace stackgen {
@@ -26,6 +28,26 @@ status ConsumerStatus(const Bus& bus, const ConsumerReport& report) {
   message.refused_forged = refused.forged;
   message.refused_replayed = refused.replayed;
   return message;
+}
+
+BusOptions ConsumerBusOptions(double fault_drop, const std::string& key_file, bool open_bus,
+                              bool replay, uint64_t fault_seed) {
+  BusOptions options;
+  options.drop_receive_fraction = fault_drop;
+  options.fault_seed = fault_seed;
+  options.key_file = key_file;
+  options.open_bus = open_bus;
+  options.replay = replay;
+  return options;
+}
+
+void StopOnSignals(void (*handler)(int)) {
+  struct sigaction action {};
+  action.sa_handler = handler;
+  action.sa_flags = SA_RESTART;
+  sigemptyset(&action.sa_mask);
+  sigaction(SIGINT, &action, nullptr);
+  sigaction(SIGTERM, &action, nullptr);
 }
 
 }  // namespace stackgen

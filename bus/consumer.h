@@ -63,6 +63,15 @@ struct ConsumerReport {
   int64_t bad_messages = 0;
 };
 
+/// A consumer's bus options from its flags: --fault-drop F (that share of what it receives
+/// dropped on purpose, drawn from `fault_seed`), --bus-key-file, --open-bus, --replay.
+BusOptions ConsumerBusOptions(double fault_drop, const std::string& key_file, bool open_bus,
+                              bool replay, uint64_t fault_seed);
+
+/// Makes SIGINT and SIGTERM call `handler` (which should only set a flag the consumer's loop
+/// reads), with system calls restarted after it.
+void StopOnSignals(void (*handler)(int));
+
 /// The status message of a consumer: no generator id or seq (-1), the report, and the bus's
 /// counters of messages dropped on purpose (--fault-drop) and refused by the bus key. The
 /// caller sets header.utime (or leaves UnixMicros' now, the default here).

@@ -58,6 +58,12 @@ constexpr int kQueueCapacity = 16;
 constexpr int kMaxReportedWarnings = 10;
 // generators heard for this long that all use another bus key end the wait (seconds)
 constexpr double kKeyMismatchS = 2.0;
+// the channels a generator signs with its key before its first scene: scenes and configs
+const std::vector<std::string>& GeneratorChannels() {
+  static const auto* const channels =
+      new std::vector<std::string>{stackgen::kSceneChannel, stackgen::kConfigChannel};
+  return *channels;
+}
 
 std::atomic<bool> stop_requested{false};
 
@@ -510,14 +516,33 @@ SceneView ViewOfMessage(const stackgen::scene& message) {
   return scene;
 }
 
+// What stackgen-view says when it stops waiting for scenes: what it skipped; an error when no
+// valid scene came (naming a bus key mismatch first); a warning when fewer than asked came.
+void ReportEnd(const stackgen::Bus& bus, const Flags& flags, size_t tiles, int64_t undecodable,
+               int64_t invalid, int64_t repeated) {
+  if (undecodable > 0 || invalid > 0 || repeated > 0) {
+    std::fprintf(stderr,
+                 "%s: skipped %lld undecodable messages, %lld invalid scenes, %lld repeated "
+                 "scenes\n",
+                 kProgram, static_cast<long long>(undecodable), static_cast<long long>(invalid),
+                 static_cast<long long>(repeated));
+  }
+  if (tiles == 0) {
+    const std::string mismatch = bus.KeyMismatch(GeneratorChannels(), 0);
+    if (!mismatch.empty()) throw std::runtime_error(mismatch);
+    throw std::runtime_error("--lcm-url " + bus.url() + ": no valid scene on " +
+                             stackgen::kSceneChannel + " within " +
+                             std::to_string(static_cast<int>(std::ceil(flags.timeout_s))) + " s");
+  }
+  if (static_cast<int>(tiles) < flags.count) {
+    std::fprintf(stderr, "%s: only %zu of %d scenes arrived %s\n", kProgram, tiles, flags.count,
+                 stop_requested ? "before the signal" : "before the timeout");
+  }
+}
+
 std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
   // stop waiting on SIGINT and SIGTERM: the handler only sets a flag
-  struct sigaction action {};
-  action.sa_handler = RequestStop;
-  action.sa_flags = SA_RESTART;
-  sigemptyset(&action.sa_mask);
-  sigaction(SIGINT, &action, nullptr);
-  sigaction(SIGTERM, &action, nullptr);
+  stackgen::StopOnSignals(RequestStop);
 
   std::vector<Tile> tiles;
   std::set<std::pair<int32_t, int64_t>> seen;
@@ -527,15 +552,9 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
       std::fprintf(stderr, "%s: warning: %s\n", kProgram, text.c_str());
     }
   };
-  stackgen::BusOptions bus_options;
-  bus_options.drop_receive_fraction = flags.fault_drop;
-  bus_options.fault_seed = 0x5EE;
-  bus_options.key_file = flags.bus_key_file;
-  bus_options.open_bus = flags.open_bus;
-  bus_options.replay = flags.replay;
-  stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url), bus_options);
-  const std::vector<std::string> generator_channels = {stackgen::kSceneChannel,
-                                                       stackgen::kConfigChannel};
+  stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url),
+                    stackgen::ConsumerBusOptions(flags.fault_drop, flags.bus_key_file,
+                                                 flags.open_bus, flags.replay, 0x5EE));
   bus.Subscribe<stackgen::scene>(
       stackgen::kSceneChannel,
       [&](const stackgen::scene& scene) {
@@ -560,7 +579,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
       [&](const std::string& text) { warn(++undecodable, "skipped a message: " + text); });
   // the generators' configs too, for their key alone: each announces its config before its
   // first scene
-  bus.WatchKeys(generator_channels);
+  bus.WatchKeys(GeneratorChannels());
   std::printf("%s: listening on %s channel %s for %d scenes\n", kProgram, bus.url().c_str(),
               stackgen::kSceneChannel, flags.count);
   std::fflush(stdout);
@@ -590,7 +609,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
     // generators that use another key: one line now rather than an empty sheet at the timeout
     // (an open viewer reads signed scenes all the same)
     const std::string mismatch =
-        bus.keyed() ? bus.KeyMismatch(generator_channels, kKeyMismatchS) : "";
+        bus.keyed() ? bus.KeyMismatch(GeneratorChannels(), kKeyMismatchS) : "";
     if (!mismatch.empty()) throw std::runtime_error(mismatch);
     if (live && std::chrono::steady_clock::now() - last_status >= std::chrono::seconds(1)) {
       publish_status();
@@ -598,24 +617,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
     }
   }
   if (live) publish_status();
-  if (undecodable > 0 || invalid > 0 || repeated > 0) {
-    std::fprintf(stderr,
-                 "%s: skipped %lld undecodable messages, %lld invalid scenes, %lld repeated "
-                 "scenes\n",
-                 kProgram, static_cast<long long>(undecodable), static_cast<long long>(invalid),
-                 static_cast<long long>(repeated));
-  }
-  if (tiles.empty()) {
-    const std::string mismatch = bus.KeyMismatch(generator_channels, 0);
-    if (!mismatch.empty()) throw std::runtime_error(mismatch);
-    throw std::runtime_error("--lcm-url " + bus.url() + ": no valid scene on " +
-                             stackgen::kSceneChannel + " within " +
-                             std::to_string(static_cast<int>(std::ceil(flags.timeout_s))) + " s");
-  }
-  if (static_cast<int>(tiles.size()) < flags.count) {
-    std::fprintf(stderr, "%s: only %zu of %d scenes arrived %s\n", kProgram, tiles.size(),
-                 flags.count, stop_requested ? "before the signal" : "before the timeout");
-  }
+  ReportEnd(bus, flags, tiles.size(), undecodable, invalid, repeated);
   return tiles;
 }
 

@@ -184,13 +184,9 @@ class WriterSession {
   // file it only reads, live it is a reliable consumer; it listens once subscribed); then the
   // dataset: a folder that is not empty is this writer's dataset to resume, or refused
   void Open() {
-    BusOptions bus_options;
-    bus_options.drop_receive_fraction = flags_.fault_drop;
-    bus_options.fault_seed = 0xC0C0;
-    bus_options.key_file = flags_.bus_key_file;
-    bus_options.open_bus = flags_.open_bus;
-    bus_options.replay = flags_.replay;
-    bus_ = std::make_unique<Bus>(ResolveLcmUrl(flags_.lcm_url), bus_options);
+    bus_ = std::make_unique<Bus>(ResolveLcmUrl(flags_.lcm_url),
+                                 ConsumerBusOptions(flags_.fault_drop, flags_.bus_key_file,
+                                                    flags_.open_bus, flags_.replay, 0xC0C0));
     created_folder_ = CheckOutputFolder(program_, flags_);
     writer_ = program_.open(flags_);
     if (flags_.resume) {
@@ -517,12 +513,7 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
   WriterSession session(program, flags);
   try {
     // stop cleanly on SIGINT and SIGTERM: the handler only sets a flag
-    struct sigaction action {};
-    action.sa_handler = RequestStop;
-    action.sa_flags = SA_RESTART;
-    sigemptyset(&action.sa_mask);
-    sigaction(SIGINT, &action, nullptr);
-    sigaction(SIGTERM, &action, nullptr);
+    StopOnSignals(RequestStop);
     session.Open();
     session.Subscribe();
     session.Loop();

@@ -461,10 +461,10 @@ struct SceneStream::Impl {
   }
 };
 
-SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_unique<Impl>()) {
-  Impl& impl = *impl_;
-  impl.options = options;
-  impl.pid = getpid();
+namespace {
+
+// Throws FeedError naming the first option out of its range.
+void CheckOptions(const SceneStreamOptions& options) {
   if (options.window < 1 || options.window > 10000) {
     throw FeedError("window must be 1..10000 scenes, got " + std::to_string(options.window));
   }
@@ -495,6 +495,15 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
   if (!(options.fault_drop >= 0 && options.fault_drop < 1)) {
     throw FeedError("fault_drop must be in [0, 1), got " + std::to_string(options.fault_drop));
   }
+}
+
+}  // namespace
+
+SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_unique<Impl>()) {
+  Impl& impl = *impl_;
+  impl.options = options;
+  impl.pid = getpid();
+  CheckOptions(options);
   impl.url = ResolveLcmUrl(options.url);
   impl.name = options.name.empty() ? DefaultName(options) : options.name;
   impl.log_path = LogPathOfUrl(impl.url);
@@ -521,14 +530,10 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
       throw FeedError(error.what());
     }
   } else {
-    BusOptions bus_options;
-    bus_options.drop_receive_fraction = options.fault_drop;
-    bus_options.fault_seed = 0xFEED;
-    bus_options.key_file = options.bus_key_file;
-    bus_options.open_bus = options.open_bus;
-    bus_options.replay = options.replay;
     try {
-      impl.bus = std::make_unique<Bus>(impl.url, bus_options);
+      impl.bus = std::make_unique<Bus>(
+          impl.url, ConsumerBusOptions(options.fault_drop, options.bus_key_file, options.open_bus,
+                                       options.replay, 0xFEED));
     } catch (const std::exception& error) {
       throw FeedError(error.what());
     }

@@ -1,5 +1,7 @@
 #include "bus/consumer.h"
 
+#include <atomic>
+#include <csignal>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -59,6 +61,37 @@ TEST(ConsumerStatusTest, HoldsTheReportAndTheBusCounters) {
   EXPECT_EQ(message.bad_messages, 4);
   EXPECT_EQ(message.fault_dropped, bus.fault_dropped());
   EXPECT_EQ(message.refused_unsigned, 0);
+}
+
+// a consumer's flags become its bus options, the fault seed its own
+TEST(ConsumerBusOptionsTest, FlagsBecomeBusOptions) {
+  const BusOptions options = ConsumerBusOptions(0.25, "/keys/bus.key", true, true, 0xFEED);
+  EXPECT_EQ(options.drop_receive_fraction, 0.25);
+  EXPECT_EQ(options.key_file, "/keys/bus.key");
+  EXPECT_TRUE(options.open_bus);
+  EXPECT_TRUE(options.replay);
+  EXPECT_EQ(options.fault_seed, 0xFEEDu);
+  const BusOptions plain = ConsumerBusOptions(0, "", false, false, 1);
+  EXPECT_EQ(plain.drop_receive_fraction, 0);
+  EXPECT_FALSE(plain.open_bus);
+  EXPECT_FALSE(plain.replay);
+}
+
+std::atomic<int> signals_seen{0};
+void CountSignal(int) { ++signals_seen; }
+
+// SIGINT and SIGTERM reach the handler, and the process goes on
+TEST(StopOnSignalsTest, BothSignalsReachTheHandler) {
+  struct sigaction old_int {
+  }, old_term{};
+  sigaction(SIGINT, nullptr, &old_int);
+  sigaction(SIGTERM, nullptr, &old_term);
+  StopOnSignals(CountSignal);
+  raise(SIGINT);
+  raise(SIGTERM);
+  EXPECT_EQ(signals_seen.load(), 2);
+  sigaction(SIGINT, &old_int, nullptr);
+  sigaction(SIGTERM, &old_term, nullptr);
 }
 
 }  // namespace

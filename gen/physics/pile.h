@@ -104,11 +104,12 @@ struct PileResult {
 /// Drops copies of rigid parts (one or more part types) into an open bin with Bullet and runs
 /// until they settle.
 /// Bullet works in centimetres with 0.2 mm collision margins (hull pieces are shrunk by the
-/// margin first), SimulationParams::solver_iterations per fixed step started from the whole last
-/// step's impulses, whole contact manifolds from the first touch, split-impulse contacts, friction
-/// anchors (static friction: contact points held while inside the friction cone) and a little
-/// angular damping; at the default 1/600 s step a 6 mm plate does not tunnel and penetrations stay
-/// far below 0.5 mm (at most 0.09 mm in 100 piles of 12 connectors). The simulator is immutable
+/// margin first), SimulationParams::solver_iterations contact-solver iterations per fixed step,
+/// each started from the whole last step's impulses, whole contact manifolds from the first touch,
+/// split-impulse contacts, friction anchors (static friction: contact points held while inside
+/// the friction cone) and a little angular damping; at the default 1/600 s step a 6 mm plate does
+/// not tunnel and penetrations stay far below 0.5 mm (at most 0.09 mm in 100 piles of 12
+/// connectors, measured with 20 iterations). The simulator is immutable
 /// after construction; Simulate() builds a fresh world each call and keeps no state between calls.
 class PileSimulator {
  public:

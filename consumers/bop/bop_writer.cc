@@ -239,7 +239,7 @@ void WriteCameraFile(const fs::path& path, const camera_info& camera) {
 
 // The "scene" part of a scene's journal line: its ids, size, seed, colour file, classes and
 // files (relative to `dir`).
-json JournalScene(const scene& scene, int64_t scene_id, const std::string& rgb_name,
+json JournalScene(const scene& scene, int64_t scene_id, int64_t im_id, const std::string& rgb_name,
                   const std::map<int32_t, std::string>& class_names,
                   const std::vector<std::string>& paths, const std::string& dir) {
   json classes = json::array();
@@ -252,7 +252,7 @@ json JournalScene(const scene& scene, int64_t scene_id, const std::string& rgb_n
           {"files", std::move(files)},
           {"generator_id", scene.header.generator_id},
           {"height", scene.camera.height},
-          {"im_id", BopWriter::ImageId(scene.header.seq)},
+          {"im_id", im_id},
           {"journal_version", kJournalVersion},
           {"rgb", rgb_name},
           {"scene_id", scene_id},
@@ -503,7 +503,8 @@ bool BopWriter::Add(const scene& scene) {
     }
 
     // its journal line
-    json record_scene = JournalScene(scene, scene_id, rgb_name, staged.classes, staged.files, dir_);
+    json record_scene =
+        JournalScene(scene, scene_id, im_id, rgb_name, staged.classes, staged.files, dir_);
     const auto run = runs_.find(generator_id);
     if (run != runs_.end()) record_scene["run"] = run->second;
     const json record = {{"camera", SceneCamera(camera)},    {"coco", std::move(truths.coco)},

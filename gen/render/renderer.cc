@@ -654,18 +654,10 @@ void Renderer::Impl::RenderPhong(const CameraModel& camera, const RenderOptions&
   glClearBufferfv(GL_DEPTH, 0, &far_depth);
 
   // each material of a mesh (or the item's material) in one draw, near items first
-  for (const auto& [z, index] : draw_order) {
-    const DrawItem& item = items[index];
-    const MeshBuffers& mesh = meshes[item.mesh_id];
-    if (!item.use_mesh_materials || mesh.materials.empty()) {
-      DrawSurface(item, camera_from_world, mesh, item.material, 0, mesh.index_count);
-      continue;
-    }
-    for (size_t k = 0; k < mesh.range_firsts.size(); ++k) {
-      DrawSurface(item, camera_from_world, mesh, mesh.materials[mesh.range_materials[k]],
-                  mesh.range_firsts[k], mesh.range_counts[k]);
-    }
-  }
+  ForEachSurface(items, [&](const DrawItem& item, size_t, const MeshBuffers& mesh,
+                            const Material& material, GLsizei first, GLsizei count) {
+    DrawSurface(item, camera_from_world, mesh, material, first, count);
+  });
   glBindVertexArray(0);
 
   // read back; framebuffer row 0 is image row 0 already (see projection.glsl)

@@ -353,6 +353,24 @@ struct Renderer::Impl {
   void Draw(const MeshBuffers& mesh, GLsizei first, GLsizei count);
   void DrawSurface(const DrawItem& item, const Eigen::Isometry3d& camera_from_world,
                    const MeshBuffers& mesh, const Material& material, GLsizei first, GLsizei count);
+  // Calls draw(item, index, mesh, material, first, count) for every surface of `items` in
+  // draw_order (near items first): an item's own material over its whole mesh, or each material
+  // range of its mesh with that material.
+  template <typename DrawFn>
+  void ForEachSurface(const std::vector<DrawItem>& items, DrawFn&& draw) const {
+    for (const auto& [z, index] : draw_order) {
+      const DrawItem& item = items[index];
+      const MeshBuffers& mesh = meshes[item.mesh_id];
+      if (!item.use_mesh_materials || mesh.materials.empty()) {
+        draw(item, index, mesh, item.material, 0, mesh.index_count);
+        continue;
+      }
+      for (size_t k = 0; k < mesh.range_firsts.size(); ++k) {
+        draw(item, index, mesh, mesh.materials[mesh.range_materials[k]], mesh.range_firsts[k],
+             mesh.range_counts[k]);
+      }
+    }
+  }
   Eigen::AlignedBox3d WorldBounds(const std::vector<DrawItem>& items) const;
   void EnsureShadowMaps(int size, int layers);
   void RenderShadowMaps(const std::vector<Light>& lights, int size,

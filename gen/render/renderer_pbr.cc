@@ -399,18 +399,10 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
   glClearBufferfv(GL_COLOR, 2, zero_z);
   glClearBufferuiv(GL_COLOR, 3, zero_id);
   glClearBufferfv(GL_DEPTH, 0, &far_depth);
-  for (const auto& [z, index] : draw_order) {
-    const DrawItem& item = items[index];
-    const MeshBuffers& mesh = meshes[item.mesh_id];
-    if (!item.use_mesh_materials || mesh.materials.empty()) {
-      DrawPbrSurface(item, index, camera_from_world, mesh, item.material, 0, mesh.index_count);
-      continue;
-    }
-    for (size_t k = 0; k < mesh.range_firsts.size(); ++k) {
-      DrawPbrSurface(item, index, camera_from_world, mesh, mesh.materials[mesh.range_materials[k]],
-                     mesh.range_firsts[k], mesh.range_counts[k]);
-    }
-  }
+  ForEachSurface(items, [&](const DrawItem& item, size_t index, const MeshBuffers& mesh,
+                            const Material& material, GLsizei first, GLsizei count) {
+    DrawPbrSurface(item, index, camera_from_world, mesh, material, first, count);
+  });
   EnsureImage(&result->instance, height, width, CV_16UC1);
   EnsureImage(&result->depth_mm, height, width, CV_32FC1);
   EnsureImage(&result->color_linear, height, width, CV_32FC3);

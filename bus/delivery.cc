@@ -425,13 +425,18 @@ struct SceneClient::Impl {
   // whether the wildcard credit is sent (a writer of every generator)
   bool Wildcard() const { return options.generator_ids.empty() && !options.join_where_heard; }
 
-  // whether `seq` belongs to this consumer's shard
-  bool InShard(int64_t seq) const { return seq % options.shard_count == options.shard_index; }
+  // whether `seq` belongs to this consumer's shard (and is not below its first seq)
+  bool InShard(int64_t seq) const {
+    return seq >= options.first_seq && seq % options.shard_count == options.shard_index;
+  }
 
-  // seqs of this shard in 0..seq
+  // seqs of this shard in first_seq..seq
   int64_t ShardSeqsThrough(int64_t seq) const {
-    if (seq < options.shard_index) return 0;
-    return (seq - options.shard_index) / options.shard_count + 1;
+    const auto through = [this](int64_t last) -> int64_t {
+      if (last < options.shard_index) return 0;
+      return (last - options.shard_index) / options.shard_count + 1;
+    };
+    return std::max<int64_t>(0, through(seq) - through(options.first_seq - 1));
   }
 
   // moves stored_through over every seq that is done: stored, skipped or of another shard
@@ -453,7 +458,10 @@ struct SceneClient::Impl {
     const auto found = streams.find(generator_id);
     if (found != streams.end()) return found->second;
     Stream& stream = streams[generator_id];
-    if (options.join_where_heard && heard_seq > options.window) {
+    stream.stored_through = options.first_seq - 1;
+    stream.last_received = options.first_seq - 1;
+    if (options.join_where_heard && heard_seq > options.window &&
+        heard_seq - 1 > stream.stored_through) {
       stream.stored_through = heard_seq - 1;
       stream.last_received = heard_seq - 1;
     }
@@ -507,6 +515,10 @@ SceneClient::SceneClient(Bus* bus, const SceneClientOptions& options)
   if (options.shard_count < 1 || options.shard_count > kMaxShards) {
     throw std::invalid_argument("a stream splits into 1.." + std::to_string(kMaxShards) +
                                 " shards, not " + std::to_string(options.shard_count));
+  }
+  if (options.first_seq < 0 || options.first_seq > kMaxSeq) {
+    throw std::invalid_argument("the first seq must be in 0.." + std::to_string(kMaxSeq) +
+                                ", not " + std::to_string(options.first_seq));
   }
   if (options.shard_index < 0 || options.shard_index >= options.shard_count) {
     throw std::invalid_argument("shard " + std::to_string(options.shard_index) +
@@ -634,9 +646,11 @@ void SceneClient::Service() {
   }
 
   // the wildcard: generators not heard from yet count this consumer as having stored nothing
-  // (not with a list of generators: those are credited by name, and others must not wait)
+  // below its first seq (not with a list of generators: those are credited by name, and others
+  // must not wait)
   if (period_due) {
-    if (impl.Wildcard()) impl.SendCredit(-1, -1, -1, false);
+    const int64_t before_first = impl.options.first_seq - 1;
+    if (impl.Wildcard()) impl.SendCredit(-1, before_first, before_first, false);
     impl.last_credit = now;
   }
 }
@@ -647,12 +661,13 @@ void SceneClient::Leave() {
   for (const auto& [generator_id, stream] : impl.streams) {
     impl.SendCredit(generator_id, stream.stored_through, stream.last_received, true);
   }
-  if (impl.Wildcard()) impl.SendCredit(-1, -1, -1, true);
+  const int64_t before_first = impl.options.first_seq - 1;
+  if (impl.Wildcard()) impl.SendCredit(-1, before_first, before_first, true);
   // once more: a lost last credit would keep a generator waiting for the whole timeout
   for (const auto& [generator_id, stream] : impl.streams) {
     impl.SendCredit(generator_id, stream.stored_through, stream.last_received, true);
   }
-  if (impl.Wildcard()) impl.SendCredit(-1, -1, -1, true);
+  if (impl.Wildcard()) impl.SendCredit(-1, before_first, before_first, true);
   impl.left = true;
 }
 

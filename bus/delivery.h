@@ -160,6 +160,11 @@ struct SceneClientOptions {
   /// generator never makes it resend its history; one first heard at a lower seq started with
   /// the learner and is taken from seq 0.
   bool join_where_heard = false;
+  /// The first seq it takes of every generator (0..99999998, default 0): lower seqs count as
+  /// done (never asked for, never waited for, not counted), and the wildcard credit says so, so
+  /// a generator started at this seq (stackgen --first-seq) is not held back by the seqs before
+  /// it. One task of a cluster job stores seqs first_seq .. first_seq + max_scenes - 1.
+  int64_t first_seq = 0;
   /// The clock the credit period and the re-asking are measured on; null: SteadyClock(). Must
   /// outlive the client.
   Clock* clock = nullptr;

@@ -121,6 +121,7 @@ void AddWriterFlags(FlagParser* parser, WriterFlags* flags) {
   parser->String("--out", &flags->out, "a folder");
   parser->Require("--out");
   parser->Int("--count", &flags->count, 0, INT64_MAX);
+  parser->Int("--first-seq", &flags->first_seq, 0, kMaxSeq);
   parser->Switch("--resume", &flags->resume);
   parser->LcmUrl(&flags->lcm_url);
   parser->BusKey(&flags->bus_key_file, &flags->open_bus);
@@ -136,6 +137,12 @@ std::string WriterFlagsHelp(const std::string& journal) {
              "  --count N             stop after N scenes are stored (default 0: run until SIGINT "
              "or\n"
              "                        SIGTERM).\n"
+             "  --first-seq A         take each generator's scenes from seq A on (default 0): the\n"
+             "                        lower seqs are not this dataset's and are never waited for; "
+             "with\n"
+             "                        --count N it holds seqs A..A+N-1 of a generator started "
+             "with\n"
+             "                        stackgen --first-seq A (one task of a job: tools/task).\n"
              "  --resume              continue the dataset in DIR after a crash or a stop: "
              "reloads\n"
              "                        ") +
@@ -204,6 +211,7 @@ class WriterSession {
       client_options.name = name_;
       client_options.window = static_cast<int32_t>(flags_.window);
       client_options.max_scenes = flags_.count;
+      client_options.first_seq = flags_.first_seq;
       client_ = std::make_unique<SceneClient>(bus_.get(), client_options);
       for (const auto& [generator_id, seqs] : writer_->StoredSeqs()) {
         client_->Restore(generator_id, seqs);
@@ -335,6 +343,8 @@ class WriterSession {
     if (Enough()) return;
     const int32_t generator_id = scene.header.generator_id;
     const int64_t seq = scene.header.seq;
+    // a seq before --first-seq belongs to another dataset (another task's share)
+    if (seq < flags_.first_seq) return;
     if (foreign_runs_.count(generator_id) != 0) {
       ++invalid_scenes_;
       return;

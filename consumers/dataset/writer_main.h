@@ -22,6 +22,7 @@ namespace stackgen {
 struct WriterFlags {
   std::string out;
   int64_t count = 0;
+  int64_t first_seq = 0;  // scenes of lower seqs are not this dataset's (one task of a job)
   std::string lcm_url;
   std::string bus_key_file;  // "": $STACKGEN_BUS_KEY_FILE, else this user's key
   bool open_bus = false;
@@ -33,7 +34,7 @@ struct WriterFlags {
   int64_t warn_silent_s = 10;  // says so when no generator is heard this long; 0: never
 };
 
-/// Registers the WriterFlags on `parser`: --out (required), --count, --resume, --lcm-url,
+/// Registers the WriterFlags on `parser`: --out (required), --count, --first-seq, --resume, --lcm-url,
 /// --bus-key-file, --open-bus, --replay, --window, --group-commit, --fault-drop, --warn-silent.
 void AddWriterFlags(FlagParser* parser, WriterFlags* flags);
 

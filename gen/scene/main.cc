@@ -34,6 +34,9 @@ flags:
   --config FILE       generator config, protobuf text (default: %s)
   --count N           scenes to publish, then exit, 0..99999999; 0 = until SIGINT/SIGTERM
                       or the last seq, 99999998 (default: 0)
+  --first-seq A       the first seq to publish (default: 0): with --count N, seqs A..A+N-1,
+                      the same scenes a generator making seqs 0.. makes there (one task of a
+                      cluster job: tools/task); writers take them with --first-seq A
   --seed S            base seed; scene k is a pure function of (config, S, G, k) (default: 0)
   --generator-id G    id of this generator, 0..65535, distinct per concurrent generator
                       (default: 0)
@@ -81,6 +84,7 @@ int Run(int argc, char** argv) {
   // flags.
   std::string config_path = DefaultConfigPath(STACKGEN_DEFAULT_CONFIG);
   int64_t count = 0;
+  int64_t first_seq = 0;
   int64_t seed_flag = 0;
   int generator_id = 0;
   std::string lcm_url;
@@ -94,6 +98,7 @@ int Run(int argc, char** argv) {
   FlagParser parser("stackgen");
   parser.String("--config", &config_path);
   parser.Int("--count", &count, 0, kMaxSeq + 1);
+  parser.Int("--first-seq", &first_seq, 0, kMaxSeq);
   parser.Int("--seed", &seed_flag, 0, INT64_MAX);
   parser.Int("--generator-id", &generator_id, 0, kMaxGeneratorId);
   parser.LcmUrl(&lcm_url);
@@ -107,6 +112,14 @@ int Run(int argc, char** argv) {
   parser.FaultDrop(&bus_options.drop_receive_fraction);
   parser.ParseOrExit(
       argc, argv, [] { std::printf(kUsage, DefaultConfigPath(STACKGEN_DEFAULT_CONFIG).c_str()); });
+  if (first_seq + count - 1 > kMaxSeq) {
+    std::fprintf(
+        stderr,
+        "stackgen: error: --first-seq %lld with --count %lld ends past the last seq, %lld\n",
+        static_cast<long long>(first_seq), static_cast<long long>(count),
+        static_cast<long long>(kMaxSeq));
+    return 2;
+  }
   const uint64_t seed = static_cast<uint64_t>(seed_flag);
   bus_options.fault_seed = 0x57AC0000u + static_cast<uint64_t>(generator_id);
 
@@ -131,6 +144,7 @@ int Run(int argc, char** argv) {
   std::signal(SIGTERM, OnSignal);
   GeneratorNodeOptions options;
   options.count = count;
+  options.first_seq = first_seq;
   options.resume = resume;
   options.no_consumer_ok = no_consumer_ok;
   options.consumer_timeout_s = static_cast<double>(consumer_timeout);

@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <cstdio>
@@ -282,7 +283,7 @@ void GeneratorNode::Impl::Listen(double seconds, const std::function<bool()>& do
 // the seq to start at: 0, or with --resume what the reliable consumers stored through
 int64_t GeneratorNode::Impl::FirstSeq() {
   Listen(0.5, [] { return false; });
-  if (!options.resume) return 0;
+  if (!options.resume) return options.first_seq;
   Listen(options.consumer_timeout_s, [this] { return server->ResumeSeq().has_value(); });
   if (!server->ResumeSeq()) {
     throw std::runtime_error("--resume: no reliable consumer (stackgen-coco) sent a credit on " +
@@ -291,7 +292,7 @@ int64_t GeneratorNode::Impl::FirstSeq() {
                              " s; start the writers first");
   }
   Listen(0.5, [] { return false; });
-  const int64_t first_seq = *server->ResumeSeq();
+  const int64_t first_seq = std::max(options.first_seq, *server->ResumeSeq());
   std::printf("stackgen: resuming at seq %lld (%d reliable consumers)\n",
               static_cast<long long>(first_seq), server->reliable_consumers());
   std::fflush(stdout);
@@ -351,7 +352,10 @@ void GeneratorNode::Impl::WaitForConsumers(int timeout_ms) {
 void GeneratorNode::Impl::SettleAhead(int64_t first_seq) {
   const int views = generator.views_per_pile();
   const int64_t next_first = current ? current->first_seq + views : first_seq;
-  if ((options.count != 0 && next_first >= options.count) || next_first > kMaxSeq) return;
+  if ((options.count != 0 && next_first >= options.first_seq + options.count) ||
+      next_first > kMaxSeq) {
+    return;
+  }
   SceneGenerator* scenes = &generator;
   if (current) {
     ahead = physics_worker.Submit([scenes, state = *current] { return scenes->SettleNext(state); });
@@ -455,7 +459,8 @@ void GeneratorNode::Run() {
 
   node.PublishPeriodic(true);
   // without --count, until a signal or the last seq of the id layout (bus/scene_contract.h)
-  const int64_t last_seq = node.options.count > 0 ? node.options.count - 1 : kMaxSeq;
+  const int64_t last_seq =
+      node.options.count > 0 ? node.options.first_seq + node.options.count - 1 : kMaxSeq;
   const int views = node.generator.views_per_pile();
   for (int64_t seq = first_seq; seq <= last_seq && !node.Stopped(); ++seq) {
     // nothing in flight: render only what may be published (later, the one scene being

@@ -24,9 +24,12 @@ namespace stackgen {
 
 /// What a node does beyond its config (the flags of `stackgen`).
 struct GeneratorNodeOptions {
-  /// Scenes to publish, seqs 0..count-1 (or from the resume seq); 0: until stopped or the last
-  /// seq of the id layout.
+  /// Scenes to publish, seqs first_seq..first_seq+count-1 (or from the resume seq); 0: until
+  /// stopped or the last seq of the id layout.
   int64_t count = 0;
+  /// The first seq to publish (--first-seq): one task of a cluster job makes seqs
+  /// first_seq..first_seq+count-1, the same scenes as one generator making them all.
+  int64_t first_seq = 0;
   /// --resume: start at the seq the reliable consumers have stored through (they must credit
   /// within consumer_timeout_s).
   bool resume = false;

@@ -257,6 +257,45 @@ TEST_F(DeliveryFixture, MaxScenesShrinksTheWindow) {
   EXPECT_FALSE(server_->MayPublish(5));
 }
 
+// a consumer that takes seqs from 100 on (one task of a cluster job) counts 0..99 as done: the
+// generator started at 100 may publish a window past 99 before it heard a scene, a scene below
+// 100 is not stored, a gap above it is asked for, and with 4 scenes wanted seq 104 never comes.
+TEST_F(DeliveryFixture, FirstSeqCountsEarlierSeqsAsDone) {
+  SceneClientOptions options = Client(3, 4);
+  options.first_seq = 100;
+  SetUpLink(SceneServerOptions{}, options);
+  Exchange();
+  ASSERT_EQ(server_->reliable_consumers(), 1);
+  EXPECT_TRUE(server_->MayPublish(102));
+  EXPECT_FALSE(server_->MayPublish(103));
+  ASSERT_TRUE(server_->ResumeSeq().has_value());
+  EXPECT_EQ(*server_->ResumeSeq(), 100);
+  EXPECT_FALSE(client_->Received(0, 50));
+
+  drop_ = {{0, 101}};
+  for (int64_t seq = 100; seq <= 102; ++seq) server_->Publish(seq, EncodedScene(0, seq));
+  bus_->HandleFor(0);
+  EXPECT_EQ(client_->counters().lost, 1);
+  Exchange();
+  bus_->HandleFor(0);
+  EXPECT_EQ(client_->StoredThrough(0), 102);
+  EXPECT_EQ(stored_.count({0, 101}), 1u);
+  Exchange();
+  server_->Publish(103, EncodedScene(0, 103));
+  bus_->HandleFor(0);
+  Exchange();
+  EXPECT_EQ(client_->StoredThrough(0), 103);
+  EXPECT_EQ(client_->counters().stored, 4);
+  EXPECT_EQ(client_->counters().lost, 0);
+  EXPECT_FALSE(server_->MayPublish(104));
+  EXPECT_THROW(
+      {
+        options.first_seq = -1;
+        SceneClient refused(bus_.get(), options);
+      },
+      std::invalid_argument);
+}
+
 // a scene skipped as invalid does not use up the scenes a consumer wants: the generator may still
 // publish enough for it to store them all.
 TEST_F(DeliveryFixture, SkippedScenesDoNotUseUpMaxScenes) {

@@ -111,5 +111,7 @@ def test_shell_snippets_run_as_printed(tmp_path):
     # what the blocks say they make
     assert (root / "out" / "yolo" / "data.yaml").is_file()
     assert (root / "stats2" / "cumulative.png").is_file()
+    assert sorted(os.listdir(root / "out" / "job")) == ["task-00000", "task-00001"]
+    assert len(os.listdir(root / "out" / "job-all" / "images")) == 8
     assert len(list((root / "out" / "deb").glob("stackgen_*_amd64.deb"))) == 1
     assert list((root / ".venv" / "lib").glob("python3*/site-packages/stackgen/_native.*.so"))

@@ -14,6 +14,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
@@ -73,7 +74,8 @@ struct Recorded {
   int32_t generator_id = 0;
   int64_t seq = 0;
   std::string run;
-  std::string line;                // the journal line, without its '\n'
+  uint64_t offset = 0;             // its journal line: where it starts in the input's journal
+  uint64_t length = 0;             // and its bytes, without the '\n'
   std::vector<std::string> files;  // relative to the input folder
   size_t input = 0;
 };
@@ -92,6 +94,7 @@ struct Input {
   fs::path dir;
   Format format = Format::kCoco;
   std::string options;  // the labelling options its lines record (COCO), or its split (BOP)
+  json coco_options;    // COCO: min_visib_fract (null: none) and polygons of its first line
   std::vector<Recorded> scenes;
   std::optional<TaskShard> task;
 };
@@ -99,7 +102,7 @@ struct Input {
 [[noreturn]] void Fail(const std::string& text) { throw std::runtime_error(text); }
 
 // the fields of a journal line merge needs; `where` names the line in errors
-Recorded ParseLine(const Input& input, const std::string& line, const std::string& where,
+Recorded ParseLine(Input* input, const std::string& line, const std::string& where,
                    std::string* options) {
   json record;
   try {
@@ -109,16 +112,20 @@ Recorded ParseLine(const Input& input, const std::string& line, const std::strin
     scene.generator_id = head.at("generator_id").get<int32_t>();
     scene.seq = head.at("seq").get<int64_t>();
     scene.run = head.value("run", std::string());
-    if (input.format == Format::kCoco) {
+    if (input->format == Format::kCoco) {
       scene.files.push_back("images/" + record.at("image").at("file_name").get<std::string>());
       *options = "min_visib_fract " + head.at("min_visib_fract").dump() +
                  (head.value("polygons", false) ? ", --polygons" : ", RLE");
+      if (input->scenes.empty()) {
+        input->coco_options = {{"min_visib_fract", head.at("min_visib_fract")},
+                               {"polygons", head.value("polygons", false)}};
+      }
     } else {
       scene.files = head.at("files").get<std::vector<std::string>>();
       if (scene.files.empty()) Fail("no files");
       *options = "split " + scene.files.front().substr(0, scene.files.front().find('/'));
     }
-    scene.line = line;
+    scene.length = line.size();
     return scene;
   } catch (const std::exception& error) {
     Fail(where + ": not a stackgen journal record (" + error.what() + ")");
@@ -133,22 +140,25 @@ std::string FileBytes(const fs::path& path) {
   return text.str();
 }
 
-// the journal's complete lines; a last line without its '\n' is a record torn by a kill
-std::vector<std::string> JournalLines(const fs::path& path) {
-  const std::string bytes = FileBytes(path);
-  if (!bytes.empty() && bytes.back() != '\n') {
-    Fail(path.string() +
-         " ends in a torn record (its writer was stopped by a kill): finish "
-         "that dataset with --resume first");
+// calls on_line(line, offset) for each line of the journal at `path`, one at a time (a merge
+// of millions of scenes holds no journal in memory); a last line without its '\n' is a record
+// torn by a kill
+void ForEachJournalLine(const fs::path& path,
+                        const std::function<void(const std::string&, uint64_t)>& on_line) {
+  std::ifstream file(path, std::ios::binary);
+  if (!file) Fail(path.string() + ": cannot read it");
+  std::string line;
+  uint64_t offset = 0;
+  while (std::getline(file, line)) {
+    if (file.eof()) {
+      Fail(path.string() +
+           " ends in a torn record (its writer was stopped by a kill): finish that dataset with "
+           "--resume first");
+    }
+    on_line(line, offset);
+    offset += line.size() + 1;
   }
-  std::vector<std::string> lines;
-  size_t start = 0;
-  while (start < bytes.size()) {
-    const size_t end = bytes.find('\n', start);
-    lines.push_back(bytes.substr(start, end - start));
-    start = end + 1;
-  }
-  return lines;
+  if (file.bad()) Fail(path.string() + ": cannot read it");
 }
 
 std::optional<TaskShard> ReadTask(const fs::path& dir) {
@@ -192,15 +202,13 @@ Input LoadInput(const fs::path& dir, size_t index) {
          "was stopped; finish it with --resume first");
   }
   const fs::path journal = dir / JournalName(input.format);
-  const std::vector<std::string> lines = JournalLines(journal);
-  for (size_t k = 0; k < lines.size(); ++k) {
+  ForEachJournalLine(journal, [&](const std::string& line, uint64_t offset) {
+    const std::string where = journal.string() + " line " + std::to_string(input.scenes.size() + 1);
     std::string options;
-    Recorded scene =
-        ParseLine(input, lines[k], journal.string() + " line " + std::to_string(k + 1), &options);
-    if (k == 0) input.options = options;
+    Recorded scene = ParseLine(&input, line, where, &options);
+    if (input.scenes.empty()) input.options = options;
     if (options != input.options) {
-      Fail(journal.string() + " line " + std::to_string(k + 1) + ": written with " + options +
-           ", its first line with " + input.options);
+      Fail(where + ": written with " + options + ", its first line with " + input.options);
     }
     for (const std::string& file : scene.files) {
       if (!fs::exists(dir / file)) {
@@ -208,8 +216,9 @@ Input LoadInput(const fs::path& dir, size_t index) {
       }
     }
     scene.input = index;
+    scene.offset = offset;
     input.scenes.push_back(std::move(scene));
-  }
+  });
   input.task = ReadTask(dir);
   return input;
 }
@@ -328,22 +337,38 @@ int64_t WriteMerged(const std::vector<Input>& inputs, const std::vector<const Re
                     const fs::path& dir, int shards) {
   const Input& first = inputs.front();
   fs::create_directories(dir);
-  std::string journal;
-  for (const Recorded* scene : scenes) {
-    for (const std::string& file : scene->files) Place(inputs[scene->input].dir / file, dir / file);
-    journal += scene->line + "\n";
+  // the journal: each scene's line copied from its input's journal, in (generator id, seq) order
+  std::vector<std::ifstream> journals;
+  for (const Input& input : inputs) {
+    journals.emplace_back(input.dir / JournalName(input.format), std::ios::binary);
   }
-  WriteFileAtomically(dir / JournalName(first.format), journal.data(), journal.size(), true);
+  WriteFileWhole(dir / JournalName(first.format), [&](OutputFile& out) {
+    std::string line;
+    for (const Recorded* scene : scenes) {
+      for (const std::string& file : scene->files) {
+        Place(inputs[scene->input].dir / file, dir / file);
+      }
+      std::ifstream& journal = journals[scene->input];
+      line.resize(scene->length + 1);
+      journal.seekg(static_cast<std::streamoff>(scene->offset));
+      if (!journal.read(line.data(), static_cast<std::streamsize>(line.size()))) {
+        Fail(inputs[scene->input].dir.string() + ": its journal changed while merging");
+      }
+      out.Write(line);
+    }
+  });
   if (first.format == Format::kCoco) {
     CocoWriterOptions options;
     options.resume = true;
     options.shard_images = shards;
-    if (!scenes.empty()) {
-      const json head = json::parse(scenes.front()->line).at("scene");
-      if (!head.at("min_visib_fract").is_null()) {
-        options.min_visib_fract = head.at("min_visib_fract").get<double>();
+    for (const Input& input : inputs) {
+      if (input.scenes.empty()) continue;
+      const json& coco = input.coco_options;
+      if (!coco.at("min_visib_fract").is_null()) {
+        options.min_visib_fract = coco.at("min_visib_fract").get<double>();
       }
-      options.polygons = head.value("polygons", false);
+      options.polygons = coco.at("polygons").get<bool>();
+      break;
     }
     CocoWriter writer(dir.string(), options);
     writer.Finish();

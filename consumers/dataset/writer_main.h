@@ -34,8 +34,9 @@ struct WriterFlags {
   int64_t warn_silent_s = 10;  // says so when no generator is heard this long; 0: never
 };
 
-/// Registers the WriterFlags on `parser`: --out (required), --count, --first-seq, --resume, --lcm-url,
-/// --bus-key-file, --open-bus, --replay, --window, --group-commit, --fault-drop, --warn-silent.
+/// Registers the WriterFlags on `parser`: --out (required), --count, --first-seq, --resume,
+/// --lcm-url, --bus-key-file, --open-bus, --replay, --window, --group-commit, --fault-drop,
+/// --warn-silent.
 void AddWriterFlags(FlagParser* parser, WriterFlags* flags);
 
 /// The help text of those flags, for a program's --help (`program` names its journal).

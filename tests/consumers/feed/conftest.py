@@ -20,11 +20,13 @@ TINY_CONFIG = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.pbtxt")
 TINY_LOG = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.lcmlog")
 
 
-def coco_of_fixture_log(folder):
+def coco_of_fixture_log(folder, shards=None):
     """Writes the fixture log's 4 scenes into a COCO folder `folder` with stackgen-coco (labelled
-    images standing for photos, or a held-out test set)."""
+    images standing for photos, or a held-out test set); with `shards`, also webdataset shards
+    of that many images (--shards)."""
     made = subprocess.run([os.path.join(BIN, "stackgen-coco"), "--lcm-url",
-                           "file://%s?speed=0" % TINY_LOG, "--open-bus", "--out", str(folder)],
+                           "file://%s?speed=0" % TINY_LOG, "--open-bus", "--out", str(folder)]
+                          + (["--shards", str(shards)] if shards else []),
                           capture_output=True, text=True, timeout=120)
     assert made.returncode == 0, made.stderr
     return str(folder)

@@ -8,10 +8,15 @@
 // models and camera of BOP; webdataset shards with --shards), all in a temporary folder renamed
 // into place at the end.
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <cstdint>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -44,13 +49,15 @@ constexpr const char* kUsage = R"(usage: stackgen-merge --out DIR [--shards N] I
 
 Assembles datasets of one run into one dataset at DIR, exactly once: the shards of a cluster job
 (tools/task writes one per task, each a COCO or BOP dataset with its task.json), or any finished
-datasets of stackgen-coco or stackgen-bop made with the same config and seed. The result holds
+datasets of stackgen-coco or stackgen-bop made with the same config and seed (a dataset whose
+writer was stopped counts with the scenes its journal holds). The result holds
 every scene of the inputs once and is the dataset one writer would have made from the same
 scenes: the same image files and, byte for byte, the same annotations.json (COCO) or chunk JSON
 files, models and camera.json (BOP).
 
 Refused, with one line naming the input, before anything is written: an input that is not a
-finished dataset (no journal, a journal torn by a kill, a recorded file missing), inputs of
+dataset (no journal), is still being written (its writer holds the journal), or is damaged (a
+journal torn by a kill, a recorded file missing), inputs of
 different formats, splits or labelling options, a scene of another run (config or seed), a
 scene held by two inputs, and for task shards a task that is missing or given twice (every task
 0..T-1 of the job must be there).
@@ -97,6 +104,7 @@ struct Input {
   json coco_options;    // COCO: min_visib_fract (null: none) and polygons of its first line
   std::vector<Recorded> scenes;
   std::optional<TaskShard> task;
+  std::shared_ptr<const int> lock;  // its journal, held (shared) while merging
 };
 
 [[noreturn]] void Fail(const std::string& text) { throw std::runtime_error(text); }
@@ -138,6 +146,25 @@ std::string FileBytes(const fs::path& path) {
   std::stringstream text;
   text << file.rdbuf();
   return text.str();
+}
+
+// `journal` locked against a writer while merging (a writer holds its journal's lock for good
+// while it runs): refused when one holds it now
+std::shared_ptr<const int> LockShared(const fs::path& journal) {
+  const int fd = open(journal.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) Fail(journal.string() + ": cannot open it: " + std::strerror(errno));
+  if (flock(fd, LOCK_SH | LOCK_NB) != 0) {
+    const int error = errno;
+    close(fd);
+    Fail(journal.parent_path().string() + ": still being written (its writer holds " +
+         journal.filename().string() +
+         (error == EWOULDBLOCK ? "" : ": " + std::string(std::strerror(error))) +
+         "): wait for it to finish, or stop it");
+  }
+  return std::shared_ptr<const int>(new int(fd), [](const int* held) {
+    close(*held);
+    delete held;
+  });
 }
 
 // calls on_line(line, offset) for each line of the journal at `path`, one at a time (a merge
@@ -196,12 +223,8 @@ Input LoadInput(const fs::path& dir, size_t index) {
          (coco ? "both journals" : "no annotations.journal or bop.journal") + ")");
   }
   input.format = coco ? Format::kCoco : Format::kBop;
-  if (coco && !fs::exists(dir / "annotations.json")) {
-    Fail(dir.string() +
-         ": not finished (no annotations.json): its writer is still running or "
-         "was stopped; finish it with --resume first");
-  }
   const fs::path journal = dir / JournalName(input.format);
+  input.lock = LockShared(journal);
   ForEachJournalLine(journal, [&](const std::string& line, uint64_t offset) {
     const std::string where = journal.string() + " line " + std::to_string(input.scenes.size() + 1);
     std::string options;

@@ -3,11 +3,12 @@ its own): the shards of a job merge into the dataset one process makes of the sa
 for byte (COCO with webdataset shards, and BOP), however many tasks and generators made them; a
 task killed with SIGKILL and run again leaves the same shard; the index comes from
 $JOB_COMPLETION_INDEX (Kubernetes) as from --task; merge refuses a missing, repeated, foreign,
-torn or unfinished shard with one line and writes nothing.
+torn or busy shard with one line and writes nothing.
 
 CTest runs this file with Debian's /usr/bin/python3 -m pytest, STACKGEN_SOURCE_DIR and
 STACKGEN_BIN_DIR set."""
 
+import fcntl
 import os
 import shutil
 import signal
@@ -173,10 +174,18 @@ def test_merge_refuses_bad_shards_with_one_line(job, tmp_path):
     with open(torn / "annotations.journal", "a") as journal:
         journal.write('{"image":{"file_na')
     refused(merge(out, first, torn), "ends in a torn record")
-    unfinished = tmp_path / "unfinished"
-    shutil.copytree(second, unfinished)
-    os.remove(unfinished / "annotations.json")
-    refused(merge(out, first, unfinished), "not finished")
+    # a writer still at work holds its journal's lock (a shared lock is enough to be refused)
+    busy = tmp_path / "busy"
+    shutil.copytree(second, busy)
+    with open(busy / "annotations.journal", "rb") as journal:
+        fcntl.flock(journal, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        refused(merge(out, first, busy), "busy: still being written")
+    # one stopped before its annotations.json counts with what its journal holds
+    stopped = tmp_path / "stopped"
+    shutil.copytree(second, stopped)
+    os.remove(stopped / "annotations.json")
+    assert merge(tmp_path / "from-stopped", first, stopped, shards=4).returncode == 0
+    assert files_of(tmp_path / "from-stopped") == files_of(job / "one")
     refused(merge(out, first, tmp_path / "nothing"), "no such folder")
     assert not out.exists() and not (tmp_path / "out.merging").exists()
     out.mkdir()

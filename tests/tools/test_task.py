@@ -2,7 +2,8 @@
 its own): the shards of a job merge into the dataset one process makes of the same scenes, byte
 for byte (COCO with webdataset shards, and BOP), however many tasks and generators made them; a
 task killed with SIGKILL and run again leaves the same shard; the index comes from
-$JOB_COMPLETION_INDEX (Kubernetes) as from --task; merge refuses a missing, repeated, foreign,
+$JOB_COMPLETION_INDEX (Kubernetes) as from --task; the tasks' own webdataset shards stream into
+stackgen.shards.ShardDataset without a merge; merge refuses a missing, repeated, foreign,
 torn or busy shard with one line and writes nothing.
 
 CTest runs this file with Debian's /usr/bin/python3 -m pytest, STACKGEN_SOURCE_DIR and
@@ -104,6 +105,10 @@ def test_shards_merge_to_the_one_process_dataset(job):
     assert len([name for name in ours if name.startswith("shards/shard-")]) == 3
     for name in reference:
         assert ours[name] == reference[name], name
+    # a learner streams the tasks' own webdataset shards, no merge needed: every image once
+    from stackgen.shards import ShardDataset
+    ids = [int(target["image_id"]) for _, target in ShardDataset([str(s) for s in shards])]
+    assert sorted(ids) == list(range(1, 11))
     # a task run again when its shard is there does nothing
     again = task(job / "shards", 10, 2, "--task", "1", "--seed", "2", "--shards", "4")
     assert again.returncode == 0 and "done already" in again.stdout

@@ -234,6 +234,7 @@ SimulationParams SimulationParamsOf(const config::PhysicsConfig& p) {
                                                                         : DropMode::kRandomVolume;
   params.drop_point_mm = Eigen::Vector2d(p.drop_point_x_mm(), p.drop_point_y_mm());
   params.solver_iterations = p.solver_iterations();
+  params.free_friction_while_falling = p.free_friction_while_falling();
 
   return params;
 }

@@ -388,11 +388,6 @@ void ValidatePhysics(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckRange(n, "physics", "drop_height_mm", physics.drop_height_mm(), 0, 10000);
   CheckRange(n, "physics", "max_redraws", physics.max_redraws(), 0, 1000);
   CheckRange(n, "physics", "solver_iterations", physics.solver_iterations(), 5, 500);
-  if (physics.free_friction_while_falling() && !c.bin().mesh().empty()) {
-    throw ConfigError(n.Where("physics", "free_friction_while_falling") +
-                      ": not with a tote mesh (bin.mesh) yet: a falling part can pass through "
-                      "its thin walls with free friction");
-  }
   if (physics.drop_mode() == config::PhysicsConfig::DROP_MODE_UNSPECIFIED) {
     throw ConfigError(n.Where("physics", "drop_mode") +
                       ": must be RANDOM_VOLUME, SEQUENTIAL or CUT_AND_PASTE");

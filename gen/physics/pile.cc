@@ -42,8 +42,11 @@ constexpr double kRestitutionThresholdMmS = 50;
 // the pile meets the settle rule, friction that holds it (two fixed directions, cached, the
 // configured iterations) until it meets the rule again: velocity-aligned friction alone lets a
 // resting pile creep (91 % of the parts of 20 default piles moved more than 1 mm when simulated
-// on), holding friction alone lets an edge stand. With a triangle-mesh tote one of 36 connectors
-// of PileModesTest.ToteMeshHoldsThePile fell through its floor: not for totes yet.
+// on), holding friction alone lets an edge stand. 100 default piles (stackgen-rest-check): 3.8 %
+// of the parts move more than 1 mm or 1 degree when simulated on, 0.1 % more than 5 mm or 10
+// degrees (25.5 % and 6.3 % with holding friction throughout), for 1.36x the physics. A
+// triangle-mesh tote keeps holding friction throughout: with free friction one of the 36
+// connectors of PileModesTest.ToteMeshHoldsThePile fell through its thin floor.
 constexpr int kDropIterations = 20;
 constexpr int kFreeFriction = SOLVER_USE_WARMSTARTING | SOLVER_SIMD;
 constexpr int kHoldingFriction =
@@ -614,7 +617,8 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
     return empty;
   }
   w.AddShapes(types);
-  bool holding = !params.free_friction_while_falling;
+  // (a tote mesh holds throughout: a part sliding with free friction passed its thin floor)
+  bool holding = !params.free_friction_while_falling || m.tote_shape != nullptr;
   if (!holding) w.FreeFriction();
 
   std::mt19937_64 engine(seed);

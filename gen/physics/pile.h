@@ -67,7 +67,7 @@ struct SimulationParams {
   DropMode drop_mode = DropMode::kRandomVolume;
   Eigen::Vector2d drop_point_mm = Eigen::Vector2d::Zero();  // kSequential: x, y of the release
   int solver_iterations = 50;                               // contact solver, per step, 5..500
-  bool free_friction_while_falling = false;  // Simulate: velocity-aligned friction until settled
+  bool free_friction_while_falling = true;  // Simulate: velocity-aligned friction until settled
 };
 
 /// When a pile counts as at rest for a strict check (Simulate or Resettle with a rule): every

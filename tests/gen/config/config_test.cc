@@ -123,10 +123,7 @@ TEST(ConfigTest, CountRangeRoleAndDropChecks) {
   EXPECT_NE(ErrorOf("physics { solver_iterations: 4 }").find("physics.solver_iterations"),
             std::string::npos);
   EXPECT_EQ(ErrorOf("physics { solver_iterations: 20 }"), "");
-  EXPECT_EQ(ErrorOf("physics { free_friction_while_falling: true }"), "");
-  EXPECT_NE(ErrorOf("bin { mesh: \"tote.obj\" }\nphysics { free_friction_while_falling: true }")
-                .find("physics.free_friction_while_falling: not with a tote mesh"),
-            std::string::npos);
+  EXPECT_EQ(ErrorOf("physics { free_friction_while_falling: false }"), "");
 }
 
 // min above max is refused.

@@ -423,13 +423,16 @@ MovedOn Moved(const PileResult& published, const PileResult& after) {
 }
 
 // A published connector pile is at rest: simulated on in the same world until every part moved
-// less than 0.1 mm and 0.1 degrees over 1 s (60 s at most), few parts move far and the heap hardly
-// sinks. Without friction anchors the piles crept on: of 240 parts 75 % moved more than 5 mm or
-// 10 degrees and the heaps sank 6.4 mm (stackgen-rest-check, 20 piles); 3 piles of 20 came to
-// rest within the 60 s.
+// less than 0.1 mm and 0.1 degrees over 1 s (60 s at most), no part moves far, few more than 1 mm
+// or 1 degree, and the heap hardly sinks (4 piles: 1 of 48 parts over 1 mm or 1 degree, none
+// over 5 mm or 10 degrees, when this was written). With the holding friction throughout (before
+// two-phase friction) 31 of the 48 moved over 1 mm or 1 degree, 5 over 5 mm or 10 degrees, and
+// the heaps sank 1.8 mm: the test failed; without friction anchors too,
+// the piles crept on (stackgen-rest-check, 20 piles: 75 % of 240 parts moved more than 5 mm or
+// 10 degrees, the heaps sank 6.4 mm).
 TEST_F(PileTest, PublishedConnectorPilesMoveLittleWhenSimulatedOn) {
   const PileSimulator simulator = ConnectorSimulator();
-  int piles = 0, parts = 0, over_5 = 0, at_rest = 0;
+  int piles = 0, parts = 0, over_1 = 0, over_5 = 0, at_rest = 0;
   double sank_mm = 0;
   for (uint64_t seed = 1; piles < 4; ++seed) {
     PileResult after;
@@ -447,19 +450,22 @@ TEST_F(PileTest, PublishedConnectorPilesMoveLittleWhenSimulatedOn) {
               << after.settled << " after " << after.simulated_s << " s\n";
     ++piles;
     parts += 12;
+    over_1 += moved.over_1;
     over_5 += moved.over_5;
     sank_mm += moved.sank_mm;
     at_rest += after.settled ? 1 : 0;
   }
-  EXPECT_LE(over_5, parts / 4);
-  EXPECT_LT(sank_mm / parts, 3.0);
-  EXPECT_GE(at_rest, 3);
+  EXPECT_LE(over_1, parts / 8);
+  EXPECT_EQ(over_5, 0);
+  EXPECT_LT(sank_mm / parts, 0.5);
+  EXPECT_EQ(at_rest, 4);
 }
 
 // A flat 80 x 40 x 10 mm box dropped alone is published at rest: simulated on, at most one of 100
-// moves more than 5 mm or 10 degrees (seed 94: a box leaning on the wall, 35 mm up, slides 5 mm
-// down it over 17 s), at most 2 more than 1 mm or 1 degree (without friction anchors 3 boxes
-// toppled after they were published, 8 moved more than 1 mm or 1 degree).
+// moves more than 5 mm or 10 degrees, at most 2 more than 1 mm or 1 degree (with the holding
+// friction throughout, seed 94: a box leaning on the wall, 35 mm up, slid 5 mm down it over
+// 17 s; without friction anchors 3 boxes toppled after they were published, 8 moved more than
+// 1 mm or 1 degree).
 TEST_F(PileTest, PublishedFlatBoxesStayAtRest) {
   const PileSimulator simulator(BoxMesh({-40, -20, -5}, {40, 20, 5}), {}, PartPhysics{}, kBin,
                                 SimulationParams{}, (dir_ / "cache").string());

@@ -24,7 +24,6 @@
 #include <memory>
 #include <optional>
 #include <set>
-#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <system_error>
@@ -138,14 +137,6 @@ Recorded ParseLine(Input* input, const std::string& line, const std::string& whe
   } catch (const std::exception& error) {
     Fail(where + ": not a stackgen journal record (" + error.what() + ")");
   }
-}
-
-std::string FileBytes(const fs::path& path) {
-  std::ifstream file(path, std::ios::binary);
-  if (!file) Fail(path.string() + ": cannot read it");
-  std::stringstream text;
-  text << file.rdbuf();
-  return text.str();
 }
 
 // `journal` locked against a writer while merging (a writer holds its journal's lock for good
@@ -360,24 +351,14 @@ int64_t WriteMerged(const std::vector<Input>& inputs, const std::vector<const Re
                     const fs::path& dir, int shards) {
   const Input& first = inputs.front();
   fs::create_directories(dir);
-  // the journal: each scene's line copied from its input's journal, in (generator id, seq) order
-  std::vector<std::ifstream> journals;
-  for (const Input& input : inputs) {
-    journals.emplace_back(input.dir / JournalName(input.format), std::ios::binary);
-  }
+  // the journal: each scene's line (with its '\n') read through the input's locked journal,
+  // in (generator id, seq) order
   WriteFileWhole(dir / JournalName(first.format), [&](OutputFile& out) {
-    std::string line;
     for (const Recorded* scene : scenes) {
-      for (const std::string& file : scene->files) {
-        Place(inputs[scene->input].dir / file, dir / file);
-      }
-      std::ifstream& journal = journals[scene->input];
-      line.resize(scene->length + 1);
-      journal.seekg(static_cast<std::streamoff>(scene->offset));
-      if (!journal.read(line.data(), static_cast<std::streamsize>(line.size()))) {
-        Fail(inputs[scene->input].dir.string() + ": its journal changed while merging");
-      }
-      out.Write(line);
+      const Input& input = inputs[scene->input];
+      for (const std::string& file : scene->files) Place(input.dir / file, dir / file);
+      out.Write(ReadAt(*input.lock, scene->offset, scene->length + 1,
+                       (input.dir / JournalName(input.format)).string()));
     }
   });
   if (first.format == Format::kCoco) {
@@ -405,7 +386,7 @@ int64_t WriteMerged(const std::vector<Input>& inputs, const std::vector<const Re
       const fs::path to = dir / "models" / entry.path().filename();
       if (!fs::exists(to)) {
         Place(entry.path(), to);
-      } else if (FileBytes(to) != FileBytes(entry.path())) {
+      } else if (ReadWholeFile(to.string()) != ReadWholeFile(entry.path().string())) {
         Fail(entry.path().string() + " differs from the same model of another input");
       }
     }

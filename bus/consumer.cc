@@ -1,10 +1,134 @@
 #include "bus/consumer.h"
 
 #include <csignal>
+#include <stdexcept>
 
 #include "bus/auth.h"
+#include "bus/channels.h"
 
 namespace stackgen {
+
+ConsumerSession::ConsumerSession(std::unique_ptr<Bus> bus, ConsumerSessionOptions options)
+    : options_(std::move(options)),
+      bus_(std::move(bus)),
+      live_(bus_->url().rfind("file://", 0) != 0),
+      clock_(options_.clock != nullptr ? options_.clock : &SteadyClock()) {
+  if (options_.generator_channels.empty()) {
+    options_.generator_channels = {kSceneChannel, kConfigChannel};
+  }
+  if (options_.reliable && live_) {
+    SceneClientOptions client = options_.client;
+    client.name = options_.name;
+    if (client.clock == nullptr) client.clock = options_.clock;
+    client_ = std::make_unique<SceneClient>(bus_.get(), client);
+  }
+  last_status_ = clock_->Now();
+  held_at_last_status_ = -1;
+}
+
+ConsumerSession::~ConsumerSession() = default;
+
+Subscription ConsumerSession::SubscribeScenes(
+    const std::string& channel, std::function<void(const scene&)> handler, int queue_capacity,
+    std::function<void(const std::string&)> on_undecodable) {
+  return bus_->Subscribe<scene>(
+      channel,
+      [this, handler = std::move(handler)](const scene& message) {
+        ++received_;
+        handler(message);
+      },
+      queue_capacity,
+      [this, on_undecodable = std::move(on_undecodable)](const std::string& text) {
+        ++undecodable_;
+        if (on_undecodable) on_undecodable(text);
+      });
+}
+
+void ConsumerSession::WatchGeneratorKeys() { bus_->WatchKeys(options_.generator_channels); }
+
+bool ConsumerSession::Fresh(int32_t generator_id, int64_t seq) {
+  const std::pair<int32_t, int64_t> key{generator_id, seq};
+  if (client_) {
+    if (!client_->Received(generator_id, seq)) {
+      ++repeats_;
+      return false;
+    }
+    bad_copies_.Forget(generator_id, seq);
+    return true;
+  }
+  if (!recent_.insert(key).second) {
+    ++repeats_;
+    return false;
+  }
+  recent_order_.push_back(key);
+  if (recent_order_.size() > options_.recent_scenes) {
+    recent_.erase(recent_order_.front());
+    recent_order_.pop_front();
+  }
+  return true;
+}
+
+void ConsumerSession::Refuse(int32_t generator_id, int64_t seq) {
+  ++refused_;
+  if (!client_ || !bad_copies_.Note(generator_id, seq)) return;
+  // a seq the consumer holds a good copy of is pending or stored: Received is false
+  if (client_->Received(generator_id, seq)) client_->Skipped(generator_id, seq);
+}
+
+void ConsumerSession::Stored(int32_t generator_id, int64_t seq) {
+  if (client_) client_->Stored(generator_id, seq);
+}
+
+void ConsumerSession::Skipped(int32_t generator_id, int64_t seq) {
+  if (client_) client_->Skipped(generator_id, seq);
+}
+
+void ConsumerSession::CheckKeys(double seconds) const {
+  if (!client_ && !bus_->keyed() && !options_.strict_keys) return;
+  const std::string mismatch = bus_->KeyMismatch(options_.generator_channels, seconds);
+  if (!mismatch.empty()) throw std::runtime_error(mismatch);
+}
+
+void ConsumerSession::Service(int64_t held, int64_t taken) {
+  if (client_) client_->Service();
+  CheckKeys(options_.key_mismatch_s);
+  if (held_at_last_status_ < 0) held_at_last_status_ = held;
+  if (live_ && options_.status_period_s > 0 &&
+      clock_->Now() - last_status_ >= std::chrono::duration<double>(options_.status_period_s)) {
+    PublishStatus(held, taken);
+  }
+}
+
+void ConsumerSession::PublishStatus(int64_t held, int64_t taken) {
+  const Clock::TimePoint now = clock_->Now();
+  const double seconds = std::chrono::duration<double>(now - last_status_).count();
+  if (held_at_last_status_ < 0) held_at_last_status_ = held;
+  ConsumerReport report;
+  report.process = options_.process;
+  report.name = options_.name;
+  report.scenes_held = held;
+  report.scenes = taken;
+  report.rate_hz = seconds > 0 ? static_cast<double>(held - held_at_last_status_) / seconds : 0;
+  report.delivery = delivery();
+  report.bad_messages = undecodable_ + refused_;
+  bus_->Publish(kStatusChannel, ConsumerStatus(*bus_, report));
+  last_status_ = now;
+  held_at_last_status_ = held;
+}
+
+void ConsumerSession::Leave(int64_t held, int64_t taken) {
+  if (!live_) return;
+  if (options_.status_period_s > 0) PublishStatus(held, taken);
+  if (client_) client_->Leave();
+}
+
+DeliveryCounters ConsumerSession::delivery() const {
+  if (client_) return client_->counters();
+  DeliveryCounters counters;
+  counters.received = received_;
+  counters.duplicates = repeats_;
+  return counters;
+}
 
 status ConsumerStatus(const Bus& bus, const ConsumerReport& report) {
   status message{};

@@ -1,18 +1,27 @@
 #pragma once
 
 // What every consumer of scenes (the dataset writers, the Python stream, stackgen-view) does the
-// same way, in one place: the bad-copy policy of a reliable consumer and the status message each
-// publishes on STACKGEN_STATUS. (The first pieces of the consumer session of design.md,
-// "Processes, nodes and time".)
+// same way, in one place: the consumer session of design.md ("Processes, nodes and time"), which
+// owns the bus, the delivery client, the bad-copy policy, the repeat check, the bus key check and
+// the status each consumer publishes on STACKGEN_STATUS. The consumers keep only their own job:
+// checking a scene for what they need and storing, queueing or drawing it.
 
+#include <cstddef>
 #include <cstdint>
+#include <deque>
+#include <functional>
 #include <map>
+#include <memory>
+#include <set>
 #include <string>
 #include <utility>
+#include <vector>
 
+#include <stackgen/scene.hpp>
 #include <stackgen/status.hpp>
 
 #include "bus/bus.h"
+#include "bus/clock.h"
 #include "bus/delivery.h"
 
 namespace stackgen {
@@ -61,6 +70,122 @@ struct ConsumerReport {
   DeliveryCounters delivery;
   /// Messages it could not use: undecodable, or scenes that failed its checks.
   int64_t bad_messages = 0;
+};
+
+/// How a consumer takes part, beyond its bus.
+struct ConsumerSessionOptions {
+  /// The program ("stackgen-coco", "stackgen-bop", "stackgen-feed", "stackgen-view") and the
+  /// consumer's name, unique on the bus, as its status says them.
+  std::string process;
+  std::string name;
+  /// A reliable consumer: a delivery client (credits, resends) with these options, its name set
+  /// from `name`. Only on a live bus: a log (file://) takes no credits, and the session is then
+  /// best effort.
+  bool reliable = false;
+  SceneClientOptions client;
+  /// The channels the generators publish on, for the bus key check (Bus::KeyMismatch); empty:
+  /// STACKGEN_SCENE and STACKGEN_CONFIG.
+  std::vector<std::string> generator_channels;
+  /// CheckKeys stops a consumer whose generators use another bus key once that has been so for
+  /// this long (seconds). It checks a reliable or keyed consumer, or any with `strict_keys` (a
+  /// dataset writer: an open one cannot take what keyed generators publish either; an open
+  /// best-effort stream or viewer reads signed scenes all the same).
+  double key_mismatch_s = 2.0;
+  bool strict_keys = false;
+  /// A live session publishes its status this often (seconds) and when it leaves; 0: only when
+  /// asked (PublishStatus).
+  double status_period_s = 1.0;
+  /// Best effort: a scene is a repeat when one of the last `recent_scenes` had its ids.
+  size_t recent_scenes = 4096;
+  /// The clock of the status period; null: SteadyClock(). Must outlive the session.
+  Clock* clock = nullptr;
+};
+
+/// One consumer's bus life: the bus, the delivery client of a reliable consumer, the bad-copy
+/// policy (BadCopies), repeats of a best-effort one, the bus key check and the status. The
+/// consumer subscribes its handlers (SubscribeScenes), tells the session what each copy was
+/// (Fresh, Refuse, Stored, Skipped) and calls Service once per turn of its loop. Not
+/// thread-safe: one thread (the one handling the bus) calls it.
+class ConsumerSession {
+ public:
+  /// Takes the bus. Throws std::invalid_argument on client options out of range.
+  ConsumerSession(std::unique_ptr<Bus> bus, ConsumerSessionOptions options);
+  ~ConsumerSession();
+  ConsumerSession(const ConsumerSession&) = delete;
+  ConsumerSession& operator=(const ConsumerSession&) = delete;
+
+  Bus& bus() { return *bus_; }
+  const Bus& bus() const { return *bus_; }
+  /// The delivery client; null for a best-effort session.
+  SceneClient* client() { return client_.get(); }
+  /// Whether the bus is live (not a log being read).
+  bool live() const { return live_; }
+  const ConsumerSessionOptions& options() const { return options_; }
+
+  /// Subscribes `handler` to the scenes on `channel` until the returned Subscription is
+  /// dropped; a message that does not decode is counted (a bad message) and its text passed to
+  /// `on_undecodable`.
+  Subscription SubscribeScenes(const std::string& channel,
+                               std::function<void(const scene&)> handler, int queue_capacity,
+                               std::function<void(const std::string&)> on_undecodable);
+  /// Once the consumer has subscribed: hears the generator channels it did not subscribe to
+  /// for the bus key check (a generator announces its config before its first scene).
+  void WatchGeneratorKeys();
+
+  /// A copy of (generator_id, seq) that passed the consumer's checks arrived. True when it is
+  /// new: a reliable client's Received (Stored or Skipped must follow), or, best effort, none of
+  /// the last recent_scenes had its ids; false for a repeat (counted).
+  bool Fresh(int32_t generator_id, int64_t seq);
+  /// A copy of (generator_id, seq) failed the consumer's checks (counted as a bad message). It
+  /// tells a reliable client nothing, so a stranger's or a damaged copy cannot take the real
+  /// scene's place: that seq is asked for again, and given up (Received, Skipped) after
+  /// BadCopies::kCopies bad copies of it, unless a good copy came (Fresh) before.
+  void Refuse(int32_t generator_id, int64_t seq);
+  /// The scene Fresh said was new is stored (handed out, drawn) or will never be.
+  void Stored(int32_t generator_id, int64_t seq);
+  void Skipped(int32_t generator_id, int64_t seq);
+  /// A repeat the consumer found itself (a best-effort writer's dataset held it already).
+  void CountRepeat() { ++repeats_; }
+  /// A copy refused for what it is not (another run's scene): counted, nothing more.
+  void CountRefused() { ++refused_; }
+
+  /// Throws std::runtime_error with Bus::KeyMismatch's line when the generators heard use
+  /// another bus key for `seconds` (see key_mismatch_s; at the end of a log, 0).
+  void CheckKeys(double seconds) const;
+  /// Once per turn of the consumer's loop: the client's credits and resends, the bus key check
+  /// and, when due, the status. `held`: the scenes the consumer holds (stored, handed out,
+  /// drawn); `taken`: those it took in this run.
+  void Service(int64_t held, int64_t taken);
+  /// Publishes the status now (see Service).
+  void PublishStatus(int64_t held, int64_t taken);
+  /// The last status (unless status_period_s is 0), and a reliable client's leaving credit:
+  /// generators stop waiting for it. Nothing on a log.
+  void Leave(int64_t held, int64_t taken);
+
+  /// What did not make it: messages that did not decode, copies refused, repeats.
+  int64_t undecodable() const { return undecodable_; }
+  int64_t refused() const { return refused_; }
+  int64_t repeats() const { return repeats_; }
+  /// Scenes that reached the handlers of SubscribeScenes (decoded; good or not, repeats too).
+  int64_t received() const { return received_; }
+  /// The client's counters (a best-effort session: received and repeats only).
+  DeliveryCounters delivery() const;
+
+ private:
+  ConsumerSessionOptions options_;
+  std::unique_ptr<Bus> bus_;
+  bool live_ = false;
+  std::unique_ptr<SceneClient> client_;
+  Clock* clock_;
+  BadCopies bad_copies_;
+  std::set<std::pair<int32_t, int64_t>> recent_;
+  std::deque<std::pair<int32_t, int64_t>> recent_order_;
+  int64_t undecodable_ = 0;
+  int64_t refused_ = 0;
+  int64_t repeats_ = 0;
+  int64_t received_ = 0;
+  Clock::TimePoint last_status_;
+  int64_t held_at_last_status_ = 0;
 };
 
 /// A consumer's bus options from its flags: --fault-drop F (that share of what it receives

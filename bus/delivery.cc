@@ -127,27 +127,32 @@ struct SceneServer::Impl {
     }
   }
 
-  void OnCredit(const credit& message) {
-    const int32_t target = message.header.generator_id;
-    if (target != options.generator_id && target != -1) return;
-    // a credit no stackgen consumer sends is counted and ignored
+  // whether a credit is one a stackgen consumer can send; one that is not is counted and ignored
+  bool CreditInRange(const credit& message) {
     if (message.consumer.empty() || message.consumer.size() > kMaxConsumerName) {
       Refuse("a credit with a consumer name of " + std::to_string(message.consumer.size()) +
              " bytes");
-      return;
+      return false;
     }
     if (message.stored_through_seq < -1 || message.stored_through_seq > kMaxSeq ||
         message.last_received_seq < -1 || message.last_received_seq > kMaxSeq) {
       Refuse("a credit with seqs out of range: " + message.consumer + " stored through " +
              std::to_string(message.stored_through_seq) + ", received " +
              std::to_string(message.last_received_seq));
-      return;
+      return false;
     }
     if (message.window < 0 || message.window > kMaxWindow) {
       Refuse("a credit with a window out of 0.." + std::to_string(kMaxWindow) + ": " +
              message.consumer + " offers " + std::to_string(message.window));
-      return;
+      return false;
     }
+    return true;
+  }
+
+  void OnCredit(const credit& message) {
+    const int32_t target = message.header.generator_id;
+    if (target != options.generator_id && target != -1) return;
+    if (!CreditInRange(message)) return;
     const TimePoint now = clock->Now();
     auto found = consumers.find(message.consumer);
     if (message.leaving) {

@@ -518,8 +518,10 @@ SceneView ViewOfMessage(const stackgen::scene& message) {
 
 // What stackgen-view says when it stops waiting for scenes: what it skipped; an error when no
 // valid scene came (naming a bus key mismatch first); a warning when fewer than asked came.
-void ReportEnd(const stackgen::Bus& bus, const Flags& flags, size_t tiles, int64_t undecodable,
-               int64_t invalid, int64_t repeated) {
+void ReportEnd(const stackgen::ConsumerSession& session, const Flags& flags, size_t tiles) {
+  const stackgen::Bus& bus = session.bus();
+  const int64_t undecodable = session.undecodable(), invalid = session.refused(),
+                repeated = session.repeats();
   if (undecodable > 0 || invalid > 0 || repeated > 0) {
     std::fprintf(stderr,
                  "%s: skipped %lld undecodable messages, %lld invalid scenes, %lld repeated "
@@ -544,80 +546,65 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
   // stop waiting on SIGINT and SIGTERM: the handler only sets a flag
   stackgen::StopOnSignals(RequestStop);
 
+  // a best-effort consumer: it sends no credits, and its counters go out on STACKGEN_STATUS
+  stackgen::ConsumerSessionOptions options;
+  options.process = kProgram;
+  options.name = std::string(kProgram) + "/" + std::to_string(getpid());
+  options.generator_channels = GeneratorChannels();
+  options.key_mismatch_s = kKeyMismatchS;
+  stackgen::ConsumerSession session(
+      std::make_unique<stackgen::Bus>(
+          stackgen::ResolveLcmUrl(flags.lcm_url),
+          stackgen::ConsumerBusOptions(flags.fault_drop, flags.bus_key_file, flags.open_bus,
+                                       flags.replay, 0x5EE)),
+      options);
+  const stackgen::Bus& bus = session.bus();
   std::vector<Tile> tiles;
-  std::set<std::pair<int32_t, int64_t>> seen;
-  int64_t undecodable = 0, invalid = 0, repeated = 0, received = 0;
   const auto warn = [](int64_t number, const std::string& text) {
     if (number <= kMaxReportedWarnings) {
       std::fprintf(stderr, "%s: warning: %s\n", kProgram, text.c_str());
     }
   };
-  stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url),
-                    stackgen::ConsumerBusOptions(flags.fault_drop, flags.bus_key_file,
-                                                 flags.open_bus, flags.replay, 0x5EE));
-  bus.Subscribe<stackgen::scene>(
+  const stackgen::Subscription scenes = session.SubscribeScenes(
       stackgen::kSceneChannel,
       [&](const stackgen::scene& scene) {
-        ++received;
         if (static_cast<int>(tiles.size()) >= flags.count) return;
-        const std::pair<int32_t, int64_t> key(scene.header.generator_id, scene.header.seq);
-        if (seen.count(key) != 0) {
-          ++repeated;
-          return;
-        }
+        const int32_t generator_id = scene.header.generator_id;
+        const int64_t seq = scene.header.seq;
         // a bad scene is skipped and counted, never drawn (a good copy may still come)
         try {
           const SceneView view = ViewOfMessage(scene);
+          if (!session.Fresh(generator_id, seq)) return;
           tiles.push_back({RenderTile(view, flags.tile_width), view.caption});
-          seen.insert(key);
         } catch (const std::exception& error) {
-          warn(++invalid, "skipped scene " + std::to_string(scene.header.generator_id) + "/" +
-                              std::to_string(scene.header.seq) + ": " + error.what());
+          session.Refuse(generator_id, seq);
+          warn(session.refused(), "skipped scene " + std::to_string(generator_id) + "/" +
+                                      std::to_string(seq) + ": " + error.what());
         }
       },
       kQueueCapacity,
-      [&](const std::string& text) { warn(++undecodable, "skipped a message: " + text); });
+      [&](const std::string& text) { warn(session.undecodable(), "skipped a message: " + text); });
   // the generators' configs too, for their key alone: each announces its config before its
   // first scene
-  bus.WatchKeys(GeneratorChannels());
+  session.WatchGeneratorKeys();
   std::printf("%s: listening on %s channel %s for %d scenes\n", kProgram, bus.url().c_str(),
               stackgen::kSceneChannel, flags.count);
   std::fflush(stdout);
 
-  // its counters on STACKGEN_STATUS (a best-effort consumer: it sends no credits)
-  const bool live = bus.url().rfind("file://", 0) != 0;
-  const auto publish_status = [&] {
-    stackgen::ConsumerReport report;
-    report.process = kProgram;
-    report.name = std::string(kProgram) + "/" + std::to_string(getpid());
-    report.scenes_held = static_cast<int64_t>(tiles.size());
-    report.scenes = report.scenes_held;
-    report.delivery.received = received;
-    report.delivery.duplicates = repeated;
-    report.bad_messages = undecodable + invalid;
-    bus.Publish(stackgen::kStatusChannel, stackgen::ConsumerStatus(bus, report));
-  };
-
-  // scenes until enough, the timeout or a signal
+  // scenes until enough, the timeout or a signal; generators that use another key: one line
+  // now rather than an empty sheet at the timeout (an open viewer reads signed scenes all the
+  // same)
   const auto deadline = std::chrono::steady_clock::now() +
                         std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                             std::chrono::duration<double>(flags.timeout_s));
-  auto last_status = std::chrono::steady_clock::now();
+  const auto held = [&] { return static_cast<int64_t>(tiles.size()); };
   while (!stop_requested && static_cast<int>(tiles.size()) < flags.count &&
          std::chrono::steady_clock::now() < deadline && !bus.log_ended()) {
-    bus.HandleFor(100);
-    // generators that use another key: one line now rather than an empty sheet at the timeout
-    // (an open viewer reads signed scenes all the same)
-    const std::string mismatch =
-        bus.keyed() ? bus.KeyMismatch(GeneratorChannels(), kKeyMismatchS) : "";
-    if (!mismatch.empty()) throw std::runtime_error(mismatch);
-    if (live && std::chrono::steady_clock::now() - last_status >= std::chrono::seconds(1)) {
-      publish_status();
-      last_status = std::chrono::steady_clock::now();
-    }
+    session.bus().HandleFor(100);
+    session.Service(held(), held());
   }
-  if (live) publish_status();
-  ReportEnd(bus, flags, tiles.size(), undecodable, invalid, repeated);
+  session.Leave(held(), held());
+  ReportEnd(session, flags, tiles.size());
   return tiles;
 }
 

@@ -191,9 +191,9 @@ class WriterSession {
   // file it only reads, live it is a reliable consumer; it listens once subscribed); then the
   // dataset: a folder that is not empty is this writer's dataset to resume, or refused
   void Open() {
-    bus_ = std::make_unique<Bus>(ResolveLcmUrl(flags_.lcm_url),
-                                 ConsumerBusOptions(flags_.fault_drop, flags_.bus_key_file,
-                                                    flags_.open_bus, flags_.replay, 0xC0C0));
+    auto bus = std::make_unique<Bus>(ResolveLcmUrl(flags_.lcm_url),
+                                     ConsumerBusOptions(flags_.fault_drop, flags_.bus_key_file,
+                                                        flags_.open_bus, flags_.replay, 0xC0C0));
     created_folder_ = CheckOutputFolder(program_, flags_);
     writer_ = program_.open(flags_);
     if (flags_.resume) {
@@ -205,75 +205,72 @@ class WriterSession {
                             .c_str()
                       : "");
     }
-    name_ = ConsumerName(program_.name, flags_.out);
-    if (bus_->url().rfind("file://", 0) != 0) {
-      SceneClientOptions client_options;
-      client_options.name = name_;
-      client_options.window = static_cast<int32_t>(flags_.window);
-      client_options.max_scenes = flags_.count;
-      client_options.first_seq = flags_.first_seq;
-      client_ = std::make_unique<SceneClient>(bus_.get(), client_options);
+    // live, a reliable consumer; on a log file it only reads. A writer that cannot take what
+    // the generators publish (another bus key, or none) stops with one line
+    ConsumerSessionOptions options;
+    options.process = program_.name;
+    options.name = ConsumerName(program_.name, flags_.out);
+    options.reliable = true;
+    options.client.window = static_cast<int32_t>(flags_.window);
+    options.client.max_scenes = flags_.count;
+    options.client.first_seq = flags_.first_seq;
+    options.key_mismatch_s = kKeyMismatchS;
+    options.strict_keys = true;
+    options.status_period_s = 1;
+    session_ = std::make_unique<ConsumerSession>(std::move(bus), options);
+    if (SceneClient* client = session_->client()) {
       for (const auto& [generator_id, seqs] : writer_->StoredSeqs()) {
-        client_->Restore(generator_id, seqs);
+        client->Restore(generator_id, seqs);
       }
       // the runs the dataset holds go out with the credits: a generator of another run
       // (--seed or config) refuses to continue it
-      for (const auto& [generator_id, run] : writer_->Runs()) client_->SetRun(generator_id, run);
+      for (const auto& [generator_id, run] : writer_->Runs()) client->SetRun(generator_id, run);
     }
   }
 
   void Subscribe() {
     generator_heard_at_ = std::chrono::steady_clock::now();
-    bus_->Subscribe<config_text>(
+    Bus& bus = session_->bus();
+    bus.Subscribe<config_text>(
         kConfigChannel, [this](const config_text& config) { OnConfig(config); }, 16,
         [](const std::string&) {});
-    if (program_.subscribe) program_.subscribe(*bus_, *writer_);
-    bus_->Subscribe<scene>(
+    if (program_.subscribe) program_.subscribe(bus, *writer_);
+    session_->SubscribeScenes(
         kSceneChannel, [this](const scene& message) { OnScene(message); }, kQueueCapacity,
         [this](const std::string& text) {
-          if (++decode_errors_ <= kMaxReportedErrors) {
+          if (session_->undecodable() <= kMaxReportedErrors) {
             std::fprintf(stderr, "%s: skipped a message: %s\n", name_text_, text.c_str());
           }
         });
-    std::printf("%s: listening on %s channel %s, writing %s\n", name_text_, bus_->url().c_str(),
+    std::printf("%s: listening on %s channel %s, writing %s\n", name_text_, bus.url().c_str(),
                 kSceneChannel, flags_.out.c_str());
     std::fflush(stdout);
   }
 
   // handles scenes until enough are stored, a signal arrives or the log ends
   void Loop() {
-    stored_at_last_status_ = writer_->num_images();
-    last_status_ = std::chrono::steady_clock::now();
+    Bus& bus = session_->bus();
     start_ = std::chrono::steady_clock::now();
     stored_at_start_ = writer_->num_images();
     last_progress_ = start_;
-    while (!stop_requested && !Enough() && !bus_->log_ended()) {
+    while (!stop_requested && !Enough() && !bus.log_ended()) {
       // with scenes staged, only those already waiting: the group ends when none is left
-      bus_->HandleFor(writer_->num_staged() > 0 ? 0 : 50);
+      bus.HandleFor(writer_->num_staged() > 0 ? 0 : 50);
       Commit();
-      const std::string mismatch = bus_->KeyMismatch(generator_channels_, kKeyMismatchS);
-      if (!mismatch.empty()) throw std::runtime_error(mismatch);
-      if (client_) client_->Service();
+      session_->Service(writer_->num_images(), session_->delivery().stored);
       const auto now = std::chrono::steady_clock::now();
       WarnIfSilent(now);
-      if (client_ && now - last_status_ >= std::chrono::seconds(1)) PublishStatus(now);
       ShowProgress(now);
     }
     if (show_progress_) std::fprintf(stderr, "\n");
     // a log whose scenes were all refused for their key is an error, not an empty dataset
-    if (bus_->log_ended() && writer_->num_images() == stored_at_start_) {
-      const std::string mismatch = bus_->KeyMismatch(generator_channels_, 0);
-      if (!mismatch.empty()) throw std::runtime_error(mismatch);
-    }
+    if (bus.log_ended() && writer_->num_images() == stored_at_start_) session_->CheckKeys(0);
   }
 
   // generators stop waiting for us; a valid dataset of what arrived; the summary
   void Finish() {
     Commit();
-    if (client_) {
-      PublishStatus(std::chrono::steady_clock::now());
-      client_->Leave();
-    }
+    session_->Leave(writer_->num_images(), session_->delivery().stored);
     writer_->Finish();
     PrintSummary();
   }
@@ -308,9 +305,7 @@ class WriterSession {
 
   // makes the staged scenes durable, then credits them
   void Commit() {
-    for (const auto& [generator_id, seq] : writer_->Commit()) {
-      if (client_) client_->Stored(generator_id, seq);
-    }
+    for (const auto& [generator_id, seq] : writer_->Commit()) session_->Stored(generator_id, seq);
   }
 
   // each generator's run, from its STACKGEN_CONFIG: recorded with its first scene stored (and
@@ -346,7 +341,7 @@ class WriterSession {
     // a seq before --first-seq belongs to another dataset (another task's share)
     if (seq < flags_.first_seq) return;
     if (foreign_runs_.count(generator_id) != 0) {
-      ++invalid_scenes_;
+      session_->CountRefused();
       return;
     }
     // its generator's run, heard before, goes with the first scene stored
@@ -354,62 +349,40 @@ class WriterSession {
       const auto heard = heard_runs_.find(generator_id);
       if (heard != heard_runs_.end()) {
         writer_->SetRun(generator_id, heard->second);
-        if (client_) client_->SetRun(generator_id, heard->second);
+        if (session_->client()) session_->client()->SetRun(generator_id, heard->second);
       }
     }
-    // the writer first: it checks the scene whole (its images decoded) and refuses a repeat.
-    // A copy that fails the checks tells the client nothing, so a damaged or a stranger's copy
-    // cannot take the real scene's place: that seq is asked for again, and given up (skipped)
-    // only after BadCopies::kCopies bad copies of it
+    // the writer first: it checks the scene whole (its images decoded) and refuses a repeat;
+    // a copy that fails the checks goes to the session's bad-copy policy
+    SceneClient* const client = session_->client();
     bool added = false;
     try {
       added = writer_->Add(scene);
     } catch (const InvalidSceneError& error) {
-      if (++invalid_scenes_ <= kMaxReportedErrors) {
+      if (session_->refused() < kMaxReportedErrors) {
         std::fprintf(stderr, "%s: refused a scene: %s\n", name_text_, error.what());
       }
-      if (client_) {
-        if (bad_copies_.Note(generator_id, seq) && client_->Received(generator_id, seq)) {
-          client_->Skipped(generator_id, seq);
-        }
-        client_->Service();
-      }
+      session_->Refuse(generator_id, seq);
+      if (client) client->Service();
       return;
     }
     // the client tracks seqs (and counts repeats); a scene the writer holds already that the
     // client has not seen (stored before it started) needs no asking again
-    const bool fresh = !client_ || client_->Received(generator_id, seq);
+    const bool fresh = !client || session_->Fresh(generator_id, seq);
     if (added) {
-      if (client_) bad_copies_.Forget(generator_id, seq);
       // credited once durable: at once without group commits (Add made it durable), else with
       // its group
       if (flags_.group_commit <= 1) {
-        if (client_) client_->Stored(generator_id, seq);
+        session_->Stored(generator_id, seq);
       } else if (writer_->num_staged() >= flags_.group_commit) {
         Commit();
       }
-    } else if (!client_) {
-      ++duplicates_;
+    } else if (!client) {
+      session_->CountRepeat();
     } else if (fresh) {
-      client_->Skipped(generator_id, seq);
+      session_->Skipped(generator_id, seq);
     }
-    if (client_) client_->Service();
-  }
-
-  // the counters on STACKGEN_STATUS
-  void PublishStatus(std::chrono::steady_clock::time_point now) {
-    const double seconds = std::chrono::duration<double>(now - last_status_).count();
-    ConsumerReport report;
-    report.process = program_.name;
-    report.name = name_;
-    report.scenes_held = writer_->num_images();
-    report.delivery = client_ ? client_->counters() : DeliveryCounters{};
-    report.scenes = report.delivery.stored;
-    report.rate_hz = seconds > 0 ? (writer_->num_images() - stored_at_last_status_) / seconds : 0;
-    report.bad_messages = decode_errors_ + invalid_scenes_;
-    bus_->Publish(kStatusChannel, ConsumerStatus(*bus_, report));
-    last_status_ = now;
-    stored_at_last_status_ = writer_->num_images();
+    if (client) client->Service();
   }
 
   // when no generator was heard (its config every second, or a scene) for --warn-silent
@@ -419,17 +392,18 @@ class WriterSession {
     if (silent_s < 1) {
       warned_silent_ = false;
     } else if (!warned_silent_ && flags_.warn_silent_s > 0 && silent_s >= flags_.warn_silent_s &&
-               bus_->url().rfind("file://", 0) != 0) {
+               session_->live()) {
       warned_silent_ = true;
+      const Bus& bus = session_->bus();
       if (show_progress_) std::fprintf(stderr, "\n");
       std::fprintf(stderr,
                    "%s: no generator heard for %d s on %s (no scene, no config): is stackgen "
                    "running with this --lcm-url (the same port) and %s? still waiting\n",
-                   name_text_, static_cast<int>(silent_s), bus_->url().c_str(),
-                   bus_->keyed() ? ("the bus key " + bus_->key_file() + " (key id " +
-                                    KeyIdText(bus_->key_id()) + ")")
-                                       .c_str()
-                                 : "--open-bus (this writer checks no key)");
+                   name_text_, static_cast<int>(silent_s), bus.url().c_str(),
+                   bus.keyed() ? ("the bus key " + bus.key_file() + " (key id " +
+                                  KeyIdText(bus.key_id()) + ")")
+                                     .c_str()
+                               : "--open-bus (this writer checks no key)");
     }
   }
 
@@ -454,33 +428,34 @@ class WriterSession {
                      static_cast<long long>(lost));
       }
     }
-    if (decode_errors_ > 0 || invalid_scenes_ > 0) {
+    const Bus& bus = session_->bus();
+    if (session_->undecodable() > 0 || session_->refused() > 0) {
       std::fprintf(stderr, "%s: skipped %lld undecodable messages, refused %lld invalid scenes\n",
-                   name_text_, static_cast<long long>(decode_errors_),
-                   static_cast<long long>(invalid_scenes_));
+                   name_text_, static_cast<long long>(session_->undecodable()),
+                   static_cast<long long>(session_->refused()));
     }
-    if (bus_->url().rfind("udpm://", 0) == 0) {
-      std::printf("%s: %s\n", name_text_, ReceiveSummary(bus_->receive_counters()).c_str());
+    if (bus.url().rfind("udpm://", 0) == 0) {
+      std::printf("%s: %s\n", name_text_, ReceiveSummary(bus.receive_counters()).c_str());
     }
-    if (bus_->keyed()) {
+    if (bus.keyed()) {
       const int64_t stored = writer_->num_images();
       std::printf("%s: bus key: %.3f ms per scene stored signing and checking messages; %s\n",
                   name_text_,
-                  stored > 0 ? bus_->auth_seconds() * 1e3 / static_cast<double>(stored) : 0.0,
-                  RefusedSummary(bus_->auth_counters()).c_str());
+                  stored > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(stored) : 0.0,
+                  RefusedSummary(bus.auth_counters()).c_str());
     }
-    if (client_) {
-      const DeliveryCounters counters = client_->counters();
+    if (session_->client()) {
+      const DeliveryCounters counters = session_->delivery();
       std::printf(
           "%s: delivery: %lld scenes received, %lld stored, %lld received twice, %lld asked "
           "for again, %lld missing, %lld messages dropped on purpose\n",
           name_text_, static_cast<long long>(counters.received),
           static_cast<long long>(counters.stored), static_cast<long long>(counters.duplicates),
           static_cast<long long>(counters.reasked), static_cast<long long>(counters.lost),
-          static_cast<long long>(bus_->fault_dropped()));
-    } else if (duplicates_ > 0) {
+          static_cast<long long>(bus.fault_dropped()));
+    } else if (session_->repeats() > 0) {
       std::printf("%s: %lld scenes received twice, stored once\n", name_text_,
-                  static_cast<long long>(duplicates_));
+                  static_cast<long long>(session_->repeats()));
     }
     std::printf("%s\n", program_.summary(*writer_).c_str());
     std::fflush(stdout);
@@ -489,27 +464,15 @@ class WriterSession {
   const WriterProgram& program_;
   const WriterFlags& flags_;
   const char* const name_text_;
-  const std::vector<std::string> generator_channels_ = {kSceneChannel, kConfigChannel};
   const bool show_progress_ = isatty(STDERR_FILENO) != 0;
-  // the writer outlives the bus and the client (the error path still finishes the dataset);
-  // the client refers to the bus, so it goes first
+  // the writer outlives the session (the error path still finishes the dataset)
   std::unique_ptr<DatasetSink> writer_;
-  std::unique_ptr<Bus> bus_;
-  std::unique_ptr<SceneClient> client_;
+  std::unique_ptr<ConsumerSession> session_;
   bool created_folder_ = false;
-  std::string name_;
   std::map<int32_t, std::string> heard_runs_;
   std::set<int32_t> foreign_runs_;
   std::chrono::steady_clock::time_point generator_heard_at_;
   bool warned_silent_ = false;
-  // counters of what did not make it into the dataset
-  int64_t decode_errors_ = 0;
-  int64_t invalid_scenes_ = 0;
-  int64_t duplicates_ = 0;
-  // reliable: bad copies received of seqs not stored yet
-  BadCopies bad_copies_;
-  int64_t stored_at_last_status_ = 0;
-  std::chrono::steady_clock::time_point last_status_;
   std::chrono::steady_clock::time_point start_;
   std::chrono::steady_clock::time_point last_progress_;
   int64_t stored_at_start_ = 0;

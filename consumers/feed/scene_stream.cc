@@ -80,9 +80,10 @@ struct SceneStream::Impl {
   std::unique_ptr<MessageAuth> log_auth;  // a log's events are checked with the bus key
   pid_t pid = 0;
 
-  // live: the bus and, when reliable, the delivery client; used by the thread only
-  std::unique_ptr<Bus> bus;
-  std::unique_ptr<SceneClient> client;
+  // live: the consumer session (the bus and, when reliable, the delivery client); used by the
+  // thread only
+  std::unique_ptr<ConsumerSession> session;
+  bool reliable = false;  // a live reliable stream: handed and skipped scenes are credited
   std::thread thread;
   std::atomic<bool> stop{false};
 
@@ -106,9 +107,6 @@ struct SceneStream::Impl {
   bool closed = false;
 
   // thread-only state
-  std::set<SceneKey> recent_keys;
-  std::deque<SceneKey> recent_order;
-  BadCopies bad_copies;  // reliable: copies of seqs that failed the checks
   std::atomic<int> reported{0};
 
   bool Wanted(int32_t generator_id, int64_t seq) const {
@@ -175,8 +173,10 @@ struct SceneStream::Impl {
   void OnLiveScene(const scene& message) {
     const int32_t generator_id = message.header.generator_id;
     const int64_t seq = message.header.seq;
+    SceneClient* const client = session->client();
     if (!SceneIdsInRange(generator_id, seq)) {
       CountBad();
+      session->CountRefused();
       Report("scene " + std::to_string(generator_id) + "/" + std::to_string(seq) +
              ": generator_id or seq out of range");
       return;
@@ -190,18 +190,10 @@ struct SceneStream::Impl {
       return;
     }
     const SceneKey key{generator_id, seq};
-    // a copy that fails the checks tells the client nothing: it neither sets where a learner
-    // joins a generator nor marks its seq done, so a stranger's or a damaged copy cannot hide
-    // the real scene (asked for again). A seq whose copies keep failing (a generator that
-    // publishes a bad scene, resends included) is given up after BadCopies::kCopies of them.
+    // a copy that fails the checks tells the client nothing (it neither sets where a learner
+    // joins a generator nor marks its seq done): the session's bad-copy policy
     if (!Check(message)) {
-      if (!client || !bad_copies.Note(generator_id, seq)) return;
-      bool taken;
-      {
-        const std::lock_guard<std::mutex> lock(mutex);
-        taken = taken_keys.count(key) != 0;
-      }
-      if (!taken && client->Received(generator_id, seq)) client->Skipped(generator_id, seq);
+      session->Refuse(generator_id, seq);
       return;
     }
     {
@@ -211,25 +203,15 @@ struct SceneStream::Impl {
                           counters.handed + static_cast<int64_t>(queue.size()) >= options.count;
       if (enough) return;
     }
-    if (client) {
-      bool repeat = !client->Received(generator_id, seq);
-      {
-        const std::lock_guard<std::mutex> lock(mutex);
-        repeat = repeat || taken_keys.count(key) != 0;
-        if (repeat) ++counters.duplicates;
-      }
-      if (repeat) return;
-      bad_copies.Forget(generator_id, seq);
-    } else {
-      if (!recent_keys.insert(key).second) {
-        const std::lock_guard<std::mutex> lock(mutex);
+    // a repeat: the client's, a scene still queued or handed out, or (best effort) one of the
+    // last scenes
+    {
+      bool repeat = !session->Fresh(generator_id, seq);
+      const std::lock_guard<std::mutex> lock(mutex);
+      repeat = repeat || taken_keys.count(key) != 0;
+      if (repeat) {
         ++counters.duplicates;
         return;
-      }
-      recent_order.push_back(key);
-      if (recent_order.size() > kRecentKeys) {
-        recent_keys.erase(recent_order.front());
-        recent_order.pop_front();
       }
     }
     std::shared_ptr<FeedScene> prepared = Prepare(message);
@@ -249,22 +231,6 @@ struct SceneStream::Impl {
     changed.notify_all();
   }
 
-  void PublishStatus(int64_t handed, double rate_hz) {
-    const StreamCounters now = Counters();
-    ConsumerReport report;
-    report.process = "stackgen-feed";
-    report.name = name;
-    report.scenes_held = handed;
-    report.scenes = handed;
-    report.rate_hz = rate_hz;
-    report.delivery.received = now.received;
-    report.delivery.duplicates = now.duplicates;
-    report.delivery.lost = now.lost;
-    report.delivery.reasked = now.reasked;
-    report.bad_messages = now.bad_messages;
-    bus->Publish(kStatusChannel, ConsumerStatus(*bus, report));
-  }
-
   StreamCounters Counters() const {
     StreamCounters copy;
     {
@@ -277,8 +243,8 @@ struct SceneStream::Impl {
 
   // the thread on a live bus: handle messages, credit what was handed out, publish status
   void RunLive() {
-    auto last_status = Clock::now();
-    int64_t handed_at_last_status = 0;
+    Bus& bus = session->bus();
+    SceneClient* const client = session->client();
     const auto credit_handed = [&] {
       std::vector<SceneKey> handed;
       {
@@ -301,141 +267,144 @@ struct SceneStream::Impl {
       counters.lost = delivery.lost;
       counters.reasked = delivery.reasked;
     };
-    const std::vector<std::string> generator_channels = {options.channel, kConfigChannel};
     while (!stop) {
-      bus->HandleFor(20);
+      bus.HandleFor(20);
       credit_handed();
-      // generators that use another key would never be heard (an open best-effort stream reads
-      // signed scenes all the same; a reliable one's credits would be refused): say so rather
-      // than wait
-      if (client || bus->keyed()) {
-        const std::string mismatch = bus->KeyMismatch(generator_channels, kKeyMismatchS);
-        if (!mismatch.empty()) throw FeedError(mismatch);
-      }
       {
         const std::lock_guard<std::mutex> lock(mutex);
-        counters.fault_dropped = bus->fault_dropped();
-        const AuthCounters refused = bus->auth_counters();
+        counters.fault_dropped = bus.fault_dropped();
+        const AuthCounters refused = bus.auth_counters();
         counters.refused_unsigned = refused.unsigned_messages;
         counters.refused_forged = refused.forged;
         counters.refused_replayed = refused.replayed;
       }
-      const auto now = Clock::now();
-      if (options.publish_status && now - last_status >= std::chrono::seconds(1)) {
-        const int64_t handed = Counters().handed;
-        const double seconds = std::chrono::duration<double>(now - last_status).count();
-        PublishStatus(handed, (handed - handed_at_last_status) / seconds);
-        last_status = now;
-        handed_at_last_status = handed;
+      // the client's credits, the status, and generators that use another key, which would
+      // never be heard (an open best-effort stream reads signed scenes all the same; a reliable
+      // one's credits would be refused): said rather than waited for
+      const int64_t handed = Counters().handed;
+      try {
+        session->Service(handed, handed);
+      } catch (const std::runtime_error& mismatch) {
+        throw FeedError(mismatch.what());
       }
     }
     // generators stop waiting for this stream
     credit_handed();
-    if (options.publish_status) PublishStatus(Counters().handed, 0);
-    if (client) client->Leave();
+    const int64_t handed = Counters().handed;
+    session->Leave(handed, handed);
   }
 
-  // the thread on a log: every scene event in file order, waiting while the queue is full
-  void RunLog() {
+  // what reading a log has found so far
+  struct LogReading {
     std::map<std::string, int64_t> other_channels;
-    std::map<std::tuple<int32_t, int64_t, int64_t>, int64_t> seen;
+    std::map<std::tuple<int32_t, int64_t, int64_t>, int64_t> seen;  // copies per scene
     int64_t scene_events = 0;
     KeyEvidence key_evidence;
     std::string first_refusal;
     bool refusal_reported = false;
+  };
+
+  // the key check of a scene event, as on a live bus (no liveness: a log is a recording): the
+  // size of its body, or -1 when it is refused (counted; the first says why, once a scene of
+  // the log passed: all refused fails the stream at the end, in one line)
+  int64_t OpenLogEvent(const LogEvent& event, LogReading* reading) {
+    std::string refused;
+    const int64_t body = log_auth->Open(event.channel, event.data, event.size, &refused);
+    reading->key_evidence.Note(*log_auth, event.data, event.size, body >= 0);
+    if (body < 0) {
+      const AuthCounters counted = log_auth->counters();
+      const std::lock_guard<std::mutex> lock(mutex);
+      counters.refused_unsigned = counted.unsigned_messages;
+      counters.refused_forged = counted.forged;
+      counters.refused_replayed = counted.replayed;
+      if (reading->first_refusal.empty()) reading->first_refusal = refused;
+      return -1;
+    }
+    if (!reading->first_refusal.empty() && !reading->refusal_reported) {
+      Report(reading->first_refusal);
+      reading->refusal_reported = true;
+    }
+    return body;
+  }
+
+  // one scene event of a log: skipped when another shard's (before it is decoded), a repeat
+  // (unless options.repeats) or bad; else queued once there is room in the queue and fewer than
+  // `count` scenes are handed out or queued (one that then fails to decode makes room)
+  void ReadLogScene(const LogEvent& event, size_t size, LogReading* reading) {
+    // the header's seq and generator_id follow the fingerprint (big-endian int64 and int32)
+    if (size >= 20 && ReadBigEndian(event.data, 8) == static_cast<uint64_t>(scene::getHash())) {
+      const int64_t peeked_seq = static_cast<int64_t>(ReadBigEndian(event.data + 8, 8));
+      const int32_t peeked_id = static_cast<int32_t>(ReadBigEndian(event.data + 16, 4));
+      if (peeked_seq < 0 || !Wanted(peeked_id, peeked_seq)) return;
+    }
+    scene message;
+    std::string why;
+    if (!DecodeBounded(event.data, size, DecodeLimits{}, &message, &why)) {
+      throw FeedError(log_path + ": the event at byte " + std::to_string(event.offset) + " on " +
+                      options.channel + " is not a stackgen.scene of this build: " + why);
+    }
+    const int32_t generator_id = message.header.generator_id;
+    const int64_t seq = message.header.seq;
+    if (seq < 0 || !Wanted(generator_id, seq)) return;
+    const int64_t occurrence = reading->seen[{generator_id, seq, message.header.seed}]++;
+    {
+      const std::lock_guard<std::mutex> lock(mutex);
+      ++counters.received;
+      if (occurrence > 0 && !options.repeats) {
+        ++counters.duplicates;
+        return;
+      }
+    }
+    if (!Check(message)) return;
+    {
+      std::unique_lock<std::mutex> lock(mutex);
+      changed.wait(lock, [&] {
+        const int64_t held = counters.handed + static_cast<int64_t>(queue.size());
+        return stop || (static_cast<int>(queue.size()) < options.queue &&
+                        (options.count == 0 || held < options.count));
+      });
+      if (stop) throw StopReading{};
+    }
+    std::shared_ptr<FeedScene> prepared = Prepare(std::move(message));
+    prepared->occurrence = occurrence;
+    {
+      const std::lock_guard<std::mutex> lock(mutex);
+      queue.push_back(std::move(prepared));
+    }
+    changed.notify_all();
+  }
+
+  // the thread on a log: every scene event in file order, waiting while the queue is full
+  void RunLog() {
+    LogReading reading;
     LogSummary summary;
     try {
       summary = ReadLog(log_path, [&](const LogEvent& event) {
         if (stop) throw StopReading{};
         if (event.channel != options.channel) {
-          ++other_channels[event.channel];
+          ++reading.other_channels[event.channel];
           return;
         }
-        ++scene_events;
-        // the key check, as on a live bus (no liveness: a log is a recording)
-        std::string refused;
-        const int64_t body = log_auth->Open(event.channel, event.data, event.size, &refused);
-        key_evidence.Note(*log_auth, event.data, event.size, body >= 0);
-        if (body < 0) {
-          const AuthCounters counted = log_auth->counters();
-          {
-            const std::lock_guard<std::mutex> lock(mutex);
-            counters.refused_unsigned = counted.unsigned_messages;
-            counters.refused_forged = counted.forged;
-            counters.refused_replayed = counted.replayed;
-          }
-          // the first says why, once a scene of the log passed (all refused fails the stream at
-          // the end, in one line); the rest are counted
-          if (first_refusal.empty()) first_refusal = refused;
-          return;
-        }
-        if (!first_refusal.empty() && !refusal_reported) {
-          Report(first_refusal);
-          refusal_reported = true;
-        }
-        const size_t size = static_cast<size_t>(body);
-        // another shard's scene is skipped before it is decoded: the header's seq and
-        // generator_id follow the fingerprint (big-endian int64 and int32)
-        if (size >= 20 && ReadBigEndian(event.data, 8) == static_cast<uint64_t>(scene::getHash())) {
-          const int64_t peeked_seq = static_cast<int64_t>(ReadBigEndian(event.data + 8, 8));
-          const int32_t peeked_id = static_cast<int32_t>(ReadBigEndian(event.data + 16, 4));
-          if (peeked_seq < 0 || !Wanted(peeked_id, peeked_seq)) return;
-        }
-        scene message;
-        std::string why;
-        if (!DecodeBounded(event.data, size, DecodeLimits{}, &message, &why)) {
-          throw FeedError(log_path + ": the event at byte " + std::to_string(event.offset) +
-                          " on " + options.channel +
-                          " is not a stackgen.scene of this build: " + why);
-        }
-        const int32_t generator_id = message.header.generator_id;
-        const int64_t seq = message.header.seq;
-        if (seq < 0 || !Wanted(generator_id, seq)) return;
-        const int64_t occurrence = seen[{generator_id, seq, message.header.seed}]++;
-        {
-          const std::lock_guard<std::mutex> lock(mutex);
-          ++counters.received;
-          if (occurrence > 0 && !options.repeats) {
-            ++counters.duplicates;
-            return;
-          }
-        }
-        if (!Check(message)) return;
-        // room in the queue, and fewer than `count` scenes handed out or queued (one that then
-        // fails to decode makes room for the next)
-        {
-          std::unique_lock<std::mutex> lock(mutex);
-          changed.wait(lock, [&] {
-            const int64_t held = counters.handed + static_cast<int64_t>(queue.size());
-            return stop || (static_cast<int>(queue.size()) < options.queue &&
-                            (options.count == 0 || held < options.count));
-          });
-          if (stop) throw StopReading{};
-        }
-        std::shared_ptr<FeedScene> prepared = Prepare(std::move(message));
-        prepared->occurrence = occurrence;
-        {
-          const std::lock_guard<std::mutex> lock(mutex);
-          queue.push_back(std::move(prepared));
-        }
-        changed.notify_all();
+        ++reading.scene_events;
+        const int64_t body = OpenLogEvent(event, &reading);
+        if (body >= 0) ReadLogScene(event, static_cast<size_t>(body), &reading);
       });
     } catch (const StopReading&) {
       return;
     }
-    if (scene_events == 0) {
+    if (reading.scene_events == 0) {
       std::string found;
-      for (const auto& [channel, events] : other_channels) {
+      for (const auto& [channel, events] : reading.other_channels) {
         found += (found.empty() ? "" : ", ") + channel + " x" + std::to_string(events);
       }
       throw FeedError(log_path + " holds no events on channel " + options.channel +
                       (found.empty() ? "" : " (it has " + found + ")"));
     }
     // a log whose every scene was refused for its key: an error, not an empty stream
-    const std::string mismatch =
-        key_evidence.Mismatch(*log_auth, "the scenes of " + log_path + " on " + options.channel);
+    const std::string mismatch = reading.key_evidence.Mismatch(
+        *log_auth, "the scenes of " + log_path + " on " + options.channel);
     if (!mismatch.empty()) throw FeedError(mismatch);
-    if (!first_refusal.empty() && !refusal_reported) Report(first_refusal);
+    if (!reading.first_refusal.empty() && !reading.refusal_reported) Report(reading.first_refusal);
     if (summary.truncated_bytes > 0) {
       std::fprintf(stderr, "stackgen-feed: %s ends with a torn event of %lld bytes (skipped)\n",
                    log_path.c_str(), static_cast<long long>(summary.truncated_bytes));
@@ -530,27 +499,33 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
       throw FeedError(error.what());
     }
   } else {
+    ConsumerSessionOptions session_options;
+    session_options.process = "stackgen-feed";
+    session_options.name = impl.name;
+    session_options.reliable = options.reliable;
+    session_options.client.window = options.window;
+    session_options.client.max_scenes = options.count;
+    session_options.client.generator_ids = options.generator_ids;
+    session_options.client.shard_index = options.shard_index;
+    session_options.client.shard_count = options.shard_count;
+    // a learner joins running generators where it hears them (see SceneClientOptions)
+    session_options.client.join_where_heard = true;
+    session_options.generator_channels = {options.channel, kConfigChannel};
+    session_options.key_mismatch_s = kKeyMismatchS;
+    session_options.status_period_s = options.publish_status ? 1 : 0;
+    session_options.recent_scenes = kRecentKeys;
     try {
-      impl.bus = std::make_unique<Bus>(
-          impl.url, ConsumerBusOptions(options.fault_drop, options.bus_key_file, options.open_bus,
-                                       options.replay, 0xFEED));
+      impl.session = std::make_unique<ConsumerSession>(
+          std::make_unique<Bus>(impl.url,
+                                ConsumerBusOptions(options.fault_drop, options.bus_key_file,
+                                                   options.open_bus, options.replay, 0xFEED)),
+          session_options);
     } catch (const std::exception& error) {
       throw FeedError(error.what());
     }
-    if (options.reliable) {
-      SceneClientOptions client_options;
-      client_options.name = impl.name;
-      client_options.window = options.window;
-      client_options.max_scenes = options.count;
-      client_options.generator_ids = options.generator_ids;
-      client_options.shard_index = options.shard_index;
-      client_options.shard_count = options.shard_count;
-      // a learner joins running generators where it hears them (see SceneClientOptions)
-      client_options.join_where_heard = true;
-      impl.client = std::make_unique<SceneClient>(impl.bus.get(), client_options);
-    }
+    impl.reliable = impl.session->client() != nullptr;
     Impl* raw = impl_.get();
-    impl.bus->Subscribe<scene>(
+    impl.session->SubscribeScenes(
         options.channel, [raw](const scene& message) { raw->OnLiveScene(message); },
         // a reliable window per generator, or the best-effort queue, plus room for resends
         std::max(64, 4 * std::max(options.window, options.queue)),
@@ -560,7 +535,7 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
         });
     // the generators' configs too, for their key alone (Bus::WatchKeys): each generator
     // announces its config before its first scene and then every second
-    impl.bus->WatchKeys({options.channel, kConfigChannel});
+    impl.session->WatchGeneratorKeys();
   }
   for (int k = 0; k < options.decode_threads; ++k) {
     impl.decoders.emplace_back([raw = impl_.get()] { raw->RunDecoder(); });
@@ -605,13 +580,13 @@ std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
       if (!ready && impl.closed) return nullptr;
       if (!ready) {
         ++impl.counters.bad_messages;
-        if (impl.client) impl.skipped_pending.push_back(key);
+        if (impl.reliable) impl.skipped_pending.push_back(key);
         lock.unlock();
         impl.Report(why);
         lock.lock();
         continue;
       }
-      if (impl.client) impl.handed_pending.push_back(key);
+      if (impl.reliable) impl.handed_pending.push_back(key);
       ++impl.counters.handed;
       return next;
     }

@@ -2,11 +2,17 @@
 
 #include <atomic>
 #include <csignal>
+#include <memory>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
+#include <stackgen/header.hpp>
+
 #include "bus/bus.h"
+#include "bus/channels.h"
+#include "bus/clock.h"
 
 namespace stackgen {
 namespace {
@@ -75,6 +81,101 @@ TEST(ConsumerBusOptionsTest, FlagsBecomeBusOptions) {
   EXPECT_EQ(plain.drop_receive_fraction, 0);
   EXPECT_FALSE(plain.open_bus);
   EXPECT_FALSE(plain.replay);
+}
+
+std::unique_ptr<Bus> OpenMemq() {
+  BusOptions options;
+  options.open_bus = true;
+  return std::make_unique<Bus>("memq://", options);
+}
+
+// a best-effort session: a repeat is one of the last recent_scenes; refusals, repeats, scenes
+// and what did not decode are counted; the status goes out once per period of its clock, with
+// the rate of scenes held over that period, and when it leaves
+TEST(ConsumerSessionTest, BestEffortCountsWhatItHeardAndPublishesStatusEachPeriod) {
+  ManualClock clock;
+  ConsumerSessionOptions options;
+  options.process = "stackgen-view";
+  options.name = "stackgen-view/1";
+  options.recent_scenes = 2;
+  options.clock = &clock;
+  ConsumerSession session(OpenMemq(), options);
+  EXPECT_EQ(session.client(), nullptr);
+  EXPECT_TRUE(session.live());
+  std::vector<status> statuses;
+  session.bus().Subscribe<status>(kStatusChannel,
+                                  [&](const status& message) { statuses.push_back(message); });
+  int handled = 0;
+  std::vector<std::string> undecodable;
+  const Subscription scenes = session.SubscribeScenes(
+      kSceneChannel, [&](const scene&) { ++handled; }, 16,
+      [&](const std::string& text) { undecodable.push_back(text); });
+  session.bus().Publish(kSceneChannel, scene{});
+  session.bus().Publish(kSceneChannel, header{});  // not a scene
+  session.bus().HandleFor(0);
+  EXPECT_EQ(handled, 1);
+  EXPECT_EQ(session.received(), 1);
+  ASSERT_EQ(undecodable.size(), 1u);
+  EXPECT_EQ(session.undecodable(), 1);
+
+  EXPECT_TRUE(session.Fresh(0, 0));
+  EXPECT_FALSE(session.Fresh(0, 0));
+  EXPECT_TRUE(session.Fresh(0, 1));
+  EXPECT_TRUE(session.Fresh(1, 0));  // another generator's seq 0
+  EXPECT_TRUE(session.Fresh(0, 0));  // two newer ones since: forgotten
+  session.Refuse(0, 2);
+  EXPECT_EQ(session.repeats(), 1);
+  EXPECT_EQ(session.refused(), 1);
+
+  session.Service(3, 3);
+  clock.Advance(0.6);
+  session.Service(4, 4);
+  session.bus().HandleFor(0);
+  EXPECT_TRUE(statuses.empty());
+  clock.Advance(0.4);
+  session.Service(5, 5);
+  session.bus().HandleFor(0);
+  ASSERT_EQ(statuses.size(), 1u);
+  EXPECT_EQ(statuses[0].process, "stackgen-view");
+  EXPECT_EQ(statuses[0].name, "stackgen-view/1");
+  EXPECT_EQ(statuses[0].scenes_held, 5);
+  EXPECT_DOUBLE_EQ(statuses[0].rate_hz, 2.0);  // 3 -> 5 in 1 s
+  EXPECT_EQ(statuses[0].received, 1);
+  EXPECT_EQ(statuses[0].duplicates, 1);
+  EXPECT_EQ(statuses[0].bad_messages, 2);
+  session.Leave(5, 5);
+  session.bus().HandleFor(0);
+  EXPECT_EQ(statuses.size(), 2u);
+}
+
+// a reliable session: a seq whose copies keep failing is given up at the third bad copy (the
+// client stops asking for it), but not one a good copy of which came first; a good copy is new
+// once
+TEST(ConsumerSessionTest, ReliableGivesUpASeqAtItsThirdBadCopyUnlessHeld) {
+  ManualClock clock;
+  ConsumerSessionOptions options;
+  options.process = "stackgen-coco";
+  options.name = "stackgen-coco@test";
+  options.reliable = true;
+  options.status_period_s = 0;
+  options.clock = &clock;
+  ConsumerSession session(OpenMemq(), options);
+  SceneClient* client = session.client();
+  ASSERT_NE(client, nullptr);
+  session.Refuse(0, 0);
+  session.Refuse(0, 0);
+  EXPECT_EQ(client->StoredThrough(0), -1);
+  session.Refuse(0, 0);
+  EXPECT_EQ(client->StoredThrough(0), 0);  // given up
+  EXPECT_TRUE(session.Fresh(0, 1));
+  for (int k = 0; k < 3; ++k) session.Refuse(0, 1);
+  EXPECT_EQ(client->StoredThrough(0), 0);
+  session.Stored(0, 1);
+  EXPECT_EQ(client->StoredThrough(0), 1);
+  EXPECT_FALSE(session.Fresh(0, 1));
+  EXPECT_EQ(session.repeats(), 1);
+  EXPECT_EQ(session.refused(), 6);
+  EXPECT_EQ(session.delivery().stored, 1);
 }
 
 std::atomic<int> signals_seen{0};

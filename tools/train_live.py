@@ -330,34 +330,28 @@ def run_eval(args, model, eval_set, device, iteration):
     return result
 
 
-def main(argv):
-    args, given = parse_args(argv)
-    import numpy as np
+def apply_recording(args, given):
+    """--replay takes the recorded run's settings unless given again."""
+    sidecar = args.replay + ".train.json"
+    if not os.path.exists(sidecar):
+        return
+    with open(sidecar) as file:
+        recorded = json.load(file)
+    for key in REPLAYED:
+        if key not in recorded:
+            continue
+        if key in given and getattr(args, key) != recorded[key]:
+            print("%s: warning: --%s %s differs from the recording's %s: the batches "
+                  "or losses will differ" % (PROGRAM, key.replace("_", "-"),
+                                             getattr(args, key), recorded[key]))
+        elif key not in given:
+            setattr(args, key, recorded[key])
+
+
+def choose_device(args, world, local_rank):
+    """The torch device of this rank, after the checks of --device against the ranks."""
     import torch
-    from torch.utils.data import DataLoader
 
-    import stackgen
-    import stackgen.torch as sgt
-    from stackgen.coco import open_labelled_folder
-
-    stackgen.set_program_name(PROGRAM)
-
-    # --replay takes the recorded run's settings unless given again
-    if args.replay:
-        sidecar = args.replay + ".train.json"
-        if os.path.exists(sidecar):
-            with open(sidecar) as file:
-                recorded = json.load(file)
-            for key in REPLAYED:
-                if key not in recorded:
-                    continue
-                if key in given and getattr(args, key) != recorded[key]:
-                    print("%s: warning: --%s %s differs from the recording's %s: the batches "
-                          "or losses will differ" % (PROGRAM, key.replace("_", "-"),
-                                                     getattr(args, key), recorded[key]))
-                elif key not in given:
-                    setattr(args, key, recorded[key])
-    rank, world, local_rank = distributed()
     if args.nproc > 1 and world > 1:
         fail("--nproc %d under torchrun (WORLD_SIZE %d): let one of them start the ranks" % (
             args.nproc, world))
@@ -380,48 +374,257 @@ def main(argv):
         if world > 1:
             device = torch.device("cuda", local_rank)
             torch.cuda.set_device(device)
-    mix_set = eval_set = None
-    if args.mix:
+    return device
+
+
+def open_labelled_sets(args):
+    """The --mix and --eval folders (None where not given)."""
+    from stackgen.coco import open_labelled_folder
+
+    sets = []
+    for flag, folder in (("--mix", args.mix), ("--eval", args.eval)):
         try:
-            mix_set = open_labelled_folder(args.mix)
+            sets.append(open_labelled_folder(folder) if folder else None)
         except ValueError as error:
-            fail("--mix: %s" % error)
-    if args.eval:
-        try:
-            eval_set = open_labelled_folder(args.eval)
-        except ValueError as error:
-            fail("--eval: %s" % error)
+            fail("%s: %s" % (flag, error))
+    return sets
+
+
+def bus_url(args):
+    """The bus to train from: the --replay log, the --attach'ed bus, or one of the run's own."""
+    import stackgen
+
+    url = args.lcm_url
+    if args.replay:
+        url = "file://" + os.path.abspath(args.replay)
+    elif not args.attach:
+        if not os.path.exists(args.config):
+            fail("--config %s: no such file" % args.config)
+        if not os.access(args.stackgen, os.X_OK):
+            fail("%s is not built: run tools/train-live (it builds it)" % args.stackgen)
+        url = url or "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % free_udp_port()
+    return stackgen.resolve_lcm_url(url or "")
+
+
+def open_dataset(args, url, augment, mix_set):
+    """The stream of scenes (and mixed-in photos) the loader draws from."""
+    import stackgen.torch as sgt
+
+    try:
+        return sgt.StreamDataset(
+            url, reliable=not args.best_effort, window=args.window, reuse=1 if args.replay
+            else args.reuse, reuse_buffer=args.reuse_buffer, grayscale=args.gray,
+            augment=augment, min_visib_fract=args.min_visib_fract, seed=args.seed,
+            record=args.record, replay=bool(args.replay),
+            timeout=None if args.replay else 120, name="train-live",
+            bus_key_file=args.bus_key_file, open_bus=args.open_bus,
+            mix=mix_set, mix_fraction=args.mix_fraction)
+    except ValueError as error:
+        fail(str(error))
+
+
+def print_start(args, url, generators, augment, dataset, world):
+    print("%s: %s, %s stream, %d workers, batch %d, reuse up to %d, %s, %s backbone, "
+          "%s%s%s" % (
+              PROGRAM, "replaying " + args.replay if args.replay else
+              "%d generators on %s" % (len(generators), url) if generators else
+              "attached to " + url,
+              "best-effort" if args.best_effort else "reliable", args.workers,
+              args.batch_size, 1 if args.replay else args.reuse,
+              "augmented" if augment else "not augmented", args.backbone,
+              "gray" if args.gray else "rgb",
+              ", mixing %.0f %% real images from %s (%d)" % (
+                  100 * dataset.mix_fraction, args.mix, len(dataset.mix))
+              if args.mix else "",
+              ", rank 0 of %d" % world if world > 1 else ""), flush=True)
+
+
+class Training:
+    """The model, its optimiser and what the loop has seen, made at the first batch."""
+
+    def __init__(self, args, device, world, rank, monitor, eval_set):
+        import stackgen.torch as sgt
+
+        self.args, self.device, self.world, self.rank = args, device, world, rank
+        self.monitor, self.eval_set = monitor, eval_set
+        self.meter = sgt.ReuseMeter()
+        self.model = self.optimizer = self.parameters = None
+        self.losses = []
+        self.iteration = 0
+        self.csv = open(args.loss_csv, "w") if args.loss_csv and rank == 0 else None
+        self.start = self.last_time = time.monotonic()
+        self.last_scenes = 0
+        self.last_produced = None
+        self.warmup = min(50, args.iterations)
+
+    def build(self, images, raw_targets):
+        """The model, sized by a scene, not a mixed-in photo of another size (the first batch
+        without a scene falls back to its first image)."""
+        import torch
+
+        scenes = [image for image, target in zip(images, raw_targets)
+                  if int(target["scene"][0]) >= 0]
+        channels, height, width = (scenes or images)[0].shape
+        self.model = build_model(self.args, channels, height, width).to(self.device)
+        self.model.train()
+        if self.world > 1:
+            self.model = torch.nn.parallel.DistributedDataParallel(
+                self.model, device_ids=[self.device.index] if self.device.type == "cuda"
+                else None)
+        self.parameters = [p for p in self.model.parameters() if p.requires_grad]
+        self.optimizer = torch.optim.SGD(self.parameters, lr=self.args.lr, momentum=0.9,
+                                         weight_decay=1e-4)
+
+    def step(self, images, targets):
+        """One optimiser step on a batch (ignore regions already left out); the loss line of
+        --loss-csv with a digest of the batch, so that two runs can be compared step by step."""
+        import torch
+
+        args = self.args
+        # linear warm-up, then the set rate
+        for group in self.optimizer.param_groups:
+            group["lr"] = args.lr * min(1.0, 0.001 + (1 - 0.001) * self.iteration / self.warmup)
+        digest = 0
+        if self.csv:
+            for image, target in zip(images, targets):
+                digest = zlib.crc32(image.numpy().tobytes(), digest)
+                for key in ("boxes", "labels", "masks"):
+                    digest = zlib.crc32(target[key].numpy().tobytes(), digest)
+        images = [image.to(self.device) for image in images]
+        targets = [{k: v.to(self.device) for k, v in t.items()
+                    if k in ("boxes", "labels", "masks")} for t in targets]
+        loss_dict = self.model(images, targets)
+        loss = sum(loss_dict.values())
+        self.optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.parameters, 10.0)
+        self.optimizer.step()
+        self.iteration += 1
+        value = float(loss)
+        if not math.isfinite(value):
+            fail("the loss is %s at iteration %d: lower --lr" % (value, self.iteration))
+        self.losses.append(value)
+        if self.csv:
+            self.csv.write("%d,%.9g,%08x,%s\n" % (self.iteration, value, digest, ",".join(
+                "%s=%.9g" % (k, float(v)) for k, v in sorted(loss_dict.items()))))
+        return value, loss_dict
+
+    def print_progress(self, value, loss_dict):
+        now = time.monotonic()
+        seconds = max(now - self.last_time, 1e-9)
+        produced = ""
+        if self.monitor is not None:
+            total = sum(s["scenes"] for s in self.monitor.latest("stackgen"))
+            if self.last_produced is not None:
+                produced = "produced %.2f scenes/s, " % ((total - self.last_produced) / seconds)
+            self.last_produced = total
+        parts = " ".join("%s %.3f" % (k.replace("loss_", ""), float(v))
+                         for k, v in sorted(loss_dict.items()))
+        print("iter %d/%d loss %.4f (%s) | %sconsumed %.2f scenes/s, reuse %.2f | "
+              "%.2f s/iter" % (self.iteration, self.args.iterations, value, parts, produced,
+                               (self.meter.scenes - self.last_scenes) / seconds,
+                               self.meter.factor, seconds / self.args.print_every), flush=True)
+        self.last_time, self.last_scenes = now, self.meter.scenes
+
+    def run(self, loader, generators):
+        """Batches until --iterations, with the progress line and the periodic --eval."""
+        import stackgen.torch as sgt
+
+        args = self.args
+        for images, targets in loader:
+            check_generators(generators)
+            self.meter.update(targets)
+            raw_targets = targets
+            targets = [sgt.without_ignore_regions(t) for t in targets]
+            for target in targets:
+                if len(target["labels"]) and int(target["labels"].max()) >= args.num_classes:
+                    fail("class id %d seen: pass --num-classes %d or more" % (
+                        int(target["labels"].max()), int(target["labels"].max()) + 1))
+            if self.model is None:
+                self.build(images, raw_targets)
+            value, loss_dict = self.step(images, targets)
+            if self.rank == 0 and (self.iteration % args.print_every == 0 or
+                                   self.iteration == args.iterations):
+                self.print_progress(value, loss_dict)
+            if (self.rank == 0 and self.eval_set is not None and args.eval_every and
+                    self.iteration % args.eval_every == 0 and self.iteration < args.iterations):
+                run_eval(args, getattr(self.model, "module", self.model), self.eval_set,
+                         self.device, self.iteration)
+            if self.iteration >= args.iterations:
+                break
+        if self.csv:
+            self.csv.close()
+        if not self.losses:
+            fail("no batch arrived" + (" (the log holds no scenes)" if args.replay else ""))
+
+    def report_ranks(self):
+        """What every rank took: their scenes are disjoint, and DDP kept the models equal."""
+        import torch
+
+        world, meter = self.world, self.meter
+        shares = [None] * world
+        torch.distributed.all_gather_object(shares, (
+            meter.samples, meter.real, sorted(meter.seen), zlib.crc32(b"".join(
+                p.detach().cpu().numpy().tobytes() for p in self.model.parameters()))))
+        if self.rank == 0:
+            seen = [set(map(tuple, share[2])) for share in shares]
+            union = set().union(*seen)
+            print("%s: %d ranks: %d samples of %d distinct scenes, %s; parameters %s" % (
+                PROGRAM, world, sum(share[0] for share in shares), len(union),
+                "none on two ranks" if len(union) == sum(map(len, seen)) else
+                "%d on two ranks or more" % (sum(map(len, seen)) - len(union)),
+                "equal on every rank" if len({share[3] for share in shares}) == 1 else
+                "DIFFER between ranks"), flush=True)
+
+    def report_end(self):
+        """Rank 0's summary, the last --eval, the recording's name and --save."""
+        import numpy as np
+        import torch
+
+        args, meter, losses = self.args, self.meter, self.losses
+        elapsed = time.monotonic() - self.start
+        first, last = losses[:10], losses[-10:]
+        print("%s: %d iterations in %.1f s; %d samples of %d distinct scenes (reuse %.2f)%s; "
+              "loss first %d mean %.4f, last %d mean %.4f" % (
+                  PROGRAM, self.iteration, elapsed, meter.samples, meter.scenes, meter.factor,
+                  ", %d real images" % meter.real if args.mix else "",
+                  len(first), float(np.mean(first)), len(last), float(np.mean(last))),
+              flush=True)
+        model = getattr(self.model, "module", self.model)
+        if self.eval_set is not None:
+            run_eval(args, model, self.eval_set, self.device, self.iteration)
+        if args.record:
+            print("%s: recorded %s; train on it again: tools/train-live --replay %s" %
+                  (PROGRAM, args.record, args.record))
+        if args.save:
+            torch.save(model.state_dict(), args.save)
+
+
+def main(argv):
+    args, given = parse_args(argv)
+    import torch
+    from torch.utils.data import DataLoader
+
+    import stackgen
+    import stackgen.torch as sgt
+
+    stackgen.set_program_name(PROGRAM)
+    if args.replay:
+        apply_recording(args, given)
+    rank, world, local_rank = distributed()
+    device = choose_device(args, world, local_rank)
+    mix_set, eval_set = open_labelled_sets(args)
     torch.set_num_threads(args.threads)
     torch.use_deterministic_algorithms(True, warn_only=True)
 
     generators = []
     logs = tempfile.mkdtemp(prefix="stackgen-train-live.")
-    url = args.lcm_url
     try:
-        if args.replay:
-            url = "file://" + os.path.abspath(args.replay)
-        elif not args.attach:
-            if not os.path.exists(args.config):
-                fail("--config %s: no such file" % args.config)
-            if not os.access(args.stackgen, os.X_OK):
-                fail("%s is not built: run tools/train-live (it builds it)" % args.stackgen)
-            url = url or "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % free_udp_port()
-        url = stackgen.resolve_lcm_url(url or "")
-
+        url = bus_url(args)
         augment = sgt.Augment() if args.augment else None
         if world > 1:
             torch.distributed.init_process_group("nccl" if device.type == "cuda" else "gloo")
-        try:
-            dataset = sgt.StreamDataset(
-                url, reliable=not args.best_effort, window=args.window, reuse=1 if args.replay
-                else args.reuse, reuse_buffer=args.reuse_buffer, grayscale=args.gray,
-                augment=augment, min_visib_fract=args.min_visib_fract, seed=args.seed,
-                record=args.record, replay=bool(args.replay),
-                timeout=None if args.replay else 120, name="train-live",
-                bus_key_file=args.bus_key_file, open_bus=args.open_bus,
-                mix=mix_set, mix_fraction=args.mix_fraction)
-        except ValueError as error:
-            fail(str(error))
+        dataset = open_dataset(args, url, augment, mix_set)
         if args.record:
             settings = {key: getattr(args, key) for key in REPLAYED}
             with open(args.record + ".train.json", "w") as file:
@@ -438,139 +641,17 @@ def main(argv):
         monitor = None if args.replay or rank > 0 else stackgen.StatusMonitor(
             url, bus_key_file=args.bus_key_file, open_bus=args.open_bus)
         if rank == 0:
-            print("%s: %s, %s stream, %d workers, batch %d, reuse up to %d, %s, %s backbone, "
-                  "%s%s%s" % (
-                      PROGRAM, "replaying " + args.replay if args.replay else
-                      "%d generators on %s" % (len(generators), url) if generators else
-                      "attached to " + url,
-                      "best-effort" if args.best_effort else "reliable", args.workers,
-                      args.batch_size, 1 if args.replay else args.reuse,
-                      "augmented" if augment else "not augmented", args.backbone,
-                      "gray" if args.gray else "rgb",
-                      ", mixing %.0f %% real images from %s (%d)" % (
-                          100 * dataset.mix_fraction, args.mix, len(dataset.mix))
-                      if args.mix else "",
-                      ", rank 0 of %d" % world if world > 1 else ""), flush=True)
+            print_start(args, url, generators, augment, dataset, world)
 
         loader = DataLoader(dataset, batch_size=args.batch_size, num_workers=args.workers,
                             collate_fn=sgt.collate,
                             persistent_workers=False)
-        meter = sgt.ReuseMeter()
-        model = optimizer = None
-        losses = []
-        csv = open(args.loss_csv, "w") if args.loss_csv and rank == 0 else None
-        start = last_time = time.monotonic()
-        last_scenes = 0
-        last_produced = None
-        warmup = min(50, args.iterations)
-        iteration = 0
-        for images, targets in loader:
-            check_generators(generators)
-            meter.update(targets)
-            raw_targets = targets
-            targets = [sgt.without_ignore_regions(t) for t in targets]
-            for target in targets:
-                if len(target["labels"]) and int(target["labels"].max()) >= args.num_classes:
-                    fail("class id %d seen: pass --num-classes %d or more" % (
-                        int(target["labels"].max()), int(target["labels"].max()) + 1))
-            if model is None:
-                # sized by a scene, not a mixed-in photo of another size (the first batch
-                # without a scene falls back to its first image)
-                scenes = [image for image, target in zip(images, raw_targets)
-                          if int(target["scene"][0]) >= 0]
-                channels, height, width = (scenes or images)[0].shape
-                model = build_model(args, channels, height, width).to(device)
-                model.train()
-                if world > 1:
-                    model = torch.nn.parallel.DistributedDataParallel(
-                        model, device_ids=[device.index] if device.type == "cuda" else None)
-                parameters = [p for p in model.parameters() if p.requires_grad]
-                optimizer = torch.optim.SGD(parameters, lr=args.lr, momentum=0.9,
-                                            weight_decay=1e-4)
-            # linear warm-up, then the set rate
-            for group in optimizer.param_groups:
-                group["lr"] = args.lr * min(1.0, 0.001 + (1 - 0.001) * iteration / warmup)
-            # a digest of the batch, so that two runs can be compared step by step
-            digest = 0
-            if csv:
-                for image, target in zip(images, targets):
-                    digest = zlib.crc32(image.numpy().tobytes(), digest)
-                    for key in ("boxes", "labels", "masks"):
-                        digest = zlib.crc32(target[key].numpy().tobytes(), digest)
-            images = [image.to(device) for image in images]
-            targets = [{k: v.to(device) for k, v in t.items()
-                        if k in ("boxes", "labels", "masks")} for t in targets]
-            loss_dict = model(images, targets)
-            loss = sum(loss_dict.values())
-            optimizer.zero_grad()
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(parameters, 10.0)
-            optimizer.step()
-            iteration += 1
-            value = float(loss)
-            if not math.isfinite(value):
-                fail("the loss is %s at iteration %d: lower --lr" % (value, iteration))
-            losses.append(value)
-            if csv:
-                csv.write("%d,%.9g,%08x,%s\n" % (iteration, value, digest, ",".join(
-                    "%s=%.9g" % (k, float(v)) for k, v in sorted(loss_dict.items()))))
-            if rank == 0 and (iteration % args.print_every == 0 or iteration == args.iterations):
-                now = time.monotonic()
-                seconds = max(now - last_time, 1e-9)
-                produced = ""
-                if monitor is not None:
-                    total = sum(s["scenes"] for s in monitor.latest("stackgen"))
-                    if last_produced is not None:
-                        produced = "produced %.2f scenes/s, " % ((total - last_produced) / seconds)
-                    last_produced = total
-                parts = " ".join("%s %.3f" % (k.replace("loss_", ""), float(v))
-                                 for k, v in sorted(loss_dict.items()))
-                print("iter %d/%d loss %.4f (%s) | %sconsumed %.2f scenes/s, reuse %.2f | "
-                      "%.2f s/iter" % (iteration, args.iterations, value, parts, produced,
-                                       (meter.scenes - last_scenes) / seconds, meter.factor,
-                                       seconds / args.print_every), flush=True)
-                last_time, last_scenes = now, meter.scenes
-            if (rank == 0 and eval_set is not None and args.eval_every and
-                    iteration % args.eval_every == 0 and iteration < args.iterations):
-                run_eval(args, getattr(model, "module", model), eval_set, device, iteration)
-            if iteration >= args.iterations:
-                break
-        if csv:
-            csv.close()
-        if not losses:
-            fail("no batch arrived" + (" (the log holds no scenes)" if args.replay else ""))
-        elapsed = time.monotonic() - start
-        first = losses[:10]
-        last = losses[-10:]
+        training = Training(args, device, world, rank, monitor, eval_set)
+        training.run(loader, generators)
         if world > 1:
-            # what every rank took: their scenes are disjoint, and DDP kept the models equal
-            shares = [None] * world
-            torch.distributed.all_gather_object(shares, (
-                meter.samples, meter.real, sorted(meter.seen), zlib.crc32(b"".join(
-                    p.detach().cpu().numpy().tobytes() for p in model.parameters()))))
-            if rank == 0:
-                seen = [set(map(tuple, share[2])) for share in shares]
-                union = set().union(*seen)
-                print("%s: %d ranks: %d samples of %d distinct scenes, %s; parameters %s" % (
-                    PROGRAM, world, sum(share[0] for share in shares), len(union),
-                    "none on two ranks" if len(union) == sum(map(len, seen)) else
-                    "%d on two ranks or more" % (sum(map(len, seen)) - len(union)),
-                    "equal on every rank" if len({share[3] for share in shares}) == 1 else
-                    "DIFFER between ranks"), flush=True)
+            training.report_ranks()
         if rank == 0:
-            print("%s: %d iterations in %.1f s; %d samples of %d distinct scenes (reuse %.2f)%s; "
-                  "loss first %d mean %.4f, last %d mean %.4f" % (
-                      PROGRAM, iteration, elapsed, meter.samples, meter.scenes, meter.factor,
-                      ", %d real images" % meter.real if args.mix else "",
-                      len(first), float(np.mean(first)), len(last), float(np.mean(last))),
-                  flush=True)
-            if eval_set is not None:
-                run_eval(args, getattr(model, "module", model), eval_set, device, iteration)
-            if args.record:
-                print("%s: recorded %s; train on it again: tools/train-live --replay %s" %
-                      (PROGRAM, args.record, args.record))
-            if args.save:
-                torch.save(getattr(model, "module", model).state_dict(), args.save)
+            training.report_end()
         if world > 1:
             torch.distributed.barrier()
             torch.distributed.destroy_process_group()

@@ -270,6 +270,53 @@ class Augment:
         map_y = coefficients[1, 0] * xs + (coefficients[1, 1] * ys + coefficients[1, 2])
         return map_x, map_y
 
+    def _move_px_count_all(self, sample, a, inverse, width, height, px_all):
+        """Each full mask on a canvas that holds all of the object moved by `a`, in or out of
+        the image: its pixels there are the object's px_count_all now (set in `px_all`). Each
+        mask comes within its box, so the maps are shifted by the box's corner, rounded down to
+        even numbers: the shift is exact in float32 for the source pixels near the box, the only
+        ones that matter, and keeps OpenCV's rounding of x.5 to the even neighbour where it
+        was."""
+        masks_obj = sample["boxed_masks_obj"]()
+        area_factor = abs(float(np.linalg.det(a[:2, :2])))
+        for k, box in enumerate(np.asarray(sample["bbox_obj"])):
+            if box[2] <= 0 or box[3] <= 0:
+                px_all[k] = 0
+                continue
+            # the part of the silhouette beyond the scene's image (no mask pixels there)
+            beyond = int(px_all[k]) - int(cv2.countNonZero(masks_obj[k]))
+            cx0, cy0, cx1, cy1 = _moved_box(a, box, width, height, clip=False)
+            canvas_x, canvas_y = self._maps(inverse, cx0, cx1, cy0, cy1)
+            odd_x, odd_y = int(box[0]) % 2, int(box[1]) % 2
+            source = np.pad(masks_obj[k], ((odd_y, 0), (odd_x, 0)))
+            canvas = cv2.remap(source, canvas_x - np.float32(box[0] - odd_x),
+                               canvas_y - np.float32(box[1] - odd_y), cv2.INTER_NEAREST,
+                               borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            px_all[k] = cv2.countNonZero(canvas) + (
+                int(round(beyond * area_factor)) if beyond > 0 else 0)
+
+    def _erase(self, draws, noise_seed, image, instance_map, depth):
+        """Noise over a rectangle of the image drawn from `draws` (5 uniforms), nothing of any
+        object there in the instance map, no depth: the arrays (copies) and the rectangle
+        (x0, y0, x1, y1)."""
+        height, width = image.shape[:2]
+        area = _uniform(draws[1], *self.erase_area) * width * height
+        aspect = _log_uniform(draws[2], *self.erase_aspect)
+        ew = min(width, max(1, int(round(math.sqrt(area * aspect)))))
+        eh = min(height, max(1, int(round(math.sqrt(area / aspect)))))
+        ex = int(draws[3] * (width - ew + 1))
+        ey = int(draws[4] * (height - eh + 1))
+        noise = np.random.default_rng(noise_seed).integers(
+            0, 256, size=(eh, ew, image.shape[2]), dtype=np.uint8)
+        image = np.array(image, copy=True)
+        image[ey:ey + eh, ex:ex + ew] = noise
+        instance_map = np.array(instance_map, copy=True)
+        instance_map[ey:ey + eh, ex:ex + ew] = 0
+        if depth is not None:
+            depth = np.array(depth, copy=True)
+            depth[ey:ey + eh, ex:ex + ew] = 0
+        return image, instance_map, depth, (ex, ey, ex + ew, ey + eh)
+
     def __call__(self, sample, rng):
         """Augments one sample. Then exact_labels gives the rest of the labels.
 
@@ -311,30 +358,8 @@ class Augment:
             if depth is not None:
                 depth = cv2.remap(depth, map_x, map_y, cv2.INTER_NEAREST, borderMode=border,
                                   borderValue=0)
-            # each full mask on a canvas that holds all of the moved object, in or out of the
-            # image: its pixels there are the object's px_count_all now
-            # (each mask comes within its box, so the maps are shifted by the box's corner,
-            # rounded down to even numbers: the shift is exact in float32 for the source pixels
-            # near the box, the only ones that matter, and keeps OpenCV's rounding of x.5 to the
-            # even neighbour where it was)
             if len(px_all) > 0:
-                masks_obj = sample["boxed_masks_obj"]()
-                area_factor = abs(float(np.linalg.det(a[:2, :2])))
-                for k, box in enumerate(np.asarray(sample["bbox_obj"])):
-                    if box[2] <= 0 or box[3] <= 0:
-                        px_all[k] = 0
-                        continue
-                    # the part of the silhouette beyond the scene's image (no mask pixels there)
-                    beyond = int(px_all[k]) - int(cv2.countNonZero(masks_obj[k]))
-                    cx0, cy0, cx1, cy1 = _moved_box(a, box, width, height, clip=False)
-                    canvas_x, canvas_y = self._maps(inverse, cx0, cx1, cy0, cy1)
-                    odd_x, odd_y = int(box[0]) % 2, int(box[1]) % 2
-                    source = np.pad(masks_obj[k], ((odd_y, 0), (odd_x, 0)))
-                    canvas = cv2.remap(source, canvas_x - np.float32(box[0] - odd_x),
-                                       canvas_y - np.float32(box[1] - odd_y), cv2.INTER_NEAREST,
-                                       borderMode=border, borderValue=0)
-                    px_all[k] = cv2.countNonZero(canvas) + (
-                        int(round(beyond * area_factor)) if beyond > 0 else 0)
+                self._move_px_count_all(sample, a, inverse, width, height, px_all)
             # where each object's visible pixels can be now
             regions = np.array([_moved_box(a, box, width, height, clip=True)
                                 for box in np.asarray(sample["bbox_visib"])],
@@ -356,22 +381,8 @@ class Augment:
 
         # random erasure: noise over a rectangle, which hides what lies under it
         if erase_draws[0] < self.erase:
-            area = _uniform(erase_draws[1], *self.erase_area) * width * height
-            aspect = _log_uniform(erase_draws[2], *self.erase_aspect)
-            ew = min(width, max(1, int(round(math.sqrt(area * aspect)))))
-            eh = min(height, max(1, int(round(math.sqrt(area / aspect)))))
-            ex = int(erase_draws[3] * (width - ew + 1))
-            ey = int(erase_draws[4] * (height - eh + 1))
-            noise = np.random.default_rng(noise_seed).integers(
-                0, 256, size=(eh, ew, image.shape[2]), dtype=np.uint8)
-            image = np.array(image, copy=True)
-            image[ey:ey + eh, ex:ex + ew] = noise
-            instance_map = np.array(instance_map, copy=True)
-            instance_map[ey:ey + eh, ex:ex + ew] = 0
-            if depth is not None:
-                depth = np.array(depth, copy=True)
-                depth[ey:ey + eh, ex:ex + ew] = 0
-            out["erased"] = (ex, ey, ex + ew, ey + eh)
+            image, instance_map, depth, out["erased"] = self._erase(
+                erase_draws, noise_seed, image, instance_map, depth)
 
         out["image"] = np.ascontiguousarray(image)
         out["instance_map"] = instance_map

@@ -186,6 +186,39 @@ class ReuseMeter:
         return self.samples / max(1, len(self._scenes))
 
 
+def _open_mix(mix, mix_fraction):
+    """StreamDataset's mix (a folder is opened) and mix_fraction (default 0.1), checked."""
+    if mix is None:
+        if mix_fraction is not None:
+            raise ValueError("mix_fraction needs mix: the real images to mix in")
+        return None, None
+    if isinstance(mix, (str, os.PathLike)):
+        mix = open_labelled_folder(os.fspath(mix))
+    elif not all(hasattr(mix, name) for name in ("__len__", "image", "target")):
+        raise ValueError("mix must be a folder or a dataset with len(), image(i) and "
+                         "target(i), got %r" % (mix,))
+    if len(mix) == 0:
+        raise ValueError("mix: %s holds no images" % getattr(mix, "folder", mix))
+    mix_fraction = 0.1 if mix_fraction is None else mix_fraction
+    if (isinstance(mix_fraction, bool) or not isinstance(mix_fraction, (int, float)) or
+            not 0 <= mix_fraction < 1):
+        raise ValueError("mix_fraction must be in [0, 1), got %r" % (mix_fraction,))
+    return mix, mix_fraction
+
+
+def _create_record(record):
+    """The record file, created empty for the workers to append to; an existing one refused."""
+    try:
+        os.close(os.open(record, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+    except FileExistsError:
+        raise stackgen.StreamError("record: %s exists already; give another file" %
+                                   record) from None
+    except OSError as error:
+        raise stackgen.StreamError("record: cannot create %s: %s" %
+                                   (record, error.strerror)) from None
+    return record
+
+
 class StreamDataset(IterableDataset):
     """(image, target) pairs from a live stackgen bus or a log, for torchvision detection models.
 
@@ -291,21 +324,7 @@ class StreamDataset(IterableDataset):
                  mix: Union[None, str, os.PathLike, Any] = None,
                  mix_fraction: Optional[float] = None) -> None:
         super().__init__()
-        if mix is None:
-            if mix_fraction is not None:
-                raise ValueError("mix_fraction needs mix: the real images to mix in")
-        else:
-            if isinstance(mix, (str, os.PathLike)):
-                mix = open_labelled_folder(os.fspath(mix))
-            elif not all(hasattr(mix, name) for name in ("__len__", "image", "target")):
-                raise ValueError("mix must be a folder or a dataset with len(), image(i) and "
-                                 "target(i), got %r" % (mix,))
-            if len(mix) == 0:
-                raise ValueError("mix: %s holds no images" % getattr(mix, "folder", mix))
-            mix_fraction = 0.1 if mix_fraction is None else mix_fraction
-            if (isinstance(mix_fraction, bool) or not isinstance(mix_fraction, (int, float)) or
-                    not 0 <= mix_fraction < 1):
-                raise ValueError("mix_fraction must be in [0, 1), got %r" % (mix_fraction,))
+        mix, mix_fraction = _open_mix(mix, mix_fraction)
         if transforms is not None and not callable(transforms):
             raise ValueError("transforms must be a callable (image, target) -> (image, target), "
                              "got %r" % (transforms,))
@@ -340,16 +359,7 @@ class StreamDataset(IterableDataset):
         stackgen.Stream(url, reliable=False, count=1, status=False, bus_key_file=bus_key_file,
                         open_bus=open_bus).close()
         if record is not None:
-            record = os.fspath(record)
-            # refuse an existing file, create it empty for the workers to append to
-            try:
-                os.close(os.open(record, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
-            except FileExistsError:
-                raise stackgen.StreamError("record: %s exists already; give another file" %
-                                           record) from None
-            except OSError as error:
-                raise stackgen.StreamError("record: cannot create %s: %s" %
-                                           (record, error.strerror)) from None
+            record = _create_record(os.fspath(record))
         self.lcm_url = url
         self.reliable = reliable
         self.window = window

@@ -103,11 +103,9 @@ def random_rotation(rng):
     return q.to_matrix().to_4x4()
 
 
-def build_scene(args, rng, part_mesh, piece_meshes, environments):
-    """A bin, a table, 12 parts released above the bin, a camera, lights (in the file the meshes
-    were just loaded into); returns the parts, the other surfaces, the environment and whether
-    a ceiling panel shines."""
-    scene = bpy.context.scene
+def add_rigid_body_world(scene):
+    """Blender's Bullet world: 30 substeps per frame, 30 iterations, 300 frames (12.5 s: the fall
+    and the settling)."""
     bpy.ops.rigidbody.world_add()
     world_rb = scene.rigidbody_world
     world_rb.substeps_per_frame = 30
@@ -119,7 +117,10 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
     world_rb.point_cache.frame_start = 1
     world_rb.point_cache.frame_end = frames
 
-    # the bin: 200 x 150 x 100 mm inside, 8 mm walls, on a table
+
+def add_bin_and_table(rng):
+    """The bin (200 x 150 x 100 mm inside, 8 mm walls) of a drawn colour, walls only the physics
+    sees above it, and a table of a drawn grey: the surfaces drawn."""
     length, width, height, wall = 200 * MM, 150 * MM, 100 * MM, 8 * MM
     bin_material = principled(
         "bin", rng.choice([(0.03, 0.06, 0.2), (0.05, 0.05, 0.05), (0.2, 0.2, 0.2),
@@ -148,7 +149,12 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
     table.data.materials.append(principled("table", (grey, grey * 0.95, grey * 0.9), 0.0,
                                            rng.uniform(0.4, 0.9)))
 
-    # the parts: a compound of the convex pieces each, released one above another
+    return parts_of_bin + [table]
+
+
+def add_parts(args, rng, scene, part_mesh, piece_meshes):
+    """args.parts connectors of drawn roughness, each a compound of the convex pieces, released
+    above the bin one above another."""
     aluminium = principled("aluminium", (0.80, 0.80, 0.82), 1.0, rng.uniform(0.2, 0.45),
                            noise_roughness=0.1)
     parts = []
@@ -192,7 +198,11 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
             piece.select_set(False)
         parts.append(part)
 
-    # the camera: 450 +- 30 mm above the floor centre, tilted up to 5 degrees, rolled +-10
+    return parts
+
+
+def add_camera(args, rng, scene):
+    """The camera: 450 +- 30 mm above the floor centre, tilted up to 5 degrees, rolled +-10."""
     camera_data = bpy.data.cameras.new("camera")
     camera_data.sensor_fit = "HORIZONTAL"
     camera_data.sensor_width = 36.0
@@ -216,7 +226,10 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
     roll = mathutils.Matrix.Rotation(math.radians(rng.uniform(-10, 10)), 4, "Z")
     camera.matrix_world = mathutils.Matrix.Translation(eye) @ look @ roll
 
-    # light: an HDR environment, turned and scaled at random, and now and then a ceiling panel
+
+def add_light(rng, scene, environments):
+    """An HDR environment, turned and scaled at random, and now and then a ceiling panel: the
+    environment's file name and whether a panel shines."""
     world = bpy.data.worlds.new("world")
     scene.world = world
     world.use_nodes = True
@@ -242,7 +255,20 @@ def build_scene(args, rng, part_mesh, piece_meshes, environments):
         panel = bpy.data.objects.new("panel", light)
         scene.collection.objects.link(panel)
         panel.location = (rng.uniform(-0.6, 0.6), rng.uniform(-0.6, 0.6), rng.uniform(1.0, 2.0))
-    return parts, parts_of_bin + [table], os.path.basename(chosen), panel is not None
+    return os.path.basename(chosen), panel is not None
+
+
+def build_scene(args, rng, part_mesh, piece_meshes, environments):
+    """A bin, a table, 12 parts released above the bin, a camera, lights (in the file the meshes
+    were just loaded into); returns the parts, the other surfaces, the environment and whether
+    a ceiling panel shines."""
+    scene = bpy.context.scene
+    add_rigid_body_world(scene)
+    surfaces = add_bin_and_table(rng)
+    parts = add_parts(args, rng, scene, part_mesh, piece_meshes)
+    add_camera(args, rng, scene)
+    environment, panel = add_light(rng, scene, environments)
+    return parts, surfaces, environment, panel
 
 
 def simulate(scene, parts):
@@ -303,6 +329,87 @@ def rle(mask):
     return {"counts": counts, "size": [int(mask.shape[0]), int(mask.shape[1])]}
 
 
+def load_meshes(args):
+    """The part's mesh and its convex pieces, loaded into a fresh file (each scene)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    part_mesh = import_obj(args.mesh)[0].data
+    part_mesh.use_fake_user = True
+    piece_meshes = [o.data for o in import_obj(args.collision_mesh)]
+    for m in piece_meshes:
+        m.use_fake_user = True
+    for o in list(bpy.data.objects):
+        bpy.data.objects.remove(o)
+    return part_mesh, piece_meshes
+
+
+def label(args, scene, parts, surroundings, work):
+    """The labels: the visible ids at pixel centres, then each part alone (its full mask)."""
+    scene.render.resolution_x = args.width
+    scene.render.resolution_y = args.height
+    scene.render.resolution_percentage = 100
+    visible = render_index(scene, os.path.join(work, "index"))
+    amodal = []
+    for part in parts:
+        for other in parts + surroundings:
+            other.hide_render = other is not part
+        amodal.append(render_index(scene, os.path.join(work, "alone")) == part.pass_index)
+    for other in parts + surroundings:
+        other.hide_render = False
+    return visible, amodal
+
+
+def render_picture(args, rng, scene, path):
+    """The picture: Cycles, Filmic, the part's own noise."""
+    scene.use_nodes = False
+    scene.view_layers[0].use_pass_object_index = False
+    scene.cycles.samples = args.samples
+    scene.cycles.pixel_filter_type = "BLACKMAN_HARRIS"
+    scene.cycles.filter_width = 1.5
+    scene.cycles.seed = rng.randrange(1 << 30)
+    scene.view_settings.view_transform = "Filmic"
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.image_settings.color_mode = "RGB"
+    scene.render.filepath = path
+    bpy.ops.render.render(write_still=True)
+
+
+def annotate(coco, image_id, name, args, parts, visible, amodal):
+    """The image's COCO records (iscrowd 1 below 30 % visible); returns the parts annotated."""
+    coco["images"].append({"id": image_id, "file_name": name, "width": args.width,
+                           "height": args.height})
+    annotated = 0
+    for k, part in enumerate(parts):
+        mask = visible == part.pass_index
+        area = int(mask.sum())
+        full = int(amodal[k].sum())
+        if area == 0 or full == 0:
+            continue
+        ys, xs = np.nonzero(mask)
+        fraction = area / full
+        coco["annotations"].append({
+            "id": image_id * 1000 + k + 1, "image_id": image_id, "category_id": 1,
+            "segmentation": rle(mask), "area": area,
+            "bbox": [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
+                     int(ys.max() - ys.min() + 1)],
+            "iscrowd": 0 if fraction >= 0.3 else 1, "visib_fract": round(fraction, 4)})
+        annotated += fraction >= 0.3
+    return annotated
+
+
+def write_dataset(args, coco, notes, work, out):
+    """annotations.json and README.txt into `work`, then renamed to `out`."""
+    with open(os.path.join(work, "annotations.json"), "w") as f:
+        json.dump(coco, f)
+    with open(os.path.join(work, "README.txt"), "w") as f:
+        f.write(__doc__ + "\n")
+        f.write(f"Made with Blender {bpy.app.version_string}: {args.count} scenes, seed "
+                f"{args.seed}, {args.parts} parts, {args.samples} samples per pixel, "
+                f"{args.width} x {args.height}, fx = fy = {args.fx} px.\n\n")
+        f.write("\n".join(notes) + "\n")
+    shutil.rmtree(out, ignore_errors=True)
+    os.rename(work, out)
+
+
 def main():
     args = parse_args()
     rng = random.Random(args.seed)
@@ -325,15 +432,7 @@ def main():
     while scene_index < args.count:
         attempt += 1
         start = time.time()
-        # the meshes, loaded into a fresh file each scene
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        part_mesh = import_obj(args.mesh)[0].data
-        part_mesh.use_fake_user = True
-        piece_meshes = [o.data for o in import_obj(args.collision_mesh)]
-        for m in piece_meshes:
-            m.use_fake_user = True
-        for o in list(bpy.data.objects):
-            bpy.data.objects.remove(o)
+        part_mesh, piece_meshes = load_meshes(args)
         parts, surroundings, environment, panel = build_scene(args, rng, part_mesh, piece_meshes,
                                                               environments)
         scene = bpy.context.scene
@@ -356,68 +455,17 @@ def main():
         for part, pose in zip(parts, poses):
             part.matrix_world = pose
 
-        # the labels: visible ids at pixel centres, then each part alone
-        scene.render.resolution_x = args.width
-        scene.render.resolution_y = args.height
-        scene.render.resolution_percentage = 100
-        visible = render_index(scene, os.path.join(work, "index"))
-        amodal = []
-        for part in parts:
-            for other in parts + surroundings:
-                other.hide_render = other is not part
-            amodal.append(render_index(scene, os.path.join(work, "alone")) == part.pass_index)
-        for other in parts + surroundings:
-            other.hide_render = False
-
-        # the picture: Cycles, Filmic, the part's own noise
-        scene.use_nodes = False
-        scene.view_layers[0].use_pass_object_index = False
-        scene.cycles.samples = args.samples
-        scene.cycles.pixel_filter_type = "BLACKMAN_HARRIS"
-        scene.cycles.filter_width = 1.5
-        scene.cycles.seed = rng.randrange(1 << 30)
-        scene.view_settings.view_transform = "Filmic"
-        scene.render.image_settings.file_format = "PNG"
-        scene.render.image_settings.color_mode = "RGB"
+        visible, amodal = label(args, scene, parts, surroundings, work)
         name = f"images/{scene_index:06d}.png"
-        scene.render.filepath = os.path.join(work, name)
-        bpy.ops.render.render(write_still=True)
-
-        image_id = scene_index + 1
-        coco["images"].append({"id": image_id, "file_name": name, "width": args.width,
-                               "height": args.height})
-        annotated = 0
-        for k, part in enumerate(parts):
-            mask = visible == part.pass_index
-            area = int(mask.sum())
-            full = int(amodal[k].sum())
-            if area == 0 or full == 0:
-                continue
-            ys, xs = np.nonzero(mask)
-            fraction = area / full
-            coco["annotations"].append({
-                "id": image_id * 1000 + k + 1, "image_id": image_id, "category_id": 1,
-                "segmentation": rle(mask), "area": area,
-                "bbox": [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1),
-                         int(ys.max() - ys.min() + 1)],
-                "iscrowd": 0 if fraction >= 0.3 else 1, "visib_fract": round(fraction, 4)})
-            annotated += fraction >= 0.3
+        render_picture(args, rng, scene, os.path.join(work, name))
+        annotated = annotate(coco, scene_index + 1, name, args, parts, visible, amodal)
         notes.append(f"{name}: environment {environment}, ceiling panel {'yes' if panel else 'no'}, "
                      f"pile moved {moved_mm:.2f} mm / {turned_deg:.2f} deg over its last second")
         print(f"make-blender-testset: scene {scene_index + 1}/{args.count}: {annotated} parts "
               f"annotated, {time.time() - start:.0f} s", flush=True)
         scene_index += 1
 
-    with open(os.path.join(work, "annotations.json"), "w") as f:
-        json.dump(coco, f)
-    with open(os.path.join(work, "README.txt"), "w") as f:
-        f.write(__doc__ + "\n")
-        f.write(f"Made with Blender {bpy.app.version_string}: {args.count} scenes, seed "
-                f"{args.seed}, {args.parts} parts, {args.samples} samples per pixel, "
-                f"{args.width} x {args.height}, fx = fy = {args.fx} px.\n\n")
-        f.write("\n".join(notes) + "\n")
-    shutil.rmtree(out, ignore_errors=True)
-    os.rename(work, out)
+    write_dataset(args, coco, notes, work, out)
     print(f"make-blender-testset: wrote {out}/annotations.json: {len(coco['images'])} images, "
           f"{len(coco['annotations'])} annotations", flush=True)
 

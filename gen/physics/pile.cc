@@ -26,32 +26,22 @@ constexpr double kSimPerMm = 0.1;
 constexpr double kGravityMmS2 = 9810.0;
 
 // contact solver: each step starts from this share of the last step's impulses, and impacts
-// slower than this (mm/s) do not bounce. With Bullet's default start (0.85 of the last impulses)
-// and 20 iterations the solver never converged on a resting pile: the heaps crept on for tens
-// of seconds after they were published (stackgen-rest-check, 100 piles: 55 % of the parts moved
-// more than 1 mm or 1 degree when simulated on); the whole last impulse and 50 iterations (the
-// default SimulationParams::solver_iterations) let a resting pile's impulses converge
+// slower than this (mm/s) do not bounce. With Bullet's 0.85 and 20 iterations a resting pile's
+// impulses never converged and heaps crept on for tens of seconds (100 piles: 55 % of the parts
+// moved over 1 mm or 1 degree); the whole impulse and 50 iterations (the default) converge
 constexpr double kWarmStartingFactor = 1;
 constexpr double kRestitutionThresholdMmS = 50;
 
-// Friction in two phases (SimulationParams::free_friction_while_falling). While a pile falls
-// and slides, Bullet's own friction (one direction, along the sliding velocity; at most
-// kDropIterations solver iterations): a flat box landing on its edge topples flat as a real one
-// does (1,000 single drops of an 80 x 40 x 10 mm box: 85.3 % on a large face, against 78.9 %
-// with holding friction throughout; Blender's Bullet, tools/blender_drop_peer.py, 88.6 %). Once
-// the pile meets the settle rule, friction that holds it (two fixed directions, cached, the
-// configured iterations) until it meets the rule again: velocity-aligned friction alone lets a
-// resting pile creep (91 % of the parts of 20 default piles moved more than 1 mm when simulated
-// on), holding friction alone lets an edge stand. 100 default piles (stackgen-rest-check): 3.8 %
-// of the parts move more than 1 mm or 1 degree when simulated on, 0.1 % more than 5 mm or 10
-// degrees (25.5 % and 6.3 % with holding friction throughout), for 1.36x the physics. A
-// triangle-mesh tote keeps holding friction throughout: with free friction one of the 36
-// connectors of PileModesTest.ToteMeshHoldsThePile fell through its thin floor.
+// Friction in two phases (SimulationParams::free_friction_while_falling): while a pile falls and
+// slides, Bullet's own (along the sliding velocity, at most kDropIterations iterations), so a
+// flat box landing on its edge topples flat as a real one does (85.3 % of single 80 x 40 x 10
+// mm boxes on a large face, against 78.9 %; Blender's Bullet 88.6 %); once it has landed
+// (kPileLanded*, or the settle rule where looser: a pile sliding on free friction creeps and
+// never meets a rule of 0.1 mm over 1 s), friction that holds it (two fixed directions, cached)
+// until the settle rule publishes it (free friction alone: 91 % of the parts of 20 piles moved
+// on; holding friction alone lets an edge stand). README, "Checks before publishing", has the
+// figures. A triangle-mesh tote holds throughout (a part sliding freely fell through its floor).
 constexpr int kDropIterations = 20;
-// The free-friction phase ends when the pile has landed: the settle rule, or this one where the
-// rule is stricter (a pile still sliding on free friction creeps on at a fraction of a mm per
-// second and would never meet a rule of 0.1 mm over 1 s: 21 drops in a row failed). The
-// configured rule then decides, with holding friction, when the pile is published.
 constexpr double kPileLandedMm = 1.0;
 constexpr double kPileLandedDeg = 1.0;
 constexpr double kPileLandedWindowS = 0.25;

@@ -23,7 +23,6 @@ ConsumerSession::ConsumerSession(std::unique_ptr<Bus> bus, ConsumerSessionOption
     client_ = std::make_unique<SceneClient>(bus_.get(), client);
   }
   last_status_ = clock_->Now();
-  held_at_last_status_ = -1;
 }
 
 ConsumerSession::~ConsumerSession() = default;

@@ -185,7 +185,7 @@ class ConsumerSession {
   int64_t repeats_ = 0;
   int64_t received_ = 0;
   Clock::TimePoint last_status_;
-  int64_t held_at_last_status_ = 0;
+  int64_t held_at_last_status_ = -1;  // -1: none seen yet (the first Service sets it)
 };
 
 /// A consumer's bus options from its flags: --fault-drop F (that share of what it receives

@@ -216,7 +216,6 @@ class WriterSession {
     options.client.first_seq = flags_.first_seq;
     options.key_mismatch_s = kKeyMismatchS;
     options.strict_keys = true;
-    options.status_period_s = 1;
     session_ = std::make_unique<ConsumerSession>(std::move(bus), options);
     if (SceneClient* client = session_->client()) {
       for (const auto& [generator_id, seqs] : writer_->StoredSeqs()) {

@@ -12,7 +12,6 @@
 
 #include "gen/physics/pile_internal.h"
 #include "gen/physics/settle_detector.h"
-#include "gen/randomize/uniform.h"
 
 namespace stackgen {
 
@@ -451,40 +450,19 @@ void CheckRule(const RestRule& rule) {
   }
 }
 
-// How each part drops, all drawn now from `engine`: orientation, bounding box, and x, y inside
-// the opening (centred where the box is wider than the bin; sequential: centred on the drop
-// point, kept inside the opening where it fits).
-std::vector<Release> DrawReleases(const std::vector<TypeModel>& type_models,
-                                  const std::vector<int>& types, const BinSpec& bin,
-                                  const SimulationParams& params, std::mt19937_64& engine) {
-  const bool sequential = params.drop_mode == DropMode::kSequential;
-  std::vector<Release> releases;
-  const double half_inner[2] = {bin.inner_length_mm / 2, bin.inner_width_mm / 2};
-  for (int type : types) {
-    Release release;
-    release.type = type;
-    release.world_from_object_rotation = UniformRotation(engine);
-    Box box;
-    for (const auto& v : type_models[type].hull_vertices_mm) {
-      box.Add(release.world_from_object_rotation * v);
-    }
-    release.object_origin_in_box_mm = -box.lo;
-    release.size_mm = box.hi - box.lo;
-    for (int axis = 0; axis < 2; ++axis) {
-      const double room = 2 * (half_inner[axis] - kReleaseWallMarginMm) - release.size_mm[axis];
-      const double lowest = -half_inner[axis] + kReleaseWallMarginMm;
-      if (room <= 0) {
-        release.box_lo_xy_mm[axis] = -release.size_mm[axis] / 2;
-      } else if (sequential) {
-        release.box_lo_xy_mm[axis] = std::clamp(
-            params.drop_point_mm[axis] - release.size_mm[axis] / 2, lowest, lowest + room);
-      } else {
-        release.box_lo_xy_mm[axis] = lowest + Uniform01(engine) * room;
-      }
-    }
-    releases.push_back(release);
-  }
-  return releases;
+// The settle rule of `params` (capped at max_sim_time_s), and the rule that a pile has landed,
+// which ends the free-friction phase (kPileLanded*, or the settle rule where it is looser).
+RestRule SettleRule(const SimulationParams& params) {
+  return {params.settle_translation_mm, params.settle_rotation_deg, params.settle_window_s,
+          params.max_sim_time_s};
+}
+RestRule LandingRule(const SimulationParams& params) {
+  return {std::max(params.settle_translation_mm, kPileLandedMm),
+          std::max(params.settle_rotation_deg, kPileLandedDeg),
+          std::min(params.settle_window_s, kPileLandedWindowS), params.max_sim_time_s};
+}
+SettleDetector DetectorOf(const RestRule& rule) {
+  return SettleDetector(rule.translation_mm, rule.rotation_deg, rule.window_s);
 }
 
 // Puts the parts a ReleaseQueue lets go into the world, at rest, and keeps what the queue asks
@@ -566,7 +544,7 @@ void GoOnToRest(const BinSpec& bin, const std::vector<TypeModel>& type_models, d
   const int max_steps = static_cast<int>(std::ceil(rule.max_time_s / dt - 1e-9));
   const int check_every =
       std::max(1, static_cast<int>(std::lround(rule.window_s / kChecksPerWindow / dt)));
-  SettleDetector settle(rule.translation_mm, rule.rotation_deg, rule.window_s);
+  SettleDetector settle = DetectorOf(rule);
   *after = PileResult{};
   after->settled = bodies.empty();
   int step = 0;
@@ -636,12 +614,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
   int last_release_step = 0;
   const int check_every =
       std::max(1, static_cast<int>(std::lround(params.settle_window_s / kChecksPerWindow / dt)));
-  SettleDetector settle =
-      holding ? SettleDetector(params.settle_translation_mm, params.settle_rotation_deg,
-                               params.settle_window_s)
-              : SettleDetector(std::max(params.settle_translation_mm, kPileLandedMm),
-                               std::max(params.settle_rotation_deg, kPileLandedDeg),
-                               std::min(params.settle_window_s, kPileLandedWindowS));
+  SettleDetector settle = DetectorOf(holding ? SettleRule(params) : LandingRule(params));
   PileResult result;
   int step = 0;
   while (step < max_steps && step - last_release_step < settle_steps && !result.settled) {
@@ -663,8 +636,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
     if (result.settled && !holding) {
       holding = true;
       w.HoldingFriction();
-      settle = SettleDetector(params.settle_translation_mm, params.settle_rotation_deg,
-                              params.settle_window_s);
+      settle = DetectorOf(SettleRule(params));
       result.settled = false;
     }
   }
@@ -717,14 +689,20 @@ PileResult PileSimulator::Resettle(const std::vector<int>& types,
   for (size_t i = 0; i < types.size(); ++i)
     bodies.push_back(w.AddPart(types[i], world_from_object[i]));
 
-  // step until settled by the simulator's rule (the window starts at once) or its cap
-  RestRule settle_rule;
-  settle_rule.translation_mm = params.settle_translation_mm;
-  settle_rule.rotation_deg = params.settle_rotation_deg;
-  settle_rule.window_s = params.settle_window_s;
-  settle_rule.max_time_s = params.max_sim_time_s;
+  // step until settled by the simulator's rule (the window starts at once) or its cap; as in
+  // Simulate, with free friction until the parts have landed
+  RestRule settle_rule = SettleRule(params);
   PileResult result;
+  const bool two_phase = params.free_friction_while_falling && m.tote_shape == nullptr;
+  if (two_phase) {
+    w.FreeFriction();
+    GoOnToRest(m.bin, m.types, dt, LandingRule(params), false, types, bodies, &w, &result);
+    w.HoldingFriction();
+    settle_rule.max_time_s = std::max(dt, settle_rule.max_time_s - result.simulated_s);
+  }
+  const double landed_s = two_phase ? result.simulated_s : 0;
   GoOnToRest(m.bin, m.types, dt, settle_rule, false, types, bodies, &w, &result);
+  result.simulated_s += landed_s;
   if (after != nullptr) GoOnToRest(m.bin, m.types, dt, rule, true, types, bodies, &w, after);
   return result;
 }

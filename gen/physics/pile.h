@@ -58,12 +58,12 @@ enum class DropMode {
 
 /// How a pile is simulated and when it counts as settled.
 struct SimulationParams {
-  double time_step_s = 1.0 / 600;    // fixed physics step, 1e-4..0.01 s
-  double max_sim_time_s = 10;        // simulated-time cap after the last release, s
-  double settle_translation_mm = 1;  // settled when every body's centre of mass moved less than
-  double settle_rotation_deg = 1;    // this and turned less than this over the last
-  double settle_window_s = 0.25;     // settle_window_s seconds (a sliding window)
-  double drop_height_mm = 40;        // gap between the rim and the lowest released part, >= 0
+  double time_step_s = 1.0 / 600;      // fixed physics step, 1e-4..0.01 s
+  double max_sim_time_s = 10;          // simulated-time cap after the last release, s
+  double settle_translation_mm = 0.1;  // settled when every body's centre of mass moved less
+  double settle_rotation_deg = 0.1;    // than this and turned less than this over the last
+  double settle_window_s = 2;          // settle_window_s seconds (a sliding window): at rest
+  double drop_height_mm = 40;          // gap between the rim and the lowest released part, >= 0
   DropMode drop_mode = DropMode::kRandomVolume;
   Eigen::Vector2d drop_point_mm = Eigen::Vector2d::Zero();  // kSequential: x, y of the release
   int solver_iterations = 50;                               // contact solver, per step, 5..500
@@ -155,7 +155,8 @@ class PileSimulator {
 
   /// Puts parts of types[i] at rest with their mesh frames at world_from_object[i] (mm; a pile
   /// Simulate settled, less what was picked from it) and runs until they settle again or
-  /// max_sim_time_s, with Simulate's settle rule (its window starts at once) and checks. Pure
+  /// max_sim_time_s, with Simulate's settle rule (its window starts at once), friction (free until
+  /// they have landed, with free_friction_while_falling) and checks. Pure
   /// function of the inputs. Throws std::invalid_argument unless there is one pose per type.
   PileResult Resettle(const std::vector<int>& types,
                       const std::vector<Eigen::Isometry3d>& world_from_object) const;

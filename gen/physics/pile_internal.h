@@ -5,6 +5,7 @@
 // for use outside gen/physics/.
 
 #include <cmath>
+#include <random>
 #include <string>
 #include <utility>
 #include <vector>
@@ -131,6 +132,12 @@ struct TypeModel {
 // Builds a part type; errors start with `what`.
 TypeModel MakeTypeModel(const PartType& type, const std::string& what,
                         const std::string& cache_dir);
+
+// How each part of `types` drops, all drawn now from `engine`: orientation, bounding box, and
+// x, y inside the opening (pile_release.cc).
+std::vector<Release> DrawReleases(const std::vector<TypeModel>& type_models,
+                                  const std::vector<int>& types, const BinSpec& bin,
+                                  const SimulationParams& params, std::mt19937_64& engine);
 
 }  // namespace pile_internal
 }  // namespace stackgen

@@ -1,9 +1,47 @@
 #include <algorithm>
+#include <random>
 
 #include "gen/physics/pile_internal.h"
+#include "gen/randomize/uniform.h"
 
 namespace stackgen {
 namespace pile_internal {
+
+// How each part drops, all drawn now from `engine`: orientation, bounding box, and x, y inside
+// the opening (centred where the box is wider than the bin; sequential: centred on the drop
+// point, kept inside the opening where it fits).
+std::vector<Release> DrawReleases(const std::vector<TypeModel>& type_models,
+                                  const std::vector<int>& types, const BinSpec& bin,
+                                  const SimulationParams& params, std::mt19937_64& engine) {
+  const bool sequential = params.drop_mode == DropMode::kSequential;
+  std::vector<Release> releases;
+  const double half_inner[2] = {bin.inner_length_mm / 2, bin.inner_width_mm / 2};
+  for (int type : types) {
+    Release release;
+    release.type = type;
+    release.world_from_object_rotation = UniformRotation(engine);
+    Box box;
+    for (const auto& v : type_models[type].hull_vertices_mm) {
+      box.Add(release.world_from_object_rotation * v);
+    }
+    release.object_origin_in_box_mm = -box.lo;
+    release.size_mm = box.hi - box.lo;
+    for (int axis = 0; axis < 2; ++axis) {
+      const double room = 2 * (half_inner[axis] - kReleaseWallMarginMm) - release.size_mm[axis];
+      const double lowest = -half_inner[axis] + kReleaseWallMarginMm;
+      if (room <= 0) {
+        release.box_lo_xy_mm[axis] = -release.size_mm[axis] / 2;
+      } else if (sequential) {
+        release.box_lo_xy_mm[axis] = std::clamp(
+            params.drop_point_mm[axis] - release.size_mm[axis] / 2, lowest, lowest + room);
+      } else {
+        release.box_lo_xy_mm[axis] = lowest + Uniform01(engine) * room;
+      }
+    }
+    releases.push_back(release);
+  }
+  return releases;
+}
 
 std::vector<std::pair<int, double>> ReleaseQueue::Next(double time_s, std::vector<Box> boxes,
                                                        const std::vector<bool>& in_pile,

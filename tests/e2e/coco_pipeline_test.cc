@@ -32,9 +32,10 @@ json GenerateDataset(const std::string& dir, uint64_t seed) {
                 "--lcm-url", url},
                dir + "/coco");
   EXPECT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
-  Process generator({bin + "/stackgen", "--count", std::to_string(kScenes), "--seed",
-                     std::to_string(seed), "--lcm-url", url, "--cache-dir", dir + "/cache"},
-                    dir + "/stackgen");
+  Process generator(
+      {bin + "/stackgen", "--config", testing::kLandedRule, "--count", std::to_string(kScenes),
+       "--seed", std::to_string(seed), "--lcm-url", url, "--cache-dir", dir + "/cache"},
+      dir + "/stackgen");
   EXPECT_EQ(generator.Wait(600), 0) << generator.Stderr();
   EXPECT_EQ(coco.Wait(60), 0) << coco.Stderr();
   EXPECT_NE(coco.Stdout().find("3 images"), std::string::npos) << coco.Stdout();

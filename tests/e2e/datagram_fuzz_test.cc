@@ -98,10 +98,10 @@ class DatagramFuzzTest : public ::testing::Test {
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
     ASSERT_TRUE(bop.WaitForOutput("listening", 30)) << bop.Stderr();
     ASSERT_TRUE(stream.WaitForOutput("listening", 60)) << stream.Stderr();
-    Process generator(
-        {kBin + "/stackgen", "--count", std::to_string(kScenes), "--seed", "3", "--lcm-url", url,
-         "--cache-dir", scratch_.path() + "/cache", "--consumer-timeout", "20"},
-        base + "-gen");
+    Process generator({kBin + "/stackgen", "--config", testing::kLandedRule, "--count",
+                       std::to_string(kScenes), "--seed", "3", "--lcm-url", url, "--cache-dir",
+                       scratch_.path() + "/cache", "--consumer-timeout", "20"},
+                      base + "-gen");
     // the forger once all four listen (the generator says so when its bus and renderer are
     // up, then listens 0.5 s before its first scene): every datagram reaches every process
     std::unique_ptr<Process> forger;

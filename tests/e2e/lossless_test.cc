@@ -54,9 +54,19 @@ std::vector<std::string> Coco(const std::string& out, const std::string& url,
 // the generator's command line
 std::vector<std::string> Generator(const std::string& url, const std::string& cache,
                                    std::vector<std::string> extra = {}) {
-  std::vector<std::string> argv = {
-      kBin + "/stackgen", "--count", std::to_string(kScenes), "--seed", kSeed, "--lcm-url", url,
-      "--cache-dir",      cache,     "--consumer-timeout",    "5"};
+  std::vector<std::string> argv = {kBin + "/stackgen",
+                                   "--config",
+                                   testing::kLandedRule,
+                                   "--count",
+                                   std::to_string(kScenes),
+                                   "--seed",
+                                   kSeed,
+                                   "--lcm-url",
+                                   url,
+                                   "--cache-dir",
+                                   cache,
+                                   "--consumer-timeout",
+                                   "5"};
   argv.insert(argv.end(), extra.begin(), extra.end());
   return argv;
 }

@@ -39,8 +39,19 @@ std::vector<std::string> Coco(const std::string& out, const std::string& url) {
 }
 
 std::vector<std::string> Generator(const std::string& url, const std::string& cache) {
-  return {kBin + "/stackgen", "--count", std::to_string(kScenes), "--seed", "5", "--lcm-url", url,
-          "--cache-dir",      cache,     "--consumer-timeout",    "5"};
+  return {kBin + "/stackgen",
+          "--config",
+          testing::kLandedRule,
+          "--count",
+          std::to_string(kScenes),
+          "--seed",
+          "5",
+          "--lcm-url",
+          url,
+          "--cache-dir",
+          cache,
+          "--consumer-timeout",
+          "5"};
 }
 
 // the resident memory of a process now, kB (0 once it is gone)

@@ -24,6 +24,11 @@
 
 namespace stackgen::testing {
 
+/// config/default.pbtxt with the settle rule before piles had to be at rest (1 mm, 1 degree, 0.25
+/// s), for end-to-end tests that do not depend on rest: about a quarter of the physics.
+inline const std::string kLandedRule =
+    std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/scene/landed_rule.pbtxt";
+
 /// A UDP port nothing on this host is bound to right now.
 inline int FreeUdpPort() {
   const int fd = socket(AF_INET, SOCK_DGRAM, 0);

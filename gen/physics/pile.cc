@@ -152,6 +152,10 @@ struct PileSimulator::Model {
   std::unique_ptr<btTriangleMesh> tote_triangles;
   std::unique_ptr<btBvhTriangleMeshShape> tote_shape;
   double table_z_mm = 0;  // the table under a tote mesh: its lowest point
+
+  // free friction until the parts have landed, then the holding friction (a tote mesh holds
+  // throughout: a part sliding with free friction passed its thin floor)
+  bool FreeWhileFalling() const { return params.free_friction_while_falling && !tote_shape; }
 };
 
 PileSimulator::PileSimulator(const TriangleMesh& part,
@@ -592,8 +596,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
     return empty;
   }
   w.AddShapes(types);
-  // (a tote mesh holds throughout: a part sliding with free friction passed its thin floor)
-  bool holding = !params.free_friction_while_falling || m.tote_shape != nullptr;
+  bool holding = !m.FreeWhileFalling();
   if (!holding) w.FreeFriction();
 
   std::mt19937_64 engine(seed);
@@ -693,7 +696,7 @@ PileResult PileSimulator::Resettle(const std::vector<int>& types,
   // Simulate, with free friction until the parts have landed
   RestRule settle_rule = SettleRule(params);
   PileResult result;
-  const bool two_phase = params.free_friction_while_falling && m.tote_shape == nullptr;
+  const bool two_phase = m.FreeWhileFalling();
   if (two_phase) {
     w.FreeFriction();
     GoOnToRest(m.bin, m.types, dt, LandingRule(params), false, types, bodies, &w, &result);

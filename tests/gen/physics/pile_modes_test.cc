@@ -12,6 +12,7 @@
 #include "gen/mesh/mesh.h"
 #include "gen/physics/pile.h"
 #include "tests/support/meshes.h"
+#include "tests/support/physics.h"
 #include "tests/support/process.h"
 
 namespace stackgen {
@@ -136,11 +137,7 @@ TEST_F(PileModesTest, ToteMeshHoldsThePile) {
   BinSpec tote = kBin;
   tote.mesh = MakeOpenBinMesh(kBin.inner_length_mm, kBin.inner_width_mm, kBin.inner_height_mm,
                               kBin.wall_mm);
-  SimulationParams landed;
-  landed.settle_translation_mm = 1;
-  landed.settle_rotation_deg = 1;
-  landed.settle_window_s = 0.25;
-  const PileSimulator simulator({Connector()}, tote, landed, Cache());
+  const PileSimulator simulator({Connector()}, tote, testing::LandedRule(), Cache());
   for (uint64_t seed : {1u, 2u, 3u}) {
     const PileResult pile = simulator.Simulate(12, seed);
     EXPECT_TRUE(pile.settled) << seed;

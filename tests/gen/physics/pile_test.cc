@@ -16,6 +16,7 @@
 
 #include "gen/mesh/mesh.h"
 #include "tests/support/meshes.h"
+#include "tests/support/physics.h"
 
 namespace stackgen {
 namespace {
@@ -468,12 +469,8 @@ TEST_F(PileTest, DefaultSettleRulePublishesPilesThatStayPut) {
   EXPECT_LT(std::abs(sank_mm / parts), 0.05);
   EXPECT_EQ(at_rest, 2);
 
-  SimulationParams before;
-  before.settle_translation_mm = 1;
-  before.settle_rotation_deg = 1;
-  before.settle_window_s = 0.25;
-  const PileSimulator loose(Connector(), ConnectorPieces(), PartPhysics{}, kBin, before,
-                            (dir_ / "cache").string());
+  const PileSimulator loose(Connector(), ConnectorPieces(), PartPhysics{}, kBin,
+                            testing::LandedRule(), (dir_ / "cache").string());
   PileResult loose_after;
   const PileResult loose_pile =
       loose.Simulate(std::vector<int>(12, 0), 4, RestRule{}, &loose_after);

@@ -15,6 +15,7 @@
 #include "gen/physics/hull_faces.h"
 #include "gen/physics/pile.h"
 #include "tests/support/meshes.h"
+#include "tests/support/physics.h"
 #include "tools/stats/statistics.h"
 
 namespace stackgen {
@@ -93,17 +94,11 @@ bool FlatOnFloor(const Rest& rest) {
   return rest.tilt_deg < kFlatDeg && std::abs(rest.lowest_mm) < kMaxPenetrationMm;
 }
 
-// The settle rule before piles had to be at rest (1 mm, 1 degree, 0.25 s), for the tests of
-// resting faces, sinking and bounds, which do not depend on it: the default rule (0.1 mm, 0.1
-// degree, 2 s) takes several times the physics, and it is absolute: in 10 s 3 of 5 piles of 300
-// mm connectors did not meet it (README, "Checks before publishing").
-SimulationParams LandedRule() {
-  SimulationParams params;
-  params.settle_translation_mm = 1;
-  params.settle_rotation_deg = 1;
-  params.settle_window_s = 0.25;
-  return params;
-}
+// LandedRule() (the settle rule before piles had to be at rest) for the tests of resting faces,
+// sinking and bounds, which do not depend on it: the default rule (0.1 mm, 0.1 degree, 2 s)
+// takes several times the physics, and it is absolute: in 10 s 3 of 5 piles of 300 mm
+// connectors did not meet it (README, "Checks before publishing").
+using testing::LandedRule;
 
 // Drops one part at a time into `bin` (seeds 0, 1, ...) until `flat_wanted` have come to lie flat
 // on the floor, at most `max_drops` times. Every drop must settle inside the bin without

@@ -1,0 +1,22 @@
+// Test helpers for the physics: settle rules.
+
+#pragma once
+
+#include "gen/physics/pile.h"
+
+namespace stackgen {
+namespace testing {
+
+/// The settle rule before piles had to be at rest (1 mm, 1 degree over 0.25 s; the default is
+/// 0.1 mm, 0.1 degree over 2 s): about a fifth of the physics, for tests that do not depend on
+/// rest, and for comparing the two rules.
+inline SimulationParams LandedRule() {
+  SimulationParams params;
+  params.settle_translation_mm = 1;
+  params.settle_rotation_deg = 1;
+  params.settle_window_s = 0.25;
+  return params;
+}
+
+}  // namespace testing
+}  // namespace stackgen

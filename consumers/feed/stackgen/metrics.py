@@ -12,6 +12,11 @@
   precision made monotone and read at 101 recall points; AP is the mean over thresholds, AP50 and
   AP75 single thresholds.
 
+- Foreground IoU of a part / not-part segmentation (ForegroundScores): intersection over union
+  of the pixels, pooled over the images, ignore regions neither; and where the wrong pixels lie
+  (along the parts' outlines, inside parts, on the bin floor, the bin walls, the table or
+  background), so a change can be aimed at a cause.
+
 - COCO box AP the same way on boxes (cocoapi's bbox IoU: XYXY, no pixel added; a crowd region
   again by intersection over the detection's box), when the predictions' boxes are given; the
   ground truth's boxes are the extents of its masks unless given.
@@ -23,10 +28,21 @@ from typing import Dict, Optional
 
 import numpy as np
 
-__all__ = ["mask_iou", "box_iou", "mask_boxes", "DetectionScores", "PAPER_IOU", "COCO_IOUS"]
+__all__ = ["mask_iou", "box_iou", "mask_boxes", "DetectionScores", "ForegroundScores",
+           "PAPER_IOU", "COCO_IOUS", "REGION_BACKGROUND", "REGION_FLOOR", "REGION_WALLS",
+           "REGION_UNKNOWN"]
 
 PAPER_IOU = 0.6
 COCO_IOUS = np.linspace(0.5, 0.95, 10)
+
+# what a pixel shows where no part is, in a region map (uint8): the table or whatever is around
+# the bin, the bin's floor, its walls and rim; unknown where a test set says nothing
+REGION_BACKGROUND = 0
+REGION_FLOOR = 1
+REGION_WALLS = 2
+REGION_UNKNOWN = 255
+_REGION_NAMES = {REGION_FLOOR: "bin floor", REGION_WALLS: "bin walls",
+                 REGION_BACKGROUND: "table or background"}
 
 
 def mask_iou(predicted: np.ndarray, truth: np.ndarray,
@@ -300,3 +316,118 @@ class DetectionScores:
                      for k in range(len(COCO_IOUS))]
             result.update(box_ap=float(np.mean(boxes)), box_ap50=boxes[0], box_ap75=boxes[5])
         return result
+
+
+def _grow(mask: np.ndarray, radius: int) -> np.ndarray:
+    """The pixels within `radius` (chessboard distance) of a True pixel of mask."""
+    grown = mask.copy()
+    height, width = mask.shape
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            if dy == 0 and dx == 0:
+                continue
+            grown[max(dy, 0):height + min(dy, 0), max(dx, 0):width + min(dx, 0)] |= \
+                mask[max(-dy, 0):height + min(-dy, 0), max(-dx, 0):width + min(-dx, 0)]
+    return grown
+
+
+class ForegroundScores:
+    """Accumulates a part / not-part segmentation image by image; result() gives the foreground
+    IoU pooled over the images (every image's intersection and union summed) and where the wrong
+    pixels lie.
+
+    A wrong pixel within `edge_px` of the outline between parts and the rest (either side) is
+    an edge error; further from it a missed pixel lies inside a part, and a false one on what the
+    region map says is there (bin floor, bin walls, table or background; "elsewhere" without a
+    map). Ignore regions (parts too hidden to label) count neither way.
+
+    Args:
+        edge_px: the width of the band along the outlines, pixels (2).
+    """
+
+    CAUSES = ("edges", "inside parts", "bin floor", "bin walls", "table or background",
+              "elsewhere")
+
+    def __init__(self, edge_px: int = 2) -> None:
+        if edge_px < 0:
+            raise ValueError("edge_px wants a whole number >= 0, got %r" % edge_px)
+        self.edge_px = edge_px
+        self.intersection = self.union = 0
+        self.false_positive = {cause: 0 for cause in self.CAUSES}
+        self.false_negative = {cause: 0 for cause in self.CAUSES}
+        self.region_pixels = {name: 0 for name in _REGION_NAMES.values()}
+        self.per_image = []  # (intersection, union) of each image, in order
+
+    def update(self, predicted: np.ndarray, truth: np.ndarray,
+               ignore: Optional[np.ndarray] = None, regions: Optional[np.ndarray] = None) -> None:
+        """Adds one image.
+
+        Args:
+            predicted: (H, W) booleans, the pixels predicted to be part.
+            truth: (H, W) booleans, the pixels that are part (any labelled instance).
+            ignore: (H, W) booleans, pixels that count neither way (ignore regions); default
+                none.
+            regions: (H, W) uint8 region map (REGION_*), what is seen where no part is; default
+                none (false pixels away from the outlines are "elsewhere").
+
+        Raises:
+            ValueError: the arrays are not all of one image size.
+        """
+        predicted = np.asarray(predicted).astype(bool)
+        truth = np.asarray(truth).astype(bool)
+        shapes = {predicted.shape, truth.shape}
+        if ignore is not None:
+            ignore = np.asarray(ignore).astype(bool)
+            shapes.add(ignore.shape)
+        if regions is not None:
+            regions = np.asarray(regions)
+            shapes.add(regions.shape)
+        if len(shapes) != 1 or predicted.ndim != 2:
+            raise ValueError("predicted %s, truth %s%s%s: not one image size" % (
+                predicted.shape, truth.shape,
+                "" if ignore is None else ", ignore %s" % (ignore.shape,),
+                "" if regions is None else ", regions %s" % (regions.shape,)))
+        counted = np.ones_like(truth) if ignore is None else ~ignore
+        intersection = int((predicted & truth & counted).sum())
+        union = int(((predicted | truth) & counted).sum())
+        self.intersection += intersection
+        self.union += union
+        self.per_image.append((intersection, union))
+
+        # where the wrong pixels lie: along the outlines, else inside parts or on a region
+        edges = _grow(truth, self.edge_px) & _grow(~truth, self.edge_px)
+        missed = truth & ~predicted & counted
+        false = predicted & ~truth & counted
+        self.false_negative["edges"] += int((missed & edges).sum())
+        self.false_negative["inside parts"] += int((missed & ~edges).sum())
+        self.false_positive["edges"] += int((false & edges).sum())
+        away = false & ~edges
+        if regions is None:
+            self.false_positive["elsewhere"] += int(away.sum())
+            return
+        known = np.zeros_like(away)
+        for code, name in _REGION_NAMES.items():
+            region = regions == code
+            known |= region
+            self.false_positive[name] += int((away & region).sum())
+            self.region_pixels[name] += int((region & ~truth & counted).sum())
+        self.false_positive["elsewhere"] += int((away & ~known).sum())
+
+    def result(self) -> Dict[str, object]:
+        """The scores so far.
+
+        Returns:
+            A dict: iou (pooled; NaN before any pixel was counted), intersection, union, images,
+            false_positive and false_negative (pixels per cause, CAUSES), fp_rate (per region
+            of the map: its false pixels over its pixels not part), and per_image_iou (each
+            image's own IoU, 1 for an image with nothing to find and nothing found).
+        """
+        rates = {name: (self.false_positive[name] / pixels if pixels else float("nan"))
+                 for name, pixels in self.region_pixels.items()}
+        return {"iou": self.intersection / self.union if self.union else float("nan"),
+                "intersection": self.intersection, "union": self.union,
+                "images": len(self.per_image),
+                "false_positive": dict(self.false_positive),
+                "false_negative": dict(self.false_negative),
+                "fp_rate": rates,
+                "per_image_iou": [i / u if u else 1.0 for i, u in self.per_image]}

@@ -1,5 +1,5 @@
-"""tools/eval_detector.py: bad command lines are refused in one line, and a tiny run (two steps on
-a two-image COCO folder) trains, scores and writes its JSON."""
+"""tools/eval_detector.py: bad command lines are refused in one line, and tiny runs (two steps on
+a two-image COCO folder, the Mask R-CNN modes and the quick mode) train, score and write JSON."""
 
 import json
 import os
@@ -70,3 +70,38 @@ def test_a_tiny_run_trains_scores_and_writes_json(tmp_path):
     # one real square per image: found or missed, the ignore regions never count
     assert scores["tp"] + scores["fn"] == 2
     assert written["steps"] == 2 and written["mode"] == "cpu"
+
+
+def test_quick_mode_flags_are_checked():
+    config = os.path.join(ROOT, "config", "default.pbtxt")
+    cpu_seeds = run("--config", config, "--seeds", "0 1")
+    assert cpu_seeds.returncode == 2 and "--seeds is for --mode quick" in cpu_seeds.stderr
+    twice = run("--config", config, "--mode", "quick", "--seeds", "1 1")
+    assert twice.returncode == 2 and "distinct" in twice.stderr
+    cpu_errors = run("--config", config, "--errors", "/tmp/nowhere")
+    assert cpu_errors.returncode == 2 and "--mode quick" in cpu_errors.stderr
+
+
+def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
+    folder = str(tmp_path / "squares")
+    make_coco(folder)
+    out, errors = str(tmp_path / "results.json"), str(tmp_path / "errors")
+    result = run("--mode", "quick", "--config", os.path.join(ROOT, "config", "default.pbtxt"),
+                 "--train-dir", folder, "--test", folder, "--no-held-out", "--seeds", "3",
+                 "--steps", "2", "--threads", "2", "--errors", errors, "--worst", "1",
+                 "--out", out)
+    assert result.returncode == 0, result.stderr
+    assert "foreground IoU" in result.stdout and "spread" in result.stdout
+    with open(out) as file:
+        written = json.load(file)
+    assert written["mode"] == "quick" and written["seeds"] == [3] and written["steps"] == 2
+    (scores,) = written["results"]
+    assert scores["seed"] == 3 and scores["images"] == 2
+    assert 0 <= scores["foreground_iou"] <= 1
+    assert scores["tp"] + scores["fn"] == 2  # the ignore squares count neither way
+    (summary,) = written["summaries"]
+    assert summary["foreground_iou"]["mean"] == scores["foreground_iou"]
+    assert summary["foreground_iou"]["spread"] == 0  # one seed
+    assert set(summary["pixels"]) >= {"false_negative", "false_positive"}
+    (picture,) = os.listdir(errors)
+    assert picture.endswith(".jpg") and cv2.imread(os.path.join(errors, picture)) is not None

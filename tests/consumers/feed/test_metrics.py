@@ -126,3 +126,59 @@ def test_coco_dataset_reads_compressed_and_plain_rle(tmp_path):
     assert dataset.image(0).shape == (4, 5, 3)
     with pytest.raises(ValueError, match="annotations.json"):
         CocoDataset(str(tmp_path / "images"))
+
+
+# foreground IoU: a perfect prediction scores 1 and an empty one 0, pooled over images; pixels of
+# an ignore region count neither way, found or not
+def test_foreground_iou_perfect_empty_and_ignored():
+    from stackgen.metrics import ForegroundScores
+
+    truth = square(10, 10, 10) | square(30, 5, 8)
+    ignore = square(0, 30, 6)
+    perfect = ForegroundScores()
+    perfect.update(truth | ignore, truth, ignore)
+    perfect.update(truth, truth, ignore)
+    assert perfect.result()["iou"] == pytest.approx(1.0)
+    assert perfect.result()["per_image_iou"] == [1.0, 1.0]
+    empty = ForegroundScores()
+    empty.update(np.zeros_like(truth), truth, ignore)
+    assert empty.result()["iou"] == 0.0
+    missed = empty.result()["false_negative"]
+    assert sum(missed.values()) == truth.sum()
+    # half of one square found, nothing false: 50 of 164 part pixels
+    half = ForegroundScores()
+    half.update(square(10, 10, 10) & (np.arange(60)[None, :] < 15), truth)
+    assert half.result()["iou"] == pytest.approx(50 / truth.sum())
+
+
+# a false pixel away from the parts is put on what the region map shows there, one next to a part
+# on its outline; a missed pixel deep inside a part is "inside parts"
+def test_foreground_errors_fall_on_regions_and_outlines():
+    from stackgen.metrics import (REGION_BACKGROUND, REGION_FLOOR, REGION_WALLS,
+                                  ForegroundScores)
+
+    truth = square(20, 10, 12)
+    regions = np.full(truth.shape, REGION_BACKGROUND, np.uint8)
+    regions[:, :30] = REGION_FLOOR
+    regions[:, 50:] = REGION_WALLS
+    predicted = truth.copy()
+    predicted[15, 25] = False            # deep inside the part
+    predicted[10, 20] = False            # its corner: on the outline
+    predicted[35, 5] = True              # the floor, far from the part
+    predicted[35, 55] = predicted[36, 55] = True  # the walls
+    predicted[5, 40] = True              # neither floor nor walls: the table or background
+    predicted[9, 25] = True              # just above the part: its outline
+    scores = ForegroundScores(edge_px=2)
+    scores.update(predicted, truth, regions=regions)
+    result = scores.result()
+    assert result["false_negative"]["inside parts"] == 1
+    assert result["false_negative"]["edges"] == 1
+    assert result["false_positive"] == {"edges": 1, "inside parts": 0, "bin floor": 1,
+                                        "bin walls": 2, "table or background": 1, "elsewhere": 0}
+    assert result["fp_rate"]["bin walls"] == pytest.approx(2 / (40 * 10))
+    # without a region map the same false pixels away from the part are "elsewhere"
+    plain = ForegroundScores(edge_px=2)
+    plain.update(predicted, truth)
+    assert plain.result()["false_positive"]["elsewhere"] == 4
+    with pytest.raises(ValueError, match="not one image size"):
+        plain.update(predicted, truth[:20])

@@ -115,7 +115,7 @@ void CheckDetail(const FieldNamer& namer, const std::string& message_field, int 
                  config::SurfaceDetail::Kind kind, double strength, double scale_mm) {
   if (kind == config::SurfaceDetail::KIND_UNSPECIFIED) {
     throw ConfigError(namer.Where(message_field, "detail", index) +
-                      ": must be NONE, CAST, BRUSHED, SCUFFED or MOULDED");
+                      ": must be NONE, CAST, BRUSHED, SCUFFED, MOULDED or WOOD");
   }
   CheckRange(namer, message_field, "detail_strength", strength, 0, 1, false, index);
   CheckRange(namer, message_field, "detail_scale_mm", scale_mm, 0, 1000, true, index);
@@ -231,11 +231,33 @@ void ValidateBin(const config::GeneratorConfig& c, const FieldNamer& n) {
         std::make_pair("metal_bin_probability", around.metal_bin_probability()),
         std::make_pair("scuffed_bin_probability", around.scuffed_bin_probability()),
         std::make_pair("table_probability", around.table_probability()),
-        std::make_pair("conveyor_fraction", around.conveyor_fraction())}) {
+        std::make_pair("conveyor_fraction", around.conveyor_fraction()),
+        std::make_pair("bin_saturation_min", around.bin_saturation_min()),
+        std::make_pair("bin_saturation_max", around.bin_saturation_max()),
+        std::make_pair("bin_value_min", around.bin_value_min()),
+        std::make_pair("bin_value_max", around.bin_value_max()),
+        std::make_pair("metal_table_fraction", around.metal_table_fraction()),
+        std::make_pair("wood_table_fraction", around.wood_table_fraction()),
+        std::make_pair("table_saturation_max", around.table_saturation_max()),
+        std::make_pair("table_value_min", around.table_value_min()),
+        std::make_pair("table_value_max", around.table_value_max())}) {
     CheckRange(n, "surroundings", field, value, 0, 1);
   }
   CheckOrdered(n, "surroundings", "bin_roughness_min", around.bin_roughness_min(),
                "bin_roughness_max", around.bin_roughness_max());
+  CheckOrdered(n, "surroundings", "bin_saturation_min", around.bin_saturation_min(),
+               "bin_saturation_max", around.bin_saturation_max());
+  CheckOrdered(n, "surroundings", "bin_value_min", around.bin_value_min(), "bin_value_max",
+               around.bin_value_max());
+  CheckOrdered(n, "surroundings", "table_value_min", around.table_value_min(),
+               "table_value_max", around.table_value_max());
+  if (around.metal_table_fraction() + around.wood_table_fraction() > 1 + 1e-9) {
+    throw ConfigError(n.Where("surroundings", "wood_table_fraction") +
+                      ": metal_table_fraction + wood_table_fraction is " +
+                      std::to_string(around.metal_table_fraction() +
+                                     around.wood_table_fraction()) +
+                      ", more than 1");
+  }
 }
 
 // the camera's own fields
@@ -282,6 +304,15 @@ void ValidateLighting(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckOrdered(n, "lighting", "distance_min_mm", light.distance_min_mm(), "distance_max_mm",
                light.distance_max_mm());
   CheckRange(n, "lighting", "shadow_map_size", light.shadow_map_size(), 256, 8192);
+  CheckRange(n, "lighting", "camera_light_probability", light.camera_light_probability(), 0, 1);
+  if (light.color_temperature_min_k() != 0 || light.color_temperature_max_k() != 0) {
+    CheckRange(n, "lighting", "color_temperature_min_k", light.color_temperature_min_k(), 1667,
+               25000);
+    CheckRange(n, "lighting", "color_temperature_max_k", light.color_temperature_max_k(), 1667,
+               25000);
+    CheckOrdered(n, "lighting", "color_temperature_min_k", light.color_temperature_min_k(),
+                 "color_temperature_max_k", light.color_temperature_max_k());
+  }
   // a lamp inside the bin or the pile would light it from within
   const double bin_reach =
       std::sqrt(std::pow(bin.inner_length_mm() / 2 + bin.wall_thickness_mm(), 2) +
@@ -348,6 +379,8 @@ void ValidateLook(const config::GeneratorConfig& c, const FieldNamer& n) {
                sensor.exposure_ev_max());
   CheckRange(n, "sensor", "shot_noise_max", sensor.shot_noise_max(), 0, 0.1);
   CheckRange(n, "sensor", "read_noise_max", sensor.read_noise_max(), 0, 0.1);
+  CheckRange(n, "sensor", "white_balance_max", sensor.white_balance_max(), 0, 0.5);
+  CheckRange(n, "sensor", "clipped_tone_probability", sensor.clipped_tone_probability(), 0, 1);
 
   // rendering
   const config::RenderingConfig& rendering = c.rendering();

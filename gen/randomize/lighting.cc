@@ -10,7 +10,37 @@ namespace {
 
 constexpr int kMostLights = 3;  // LightingConfig.count_max is at most 3
 
+// a light's colour for a draw in [0, 1): white, or a black body's in the configured range
+Eigen::Vector3f ColorOfDraw(const config::LightingConfig& config, double unit) {
+  if (config.color_temperature_min_k() <= 0 && config.color_temperature_max_k() <= 0) {
+    return Eigen::Vector3f(1, 1, 1);
+  }
+  return BlackBodyColor(config.color_temperature_min_k() +
+                        unit * (config.color_temperature_max_k() - config.color_temperature_min_k()));
+}
+
 }  // namespace
+
+Eigen::Vector3f BlackBodyColor(double kelvin) {
+  const double t = std::clamp(kelvin, 1667.0, 25000.0);
+  // the Planckian locus in CIE 1931 xy, Kim et al. (2002): cubic splines in 1/T and in x
+  const double t1 = 1e3 / t, t2 = t1 * t1, t3 = t2 * t1;
+  const double x = t <= 4000 ? -0.2661239 * t3 - 0.2343589 * t2 + 0.8776956 * t1 + 0.179910
+                             : -3.0258469 * t3 + 2.1070379 * t2 + 0.2226347 * t1 + 0.240390;
+  const double y = t <= 2222   ? -1.1063814 * x * x * x - 1.34811020 * x * x + 2.18555832 * x -
+                                   0.20219683
+                   : t <= 4000 ? -0.9549476 * x * x * x - 1.37418593 * x * x + 2.09137015 * x -
+                                     0.16748867
+                               : 3.0817580 * x * x * x - 5.87338670 * x * x + 3.75112997 * x -
+                                     0.37001483;
+  // XYZ at Y = 1, then linear sRGB (IEC 61966-2-1)
+  const Eigen::Vector3d xyz(x / y, 1.0, (1 - x - y) / y);
+  Eigen::Matrix3d rgb_from_xyz;
+  rgb_from_xyz << 3.2406, -1.5372, -0.4986, -0.9689, 1.8758, 0.0415, 0.0557, -0.2040, 1.0570;
+  const Eigen::Vector3d rgb = (rgb_from_xyz * xyz).cwiseMax(0.0);
+  const double luminance = 0.2126 * rgb.x() + 0.7152 * rgb.y() + 0.0722 * rgb.z();
+  return (rgb / luminance).cast<float>();
+}
 
 std::vector<Light> SampleLights(const config::LightingConfig& config, std::mt19937_64& engine) {
   // every draw is made whatever the settings: the count, then 7 values per possible light
@@ -28,6 +58,9 @@ std::vector<Light> SampleLights(const config::LightingConfig& config, std::mt199
     d.diffuse = Uniform(engine, config.diffuse_min(), config.diffuse_max());
     d.specular = Uniform(engine, config.specular_min(), config.specular_max());
   }
+  // (after the draws above, which are what they were before lights had a colour)
+  double temperatures[kMostLights];
+  for (double& t : temperatures) t = Uniform(engine, 0, 1);
 
   // fixed lighting: one light straight down, the middle of each range
   if (!config.randomize()) {
@@ -61,9 +94,27 @@ std::vector<Light> SampleLights(const config::LightingConfig& config, std::mt199
     light.ambient = static_cast<float>(d.ambient / count);
     light.diffuse = static_cast<float>(d.diffuse / count);
     light.specular = static_cast<float>(d.specular / count);
+    light.color = ColorOfDraw(config, temperatures[i]);
     lights.push_back(light);
   }
   return lights;
+}
+
+std::optional<Light> SampleCameraLight(const config::LightingConfig& config,
+                                       const Eigen::Vector3d& camera_position,
+                                       std::mt19937_64& engine) {
+  const double chance = Uniform(engine, 0, 1);
+  const double strength = Uniform(engine, config.diffuse_min(), config.diffuse_max());
+  const double temperature = Uniform(engine, 0, 1);
+  if (!config.randomize() || !(chance < config.camera_light_probability())) return std::nullopt;
+  Light ring;
+  ring.type = Light::Type::kPoint;
+  ring.position_world = camera_position.cast<float>();
+  ring.ambient = 0;
+  ring.diffuse = static_cast<float>(strength);
+  ring.specular = 0;
+  ring.color = ColorOfDraw(config, temperature);
+  return ring;
 }
 
 MaterialGain SampleMaterialGain(const config::AppearanceConfig& config, std::mt19937_64& engine) {

@@ -130,7 +130,7 @@ void AddSaltAndPepper(double fraction, uint64_t seed, cv::Mat* image) {
 }  // namespace
 
 SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt19937_64& engine) {
-  // always ten draws, in a fixed order, enabled or not.
+  // always fourteen draws, in a fixed order, enabled or not.
   SensorEffects drawn;
   drawn.gaussian_sigma = Uniform(engine, 0.0, config.gaussian_sigma_max());
   drawn.salt_pepper_fraction = Uniform(engine, 0.0, config.salt_pepper_max());
@@ -143,6 +143,10 @@ SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt199
   drawn.exposure_ev = Uniform(engine, config.exposure_ev_min(), config.exposure_ev_max());
   drawn.shot_noise = Uniform(engine, 0.0, config.shot_noise_max());
   drawn.read_noise = Uniform(engine, 0.0, config.read_noise_max());
+  for (double& gain : drawn.white_balance) {
+    gain = Uniform(engine, 1 - config.white_balance_max(), 1 + config.white_balance_max());
+  }
+  drawn.clipped_tone = Uniform(engine, 0, 1) < config.clipped_tone_probability();
   return config.enabled() ? drawn : SensorEffects{};
 }
 
@@ -219,13 +223,17 @@ cv::Mat DevelopLinearImage(const SensorEffects& effects, const cv::Mat& linear_r
   if (linear_rgb.empty() || linear_rgb.type() != CV_32FC3) {
     throw std::runtime_error("DevelopLinearImage: the image must be a non-empty CV_32FC3 image");
   }
+  const double* balance = effects.white_balance;
   if (!std::isfinite(effects.exposure_ev) || !(effects.shot_noise >= 0) ||
       !(effects.read_noise >= 0) || !std::isfinite(effects.shot_noise) ||
-      !std::isfinite(effects.read_noise)) {
+      !std::isfinite(effects.read_noise) ||
+      !(balance[0] > 0 && balance[1] > 0 && balance[2] > 0) ||
+      !std::isfinite(balance[0] + balance[1] + balance[2])) {
     throw std::runtime_error(
         "DevelopLinearImage: exposure_ev " + std::to_string(effects.exposure_ev) + ", shot_noise " +
         std::to_string(effects.shot_noise) + ", read_noise " + std::to_string(effects.read_noise) +
-        " out of range; need finite values, noise >= 0");
+        ", white balance " + std::to_string(balance[0]) + "/" + std::to_string(balance[1]) + "/" +
+        std::to_string(balance[2]) + " out of range; need finite values, noise >= 0, gains > 0");
   }
   // optics, then gray and exposure in one pass, in linear light
   const cv::Mat* source = &linear_rgb;
@@ -236,28 +244,38 @@ cv::Mat DevelopLinearImage(const SensorEffects& effects, const cv::Mat& linear_r
     source = &blurred;
   }
   const float exposure = static_cast<float>(std::exp2(effects.exposure_ev));
+  const cv::Vec3f gains(static_cast<float>(balance[0]), static_cast<float>(balance[1]),
+                        static_cast<float>(balance[2]));
   cv::Mat signal;
   if (gray) {
-    cv::transform(*source, signal, cv::Matx13f(0.2126f, 0.7152f, 0.0722f) * exposure);
-  } else {
+    cv::transform(*source, signal,
+                  cv::Matx13f(0.2126f * gains[0], 0.7152f * gains[1], 0.0722f * gains[2]) *
+                      exposure);
+  } else if (gains == cv::Vec3f(1, 1, 1)) {
     source->convertTo(signal, CV_32F, exposure);
+  } else {
+    cv::transform(*source, signal, cv::Matx33f::diag(gains) * exposure);
   }
   // the sensor's noise
   AddLinearNoise(effects, &signal);
 
-  // tone curve and sRGB encoding through one table over sqrt(signal) in [0, 4]
+  // tone curve (filmic, or clipped at white) and sRGB encoding through one table over
+  // sqrt(signal) in [0, 4]
   constexpr int kSteps = 4096;  // table entries per unit of sqrt(signal)
   constexpr int kEntries = 4 * kSteps + 1;
-  static const std::array<uint8_t, kEntries> table = [] {
+  const auto make_table = [](bool filmic) {
     std::array<uint8_t, kEntries> out;
     for (int i = 0; i < kEntries; ++i) {
       const double t = static_cast<double>(i) / kSteps;
-      const double y = AcesFilmic(t * t);
+      const double y = filmic ? AcesFilmic(t * t) : std::min(t * t, 1.0);
       const double display = y <= 0.0031308 ? 12.92 * y : 1.055 * std::pow(y, 1 / 2.4) - 0.055;
       out[i] = static_cast<uint8_t>(std::lround(255 * std::clamp(display, 0.0, 1.0)));
     }
     return out;
-  }();
+  };
+  static const std::array<uint8_t, kEntries> filmic_table = make_table(true);
+  static const std::array<uint8_t, kEntries> clipped_table = make_table(false);
+  const std::array<uint8_t, kEntries>& table = effects.clipped_tone ? clipped_table : filmic_table;
   cv::Mat image(signal.rows, signal.cols, gray ? CV_8UC1 : CV_8UC3);
   const int values_per_row = signal.cols * signal.channels();
   cv::parallel_for_(cv::Range(0, signal.rows), [&](const cv::Range& range) {

@@ -23,17 +23,20 @@ struct SensorEffects {
   double exposure_ev = 0;  // radiance x 2^exposure_ev before the tone curve
   double shot_noise = 0;   // photon noise: variance shot_noise x signal (exposed linear units)
   double read_noise = 0;   // read-out noise: std in exposed linear units (1 = white)
+  double white_balance[3] = {1, 1, 1};  // gains of linear R, G, B (a white balance a little off)
+  bool clipped_tone = false;  // sRGB clipped at white instead of the filmic (ACES) tone curve
 };
 
-/// Draws every parameter from `engine`, always exactly ten values in this order: gaussian_sigma
+/// Draws every parameter from `engine`, always the same values in this order: gaussian_sigma
 /// uniform in [0, gaussian_sigma_max], salt_pepper_fraction in [0, salt_pepper_max],
 /// blur_sigma_px in [0, blur_sigma_max_px], brightness in [-brightness_max, brightness_max],
 /// contrast in [1 - contrast_max, 1 + contrast_max], gamma log-uniform in
 /// [1 / (1 + gamma_max), 1 + gamma_max], noise_seed (one raw engine value), then exposure_ev
 /// uniform in [exposure_ev_min, exposure_ev_max], shot_noise in [0, shot_noise_max] and
-/// read_noise in [0, read_noise_max] (the first seven draws are what they always were). With
-/// config.enabled() false it returns the identity effects (SensorEffects{}) after still making
-/// the same draws.
+/// read_noise in [0, read_noise_max] (the first seven draws are what they always were), then
+/// three white-balance gains, each uniform in [1 - white_balance_max, 1 + white_balance_max],
+/// and whether the tone is clipped (chance clipped_tone_probability): fourteen draws. With config.enabled() false it returns the identity effects (SensorEffects{})
+/// after still making the same draws.
 SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt19937_64& engine);
 
 /// Applies `effects` to an 8-bit image in place (CV_8UC1, or CV_8UC3 of any channel order), in

@@ -21,8 +21,8 @@ Eigen::Vector3f RgbOfHsv(double hue_deg, double saturation, double value) {
 
 DrawnSurroundings SampleSurroundings(const config::SurroundingsConfig& config,
                                      std::mt19937_64& engine) {
-  // sixteen draws, in this order, whatever the settings
-  double u[16];
+  // twenty-four draws, in this order, whatever the settings
+  double u[24];
   for (double& value : u) value = Uniform01(engine);
   DrawnSurroundings drawn;
   const auto between = [](double unit, double lo, double hi) { return lo + (hi - lo) * unit; };
@@ -36,8 +36,9 @@ DrawnSurroundings SampleSurroundings(const config::SurroundingsConfig& config,
     drawn.bin_roughness = static_cast<float>(between(u[3], 0.2, 0.6));
   } else if (u[1] < config.bin_color_probability()) {
     drawn.bin_restyled = true;
-    drawn.bin_color =
-        RgbOfHsv(between(u[4], 0, 360), between(u[5], 0.2, 0.8), between(u[6], 0.15, 0.85));
+    drawn.bin_color = RgbOfHsv(between(u[4], 0, 360),
+                               between(u[5], config.bin_saturation_min(), config.bin_saturation_max()),
+                               between(u[6], config.bin_value_min(), config.bin_value_max()));
     drawn.bin_metallic = 0;
     drawn.bin_roughness =
         static_cast<float>(between(u[3], config.bin_roughness_min(), config.bin_roughness_max()));
@@ -55,12 +56,31 @@ DrawnSurroundings SampleSurroundings(const config::SurroundingsConfig& config,
       drawn.floor_detail_strength = static_cast<float>(between(u[13], 0.3, 0.8));
     } else {
       drawn.floor = DrawnSurroundings::Floor::kTable;
-      const float grey = static_cast<float>(between(u[11], 0.1, 0.7));
-      // a table's grey, a little warm or cold
-      const float tint = static_cast<float>(between(u[14], -0.05, 0.05));
-      drawn.floor_color = Eigen::Vector3f(grey * (1 + tint), grey, grey * (1 - tint)).cwiseMin(1.f);
       drawn.floor_roughness = static_cast<float>(between(u[12], 0.3, 0.9));
       drawn.floor_detail_strength = static_cast<float>(between(u[13], 0.2, 0.7));
+      if (u[16] < config.metal_table_fraction()) {
+        // brushed steel
+        drawn.floor_finish = DrawnSurroundings::Finish::kMetal;
+        const float grey = static_cast<float>(between(u[22], 0.45, 0.8));
+        drawn.floor_color = Eigen::Vector3f(grey, grey, grey);
+        drawn.floor_metallic = 1;
+        drawn.floor_roughness = static_cast<float>(between(u[23], 0.2, 0.5));
+      } else if (u[16] < config.metal_table_fraction() + config.wood_table_fraction()) {
+        // wood: a brown, its rings and grain from the detail
+        drawn.floor_finish = DrawnSurroundings::Finish::kWood;
+        drawn.floor_color =
+            RgbOfHsv(between(u[19], 20, 40), between(u[20], 0.3, 0.65), between(u[21], 0.3, 0.85));
+        drawn.floor_detail_strength = static_cast<float>(between(u[13], 0.5, 1.0));
+      } else {
+        // painted: a grey (saturation 0, as before these fields) or a colour, a little warm or
+        // cold
+        const Eigen::Vector3f paint =
+            RgbOfHsv(between(u[17], 0, 360), between(u[18], 0, config.table_saturation_max()),
+                     between(u[11], config.table_value_min(), config.table_value_max()));
+        const float tint = static_cast<float>(between(u[14], -0.05, 0.05));
+        drawn.floor_color =
+            Eigen::Vector3f(paint.x() * (1 + tint), paint.y(), paint.z() * (1 - tint)).cwiseMin(1.f);
+      }
     }
   }
   return drawn;

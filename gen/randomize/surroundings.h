@@ -18,16 +18,20 @@ struct DrawnSurroundings {
   /// Dust and scuff marks on the bin, of this strength (0..1).
   bool bin_scuffed = false;
   float bin_scuff_strength = 0;
-  /// What the bin stands on.
+  /// What the bin stands on, and a table top's finish.
   enum class Floor { kNone, kTable, kConveyor };
+  enum class Finish { kPainted, kMetal, kWood };
   Floor floor = Floor::kNone;
+  Finish floor_finish = Finish::kPainted;
   Eigen::Vector3f floor_color{0, 0, 0};
+  float floor_metallic = 0;
   float floor_roughness = 0;
   float floor_detail_strength = 0;
 };
 
-/// Draws a scene's surroundings: always 16 values of `engine`, whatever the settings, so that a
-/// change of one probability moves none of the other draws.
+/// Draws a scene's surroundings: always 24 values of `engine`, whatever the settings, so that a
+/// change of one probability moves none of the other draws (the first 16 are what they were
+/// before the table's finish and the tote's saturation and value ranges existed).
 DrawnSurroundings SampleSurroundings(const config::SurroundingsConfig& config,
                                      std::mt19937_64& engine);
 

@@ -28,6 +28,9 @@ struct Light {
   Eigen::Vector3f direction_world{0, 0, -1};   // directional: direction the light travels, unit
   Eigen::Vector3f position_world{0, 0, 1000};  // point light: position, mm, world frame
   float ambient = 0.25f, diffuse = 0.7f, specular = 0.4f;
+  /// Physically based shading: the light's colour, linear RGB of luminance 1 (white: 1, 1, 1),
+  /// multiplying its strength per channel. Blinn-Phong ignores it.
+  Eigen::Vector3f color{1, 1, 1};
 };
 
 }  // namespace stackgen

@@ -559,10 +559,12 @@ void Renderer::Impl::CheckOptions(const CameraModel& camera, const std::vector<L
     }
     if (!(options.environment_intensity >= 0) || !std::isfinite(options.environment_intensity) ||
         !(options.background_scale >= 0) || !std::isfinite(options.background_scale) ||
-        !std::isfinite(options.environment_yaw_deg)) {
+        !std::isfinite(options.environment_yaw_deg) || !options.environment_color.allFinite() ||
+        !(options.environment_color.minCoeff() >= 0)) {
       throw std::runtime_error("Renderer::Render: environment_intensity " +
                                std::to_string(options.environment_intensity) +
-                               " and background_scale " + std::to_string(options.background_scale) +
+                               ", environment_color and background_scale " +
+                               std::to_string(options.background_scale) +
                                " must be finite and >= 0, environment_yaw_deg finite");
     }
   } else if (options.shading != Shading::kPhong) {
@@ -606,7 +608,7 @@ void Renderer::Impl::SetLights(const Eigen::Isometry3d& camera_from_world,
     frame.light_terms[i][1] = light.diffuse;
     frame.light_terms[i][2] = light.specular;
     for (int c = 0; c < 3; ++c)
-      frame.light_irradiance[i][c] = static_cast<float>(M_PI) * light.diffuse;
+      frame.light_irradiance[i][c] = static_cast<float>(M_PI) * light.diffuse * light.color[c];
   }
 }
 
@@ -724,7 +726,9 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
     FrameUniforms& frame = impl.frame_uniforms;
     frame.environment =
         options.environment_id >= 0 ? &impl.environments[options.environment_id] : nullptr;
-    frame.environment_intensity = options.environment_intensity;
+    for (int c = 0; c < 3; ++c) {
+      frame.environment_intensity[c] = options.environment_intensity * options.environment_color[c];
+    }
     const Eigen::Matrix3f environment_from_camera =
         (Eigen::AngleAxisd(-options.environment_yaw_deg * M_PI / 180, Eigen::Vector3d::UnitZ())
              .toRotationMatrix() *

@@ -62,6 +62,7 @@ struct SurfaceDetail {
     kBrushed,  // fine streaks along the object's x axis
     kScuffed,  // dust patches (lighter, rougher) and scuff marks
     kMoulded,  // scuffed, and injection-moulding marks: ejector-pin rings, flow lines
+    kWood,     // growth rings across y and grain along x, darkening the colour
   };
   Kind kind = Kind::kNone;
   float strength = 0.5f;            // 0..1
@@ -119,6 +120,9 @@ struct RenderOptions {
   double environment_yaw_deg = 0;
   /// Multiplies the environment's radiance, >= 0.
   float environment_intensity = 1.f;
+  /// The environment's colour: multiplies its linear RGB radiance per channel, each >= 0
+  /// (a black body's colour of luminance 1 tints it; white leaves it as it is).
+  Eigen::Vector3f environment_color{1, 1, 1};
   /// Samples per pixel of the colour image's edges: 1 (off), 2 or 4, at most
   /// MaxMsaaSamples(). Each pixel is shaded once at its centre and a multisampled coverage pass
   /// blends edge pixels (subpixel reconstruction, Chajdas et al. 2011; see renderer.cc). Depth, ids

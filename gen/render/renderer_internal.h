@@ -213,7 +213,7 @@ struct FrameUniforms {
   bool shadows = false;
   const EnvironmentTexture* environment = nullptr;  // none: no environment light
   float environment_from_camera[9] = {};            // column-major rotation
-  float environment_intensity = 0;
+  float environment_intensity[3] = {0, 0, 0};  // the intensity times the environment's colour
   float light_irradiance[Renderer::kMaxLights][3] = {};  // physically based: pi x diffuse
   float light_vectors[Renderer::kMaxLights][4] = {};     // see scene.vert.glsl
   float light_terms[Renderer::kMaxLights][3] = {};

@@ -132,7 +132,7 @@ PbrProgram& Renderer::Impl::UsePbr(bool textured, bool detailed) {
     glUniformMatrix3fv(p.environment_from_camera, 1, GL_FALSE, f.environment_from_camera);
     glUniform1f(p.environment_max_lod, PrefilteredEnvironment::kLevels - 1);
     glUniform3fv(p.irradiance_sh, 9, f.environment->irradiance_sh[0].data());
-    glUniform1f(p.environment_intensity, f.environment_intensity);
+    glUniform3fv(p.environment_intensity, 1, f.environment_intensity);
   }
   return p;
 }

@@ -329,7 +329,16 @@ void SceneGenerator::Impl::DrawEnvironment(std::mt19937_64& engine, RenderOption
   const double log_intensity =
       Uniform(engine, std::log(std::max(rendering.environment_intensity_min(), 1e-9)),
               std::log(std::max(rendering.environment_intensity_max(), 1e-9)));
+  // (after the draws above, which are what they were before the environment had a colour)
+  const double temperature = Uniform(engine, 0, 1);
   if (rendering.shading() != config::RenderingConfig::PBR) return;
+  const config::LightingConfig& lighting = config().lighting();
+  if (lighting.randomize() && lighting.color_temperature_max_k() > 0) {
+    options->environment_color =
+        BlackBodyColor(lighting.color_temperature_min_k() +
+                       temperature * (lighting.color_temperature_max_k() -
+                                      lighting.color_temperature_min_k()));
+  }
   options->shading = Shading::kPbr;
   options->msaa_samples = rendering.msaa_samples();
   const size_t count = environment_ids.size();
@@ -370,14 +379,23 @@ void SceneGenerator::Impl::AddSurroundings(const DrawnSurroundings& around, bool
     floor.instance_id = 0;
     floor.world_from_object = Eigen::Translation3d(0, 0, floor_z_mm);
     floor.material.color = around.floor_color;
-    floor.material.metallic = 0;
+    floor.material.metal_color = around.floor_color;
+    floor.material.metallic = around.floor_metallic;
     floor.material.roughness = around.floor_roughness;
     floor.material.specular = 0.5f;
-    // a table is scuffed over centimetres; a belt has fine grooves along the bin's length (x)
+    // a painted table is scuffed over centimetres; a belt has fine grooves along the bin's
+    // length (x), a steel top coarser ones; wood has rings about 12 mm apart
+    using Finish = DrawnSurroundings::Finish;
     const bool conveyor = around.floor == DrawnSurroundings::Floor::kConveyor;
-    floor.detail.kind = conveyor ? SurfaceDetail::Kind::kBrushed : SurfaceDetail::Kind::kScuffed;
+    const bool brushed = conveyor || around.floor_finish == Finish::kMetal;
+    floor.detail.kind = brushed                               ? SurfaceDetail::Kind::kBrushed
+                        : around.floor_finish == Finish::kWood ? SurfaceDetail::Kind::kWood
+                                                               : SurfaceDetail::Kind::kScuffed;
     floor.detail.strength = around.floor_detail_strength;
-    floor.detail.scale_mm = conveyor ? 3.f : 20.f;
+    floor.detail.scale_mm = conveyor                               ? 3.f
+                            : around.floor_finish == Finish::kMetal ? 6.f
+                            : around.floor_finish == Finish::kWood  ? 12.f
+                                                                    : 20.f;
     floor.detail = PlacedDetail(floor.detail, seed, 1);
     floor.casts_shadow = false;
     items->push_back(floor);
@@ -444,7 +462,11 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   std::mt19937_64 environment_engine = LeverEngine(seed, Lever::kEnvironment);
   Clock::time_point start = Clock::now();
   const CameraModel camera = impl_->Camera(camera_engine);
-  const std::vector<Light> lights = SampleLights(config.lighting(), lighting_engine);
+  std::vector<Light> lights = SampleLights(config.lighting(), lighting_engine);
+  if (const auto ring = SampleCameraLight(config.lighting(),
+                                          camera.world_from_camera.translation(), lighting_engine)) {
+    lights.push_back(*ring);
+  }
   RenderOptions options;
   options.background_image =
       impl_->backgrounds->Draw(camera.width, camera.height, background_engine);

@@ -25,6 +25,7 @@ SurfaceDetail DetailOf(config::SurfaceDetail::Kind kind, double strength, double
                 : kind == config::SurfaceDetail::BRUSHED ? SurfaceDetail::Kind::kBrushed
                 : kind == config::SurfaceDetail::SCUFFED ? SurfaceDetail::Kind::kScuffed
                 : kind == config::SurfaceDetail::MOULDED ? SurfaceDetail::Kind::kMoulded
+                : kind == config::SurfaceDetail::WOOD    ? SurfaceDetail::Kind::kWood
                                                          : SurfaceDetail::Kind::kNone;
   detail.strength = static_cast<float>(strength);
   detail.scale_mm = static_cast<float>(scale_mm);

@@ -31,7 +31,7 @@ uniform sampler2D material_texture;
 uniform mat3 environment_from_camera;
 uniform sampler2D environment_radiance;  // octahedral, level k: roughness k / max_lod
 uniform float environment_max_lod;
-uniform float environment_intensity;
+uniform vec3 environment_intensity;  // the strength times the environment's colour
 in vec3 irradiance;  // from the vertex shader, irradiance_sh at the normal (and its opposite)
 in vec3 irradiance_back;
 
@@ -48,7 +48,7 @@ vec2 OctahedralUv(vec3 d) {
 // procedural surface detail (renderer.h, SurfaceDetail), from the position in features
 in vec3 detail_position;
 in vec3 detail_normal;
-uniform int detail_kind;        // 1 cast, 2 brushed, 3 scuffed, 4 moulded
+uniform int detail_kind;        // 1 cast, 2 brushed, 3 scuffed, 4 moulded, 5 wood
 uniform float detail_strength;  // 0..1
 
 // a hash of a lattice point to 0..1 (Inigo Quilez's), and smooth value noise between them
@@ -80,6 +80,13 @@ vec3 Detail(vec3 p) {
     float s = 0.7 * ValueNoise(p * vec3(0.04, 5.0, 5.0)) +
               0.3 * ValueNoise(p * vec3(0.1, 17.0, 17.0) + 5.0) - 0.5;
     return vec3(1.0 + 1.4 * k * s, 1.0 + 0.4 * k * s, 0.0);
+  }
+  if (detail_kind == 5) {
+    // wood: growth rings one feature apart across y, bent by slow noise, and fine grain along x
+    float w = p.y + 1.6 * ValueNoise(p * vec3(0.03, 0.25, 0.25) + 17.0);
+    float ring = smoothstep(0.2, 0.9, 0.5 + 0.5 * sin(6.2831853 * w));
+    float grain = ValueNoise(p * vec3(0.05, 6.0, 6.0) + 23.0);
+    return vec3(1.0 + 0.3 * k * (grain - 0.5), 1.0 - k * (0.45 * ring + 0.25 * grain), 0.0);
   }
   // scuffed: dust in patches, and thin scuff marks that roughen and lighten
   float dust = smoothstep(0.45, 0.8, 0.7 * ValueNoise(0.3 * p) + 0.3 * ValueNoise(1.7 * p + 3.0));

@@ -72,6 +72,26 @@ TEST(ConfigTest, RenderingFieldsAreChecked) {
   EXPECT_EQ(error("part { detail: BRUSHED } bin { detail: SCUFFED } "
                   "surroundings { table_probability: 1 }"),
             "");
+  // the wider totes and tables, the ring light and the white balance
+  EXPECT_NE(error("surroundings { bin_value_min: 0.9 bin_value_max: 0.5 }")
+                .find("surroundings.bin_value_max"),
+            std::string::npos);
+  EXPECT_NE(error("surroundings { bin_saturation_max: 1.2 }").find("surroundings.bin_saturation_max"),
+            std::string::npos);
+  EXPECT_NE(error("surroundings { metal_table_fraction: 0.6 wood_table_fraction: 0.6 }")
+                .find("surroundings.wood_table_fraction"),
+            std::string::npos);
+  EXPECT_NE(error("lighting { camera_light_probability: -0.1 }")
+                .find("lighting.camera_light_probability"),
+            std::string::npos);
+  EXPECT_NE(error("sensor { white_balance_max: 0.7 }").find("sensor.white_balance_max"),
+            std::string::npos);
+  EXPECT_NE(error("sensor { clipped_tone_probability: 2 }").find("sensor.clipped_tone_probability"),
+            std::string::npos);
+  EXPECT_EQ(error("bin { detail: WOOD } surroundings { metal_table_fraction: 0.5 "
+                  "wood_table_fraction: 0.5 table_saturation_max: 1 } lighting { "
+                  "camera_light_probability: 1 } sensor { white_balance_max: 0.5 }"),
+            "");
 }
 
 // an unknown field is refused with the file, line and field name.

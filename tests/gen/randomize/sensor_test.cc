@@ -237,6 +237,9 @@ TEST(SensorTest, SamplingRangesAndDisabled) {
     ASSERT_LE(drawn.shot_noise, 0.0005);
     ASSERT_GE(drawn.read_noise, 0);
     ASSERT_LE(drawn.read_noise, 0.003);
+    // white_balance_max 0 by default: the gains stay 1
+    ASSERT_EQ(drawn.white_balance[0], 1);
+    ASSERT_EQ(drawn.white_balance[2], 1);
     gamma_lo = std::min(gamma_lo, drawn.gamma);
     gamma_hi = std::max(gamma_hi, drawn.gamma);
   }
@@ -251,7 +254,7 @@ TEST(SensorTest, SamplingRangesAndDisabled) {
   const SensorEffects drawn = SampleSensorEffects(config, b);
   EXPECT_EQ(a, b);
   std::mt19937_64 reference(11);
-  reference.discard(10);
+  reference.discard(14);
   EXPECT_EQ(a, reference);
   EXPECT_GT(drawn.gaussian_sigma, 0);
   EXPECT_EQ(identity.gaussian_sigma, 0);
@@ -296,6 +299,70 @@ TEST(SensorTest, DevelopsLinearLightThroughTheToneCurve) {
   SensorEffects bad;
   bad.read_noise = -1;
   EXPECT_THROW(DevelopLinearImage(bad, linear, false), std::runtime_error);
+}
+
+// a white balance off multiplies each channel of linear light before the tone curve: red x 2 is
+// mid grey exposed a stop brighter, blue stays; gray takes the balanced channels' luminance; the
+// gains are drawn within white_balance_max of 1
+TEST(SensorTest, WhiteBalanceScalesEachChannel) {
+  const cv::Mat linear(4, 4, CV_32FC3, cv::Scalar(0.18f, 0.18f, 0.18f));
+  const auto expected = [](double x) {
+    const double y = AcesFilmic(x);
+    return static_cast<int>(std::lround(255 * (1.055 * std::pow(y, 1 / 2.4) - 0.055)));
+  };
+  SensorEffects warm;
+  warm.white_balance[0] = 2;
+  const cv::Vec3b pixel = DevelopLinearImage(warm, linear, false).at<cv::Vec3b>(1, 1);
+  EXPECT_NEAR(pixel[0], expected(0.36), 0.51);
+  EXPECT_NEAR(pixel[2], expected(0.18), 0.51);
+  EXPECT_NEAR(DevelopLinearImage(warm, linear, true).at<uint8_t>(1, 1),
+              expected(0.18 * (1 + 0.2126)), 0.51);
+  SensorEffects bad;
+  bad.white_balance[1] = 0;
+  EXPECT_THROW(DevelopLinearImage(bad, linear, false), std::runtime_error);
+
+  config::SensorConfig config;
+  config.set_white_balance_max(0.1);
+  std::mt19937_64 engine(4);
+  double lowest = 2, highest = 0;
+  for (int i = 0; i < 500; ++i) {
+    const SensorEffects drawn = SampleSensorEffects(config, engine);
+    for (const double gain : drawn.white_balance) {
+      ASSERT_GE(gain, 0.9);
+      ASSERT_LE(gain, 1.1);
+      lowest = std::min(lowest, gain);
+      highest = std::max(highest, gain);
+    }
+  }
+  EXPECT_LT(lowest, 0.91);
+  EXPECT_GT(highest, 1.09);
+}
+
+// a clipped tone is plain sRGB up to white and white beyond, where the filmic curve keeps a
+// shoulder: mid grey brighter, 0.9 white, 1.5 white; drawn as often as the chance says
+TEST(SensorTest, ClippedToneIsPlainSrgb) {
+  cv::Mat linear(1, 3, CV_32FC3);
+  linear.at<cv::Vec3f>(0, 0) = cv::Vec3f::all(0.18f);
+  linear.at<cv::Vec3f>(0, 1) = cv::Vec3f::all(0.9f);
+  linear.at<cv::Vec3f>(0, 2) = cv::Vec3f::all(1.5f);
+  SensorEffects clipped;
+  clipped.clipped_tone = true;
+  const cv::Mat plain = DevelopLinearImage(clipped, linear, true);
+  const cv::Mat filmic = DevelopLinearImage(SensorEffects(), linear, true);
+  const auto srgb = [](double y) {
+    return static_cast<int>(std::lround(255 * (1.055 * std::pow(y, 1 / 2.4) - 0.055)));
+  };
+  EXPECT_NEAR(plain.at<uint8_t>(0, 0), srgb(0.18), 0.51);
+  EXPECT_NEAR(plain.at<uint8_t>(0, 1), srgb(0.9), 0.51);
+  EXPECT_EQ(plain.at<uint8_t>(0, 2), 255);
+  EXPECT_LT(filmic.at<uint8_t>(0, 1), plain.at<uint8_t>(0, 1) - 10);
+
+  config::SensorConfig config;
+  config.set_clipped_tone_probability(0.3);
+  std::mt19937_64 engine(6);
+  int count = 0;
+  for (int i = 0; i < 1000; ++i) count += SampleSensorEffects(config, engine).clipped_tone;
+  EXPECT_NEAR(count, 300, 60);
 }
 
 // noise in linear light has the variance of shot noise (growing with the signal) plus read

@@ -159,8 +159,9 @@ TEST(RendererPbrTest, MetalColourWhereMetalDiffuseColourWhereNot) {
   }
 }
 
-// each kind of surface detail draws its own pattern on a plate (none, cast, brushed, scuffed and
-// moulded all differ somewhere), and no detail moves a label: ids and depth stay byte-identical
+// each kind of surface detail draws its own pattern on a plate (none, cast, brushed, scuffed,
+// moulded and wood all differ somewhere), and no detail moves a label: ids and depth stay
+// byte-identical
 TEST(RendererPbrTest, SurfaceDetailKindsDifferAndLeaveLabels) {
   Renderer renderer(320, 240);
   const int plate = renderer.AddMesh(testing::MakeSquare(200));
@@ -170,7 +171,7 @@ TEST(RendererPbrTest, SurfaceDetailKindsDifferAndLeaveLabels) {
   std::vector<RenderResult> results;
   for (const SurfaceDetail::Kind kind :
        {SurfaceDetail::Kind::kNone, SurfaceDetail::Kind::kCast, SurfaceDetail::Kind::kBrushed,
-        SurfaceDetail::Kind::kScuffed, SurfaceDetail::Kind::kMoulded}) {
+        SurfaceDetail::Kind::kScuffed, SurfaceDetail::Kind::kMoulded, SurfaceDetail::Kind::kWood}) {
     DrawItem item = WhiteItem(plate, 0.f, 0.5f);
     item.material.color = Eigen::Vector3f::Constant(0.4f);
     item.detail.kind = kind;
@@ -293,6 +294,35 @@ TEST(RendererPbrTest, LightsAndBackgroundInLinearLight) {
   EXPECT_NEAR(result.color_linear.at<cv::Vec3f>(120, 160)[1], 0.6f, 0.06f);
   // display 188 / 255 is 0.5029 in linear light
   EXPECT_NEAR(result.color_linear.at<cv::Vec3f>(5, 5)[0], 2 * 0.5029f, 0.005f);
+}
+
+// a light's colour and the environment's multiply their linear light per channel: a white
+// matte surface under an orange light of strength 0.6 is 0.6 x its colour, and in a uniform
+// environment tinted (0.5, 1, 2) its radiance per channel times that
+TEST(RendererPbrTest, ColouredLightsAndEnvironment) {
+  Renderer renderer(320, 240);
+  const int square = renderer.AddMesh(testing::MakeSquare(100));
+  const CameraModel camera = CameraLookingDown(300);
+  Light light;
+  light.diffuse = 0.6f;
+  light.color = Eigen::Vector3f(1.5f, 0.9f, 0.4f);
+  const cv::Vec3f lit = renderer.Render(camera, {light}, PbrOptions(-1),
+                                        {WhiteItem(square, 0.f, 1.f)})
+                            .color_linear.at<cv::Vec3f>(120, 160);
+  EXPECT_NEAR(lit[0], 0.6f * 1.5f, 0.08f);
+  EXPECT_NEAR(lit[1], 0.6f * 0.9f, 0.06f);
+  EXPECT_NEAR(lit[2], 0.6f * 0.4f, 0.03f);
+  const float radiance = 0.5f;
+  RenderOptions tinted = PbrOptions(AddFurnace(&renderer, radiance));
+  tinted.environment_color = Eigen::Vector3f(0.5f, 1.f, 2.f);
+  const cv::Vec3f seen =
+      renderer.Render(camera, {}, tinted, {WhiteItem(square, 0.f, 1.f)}).color_linear.at<cv::Vec3f>(
+          120, 160);
+  EXPECT_NEAR(seen[0] / seen[1], 0.5f, 0.01f);
+  EXPECT_NEAR(seen[2] / seen[1], 2.f, 0.04f);
+  EXPECT_NEAR(seen[1], radiance, 0.05f);
+  tinted.environment_color = Eigen::Vector3f(-1.f, 1.f, 1.f);
+  EXPECT_THROW(renderer.Render(camera, {}, tinted, {}), std::runtime_error);
 }
 
 TEST(RendererPbrTest, BadOptionsThrow) {

@@ -5,7 +5,8 @@ A fully convolutional network (a four-level U-Net, 8 to 64 channels, 0.12 M weig
 image at half size and classes every pixel as background, part interior or part outline (an
 instance's pixels within 2 pixels of where it meets another instance or the background). The
 instances are the connected interiors, grown back over the outlines next to them; each scores
-its interior's mean probability. The scores (stackgen.metrics) are taken at full size against the exact masks:
+its interior's mean probability. The scores (stackgen.metrics) are taken at full size against
+the exact masks:
 foreground IoU (every part pixel against the rest) and the paper's instance MIoU; ignore regions
 count neither way. A region map says what each wrong pixel shows (the test set's
 regions/*.png, or for stackgen's own scenes the bin's box seen through each pixel).

@@ -58,7 +58,7 @@ std::vector<Light> SampleLights(const config::LightingConfig& config, std::mt199
     d.diffuse = Uniform(engine, config.diffuse_min(), config.diffuse_max());
     d.specular = Uniform(engine, config.specular_min(), config.specular_max());
   }
-  // (after the draws above, which are what they were before lights had a colour)
+  // (after the draws above, so that a light's colour moves none of them)
   double temperatures[kMostLights];
   for (double& t : temperatures) t = Uniform(engine, 0, 1);
 

@@ -72,8 +72,7 @@ DrawnSurroundings SampleSurroundings(const config::SurroundingsConfig& config,
             RgbOfHsv(between(u[19], 20, 40), between(u[20], 0.3, 0.65), between(u[21], 0.3, 0.85));
         drawn.floor_detail_strength = static_cast<float>(between(u[13], 0.5, 1.0));
       } else {
-        // painted: a grey (saturation 0, as before these fields) or a colour, a little warm or
-        // cold
+        // painted: a grey (saturation 0, the default) or a colour, a little warm or cold
         const Eigen::Vector3f paint =
             RgbOfHsv(between(u[17], 0, 360), between(u[18], 0, config.table_saturation_max()),
                      between(u[11], config.table_value_min(), config.table_value_max()));

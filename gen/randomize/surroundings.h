@@ -30,8 +30,8 @@ struct DrawnSurroundings {
 };
 
 /// Draws a scene's surroundings: always 24 values of `engine`, whatever the settings, so that a
-/// change of one probability moves none of the other draws (the first 16 are what they were
-/// before the table's finish and the tote's saturation and value ranges existed).
+/// change of one probability moves none of the other draws (the table's finish and the tote's
+/// saturation and value use only the last 8, so the first 16 mean the same whatever they say).
 DrawnSurroundings SampleSurroundings(const config::SurroundingsConfig& config,
                                      std::mt19937_64& engine);
 

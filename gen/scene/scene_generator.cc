@@ -329,7 +329,7 @@ void SceneGenerator::Impl::DrawEnvironment(std::mt19937_64& engine, RenderOption
   const double log_intensity =
       Uniform(engine, std::log(std::max(rendering.environment_intensity_min(), 1e-9)),
               std::log(std::max(rendering.environment_intensity_max(), 1e-9)));
-  // (after the draws above, which are what they were before the environment had a colour)
+  // (after the draws above, so that the environment's colour moves none of them)
   const double temperature = Uniform(engine, 0, 1);
   if (rendering.shading() != config::RenderingConfig::PBR) return;
   const config::LightingConfig& lighting = config().lighting();

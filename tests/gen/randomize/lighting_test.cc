@@ -53,8 +53,8 @@ TEST(LightingTest, RingLightAtTheCamera) {
 }
 
 // a black body is orange at 2700 K, about white at 6500 K and blue at 12000 K, always of
-// luminance 1; lights take colours of the configured range, white without one, and the draws
-// before the colours stay what they were
+// luminance 1; lights take colours of the configured range, white without one, and the colours
+// move none of the draws before them
 TEST(LightingTest, LightsOfAColourTemperature) {
   const auto luminance = [](const Eigen::Vector3f& c) {
     return 0.2126f * c.x() + 0.7152f * c.y() + 0.0722f * c.z();

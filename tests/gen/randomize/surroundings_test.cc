@@ -102,7 +102,7 @@ TEST(SurroundingsTest, TotesAndTablesOfEveryKind) {
   EXPECT_NEAR(painted, 160, 40);
   EXPECT_GT(coloured, 20);
 
-  // the defaults paint every table grey, tinted at most 5 %, as before these fields
+  // the defaults paint every table grey, tinted at most 5 %
   config::SurroundingsConfig grey;
   grey.set_table_probability(1);
   grey.set_conveyor_fraction(0);

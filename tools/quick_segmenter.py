@@ -1,11 +1,12 @@
 """The quick mode of tools/eval-detector: a small segmenter that learns the task to saturation in
 minutes on two cores, so that two looks can be told apart.
 
-A fully convolutional network (a four-level U-Net, 8 to 64 channels, 0.12 M weights) sees the
-image at half size and classes every pixel as background, part interior or part outline (an
-instance's pixels within 2 pixels of where it meets another instance or the background). The
-instances are the connected interiors, grown back over the outlines next to them; each scores
-its interior's mean probability. The scores (stackgen.metrics) are taken at full size against
+A fully convolutional network (a four-level U-Net, 8 to 64 channels, 0.12 M weights, unless
+eval-detector's --unet-levels says another depth) sees the image at half size and classes every
+pixel as background, part interior or part outline (an instance's pixels within 2 pixels of
+where it meets another instance or the background). The instances are the connected
+interiors, grown back over the outlines next to them; each scores its interior's mean
+probability. The scores (stackgen.metrics) are taken at full size against
 the exact masks:
 foreground IoU (every part pixel against the rest) and the paper's instance MIoU; ignore regions
 count neither way. A region map says what each wrong pixel shows (the test set's
@@ -113,12 +114,15 @@ def _block(inputs, outputs):
 
 
 class UNet(nn.Module):
-    """A four-level U-Net (Ronneberger et al. 2015) with batch norm and bilinear upsampling:
-    (B, 3, H, W) images in 0..1 to (B, 3, H, W) class logits; H and W multiples of 8."""
+    """A U-Net (Ronneberger et al. 2015) with batch norm and bilinear upsampling, one level per
+    entry of `channels` (default four: 0.12 M weights, 101 px seen around a pixel; five: 0.49 M,
+    205 px): (B, 3, H, W) images in 0..1 to (B, 3, H, W) class logits; H and W multiples of
+    `multiple`."""
 
     def __init__(self, channels=(8, 16, 32, 64), classes=3):
         super().__init__()
         c = channels
+        self.multiple = 2 ** (len(c) - 1)
         self.down = nn.ModuleList([_block(3, c[0])] +
                                   [_block(c[i - 1], c[i]) for i in range(1, len(c))])
         self.up = nn.ModuleList([_block(c[i] + c[i - 1], c[i - 1])
@@ -141,9 +145,11 @@ class UNet(nn.Module):
         return self.head(x)
 
 
-def build_model(seed):
+def build_model(seed, levels=4):
+    """The quick mode's U-Net of `levels` levels, 8 channels doubling per level, its weights
+    drawn from `seed`."""
     torch.manual_seed(seed)
-    return UNet()
+    return UNet(channels=tuple(8 * 2 ** k for k in range(levels)))
 
 
 # --- training ------------------------------------------------------------------------------------
@@ -172,7 +178,11 @@ def _batch(images, targets, rng, batch_size, crop):
 def train(model, images, targets, steps, batch_size, crop, lr, seed, log=None):
     """AdamW with a linear warm-up and a cosine decay; the crops, flips and turns come from a
     generator seeded with `seed`. Returns the model (in eval mode) and the last losses."""
-    crop = min(crop, targets.shape[1], targets.shape[2]) // 8 * 8
+    crop = min(crop, targets.shape[1], targets.shape[2]) // model.multiple * model.multiple
+    if crop == 0:
+        raise RuntimeError("images of %d x %d px at the network's size are smaller than the %d px "
+                           "its levels halve" % (targets.shape[2], targets.shape[1],
+                                                 model.multiple))
     rng = np.random.default_rng(seed)
     optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     weights = torch.tensor(CLASS_WEIGHTS)
@@ -211,7 +221,7 @@ def predict(model, image, scale):
     height, width = image.shape[:2]
     small_h, small_w = round(height * scale), round(width * scale)
     small = cv2.resize(image, (small_w, small_h), interpolation=cv2.INTER_AREA)
-    pad_h, pad_w = -small_h % 8, -small_w % 8
+    pad_h, pad_w = -small_h % model.multiple, -small_w % model.multiple
     x = torch.from_numpy(np.ascontiguousarray(small)).permute(2, 0, 1)[None].float() / 255
     if pad_h or pad_w:
         x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")

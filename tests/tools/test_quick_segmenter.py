@@ -95,3 +95,21 @@ def test_box_bin_regions_straight_down():
     assert regions[240 + 120, 320] == REGION_FLOOR
     assert regions[240 + 150, 320] == REGION_WALLS
     assert regions[0, 0] == REGION_BACKGROUND
+
+
+# --unet-levels: each level doubles what the network sees around a pixel; predict pads any image
+# size to the deepest level's multiple and returns probabilities at the image's own size
+@pytest.mark.parametrize("levels, weights, seen_px", [(4, 122483, 101), (5, 491891, 205)])
+def test_levels_set_the_weights_and_what_a_pixel_sees(levels, weights, seen_px):
+    import torch
+    model = qs.build_model(0, levels).eval()
+    assert sum(p.numel() for p in model.parameters()) == weights
+    assert model.multiple == 2 ** (levels - 1)
+    x = torch.zeros(1, 3, 320, 320, requires_grad=True)
+    model(x)[0, 1, 160, 160].backward()
+    rows = (x.grad.abs().sum(dim=(0, 1)) > 0).any(dim=1).nonzero()
+    assert int(rows.max() - rows.min() + 1) == seen_px
+    image = np.full((50, 70, 3), 128, np.uint8)  # 25 x 35 at half size: padded to the multiple
+    probabilities = qs.predict(model, image, 0.5)
+    assert probabilities.shape == (3, 50, 70)
+    assert np.allclose(probabilities.sum(axis=0), 1, atol=1e-5)

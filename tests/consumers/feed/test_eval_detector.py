@@ -80,6 +80,10 @@ def test_quick_mode_flags_are_checked():
     assert twice.returncode == 2 and "distinct" in twice.stderr
     cpu_errors = run("--config", config, "--errors", "/tmp/nowhere")
     assert cpu_errors.returncode == 2 and "--mode quick" in cpu_errors.stderr
+    cpu_levels = run("--config", config, "--unet-levels", "5")
+    assert cpu_levels.returncode == 2 and "--mode quick" in cpu_levels.stderr
+    too_deep = run("--config", config, "--mode", "quick", "--unet-levels", "7")
+    assert too_deep.returncode == 2 and "2..6" in too_deep.stderr
 
 
 def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
@@ -89,12 +93,13 @@ def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
     result = run("--mode", "quick", "--config", os.path.join(ROOT, "config", "default.pbtxt"),
                  "--train-dir", folder, "--test", folder, "--no-held-out", "--seeds", "3",
                  "--steps", "2", "--threads", "2", "--errors", errors, "--worst", "1",
-                 "--out", out)
+                 "--unet-levels", "5", "--out", out)
     assert result.returncode == 0, result.stderr
     assert "foreground IoU" in result.stdout and "spread" in result.stdout
     with open(out) as file:
         written = json.load(file)
     assert written["mode"] == "quick" and written["seeds"] == [3] and written["steps"] == 2
+    assert written["unet_levels"] == 5
     (scores,) = written["results"]
     assert scores["seed"] == 3 and scores["images"] == 2
     assert 0 <= scores["foreground_iou"] <= 1

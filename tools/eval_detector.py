@@ -398,7 +398,7 @@ def quick_model(args, config, train_dir, seed):
     from stackgen.coco import CocoDataset
 
     name = "%s, seed %d" % (os.path.basename(config), seed)
-    # four levels keep the name kept models had before --unet-levels
+    # the name holds the depth, except for the default four levels
     kept = None if args.train_dir else os.path.join(
         train_dir, "quick-unet%s-%d-steps-%d-of-%d-x%.3f-lr%g-seed-%d.pt" % (
             "" if args.unet_levels == 4 else args.unet_levels, args.train_scenes, args.steps,

@@ -115,9 +115,8 @@ def _block(inputs, outputs):
 
 class UNet(nn.Module):
     """A U-Net (Ronneberger et al. 2015) with batch norm and bilinear upsampling, one level per
-    entry of `channels` (default four: 0.12 M weights, 101 px seen around a pixel; five: 0.49 M,
-    205 px): (B, 3, H, W) images in 0..1 to (B, 3, H, W) class logits; H and W multiples of
-    `multiple`."""
+    entry of `channels`, each level doubling what a pixel sees: (B, 3, H, W) images in 0..1 to
+    (B, 3, H, W) class logits; H and W multiples of `multiple`."""
 
     def __init__(self, channels=(8, 16, 32, 64), classes=3):
         super().__init__()

@@ -136,7 +136,7 @@ int Run(int argc, char** argv) {
   int64_t count = 20, seed = 0;
   int generator_id = 0;
   std::string cache_dir = stackgen::DefaultCacheDir();
-  stackgen::RestRule rule;
+  stackgen::RestRule rule = stackgen::kStrictRestRule;
   stackgen::FlagParser parser("stackgen-rest-check");
   parser.String("--config", &config_path, "a config file");
   parser.Int("--count", &count, 1, 1000000);

@@ -413,6 +413,8 @@ void ValidatePhysics(const config::GeneratorConfig& c, const FieldNamer& n) {
   const config::PhysicsConfig& physics = c.physics();
   // coarser steps let 6 mm plates tunnel through each other.
   CheckRange(n, "physics", "time_step_s", physics.time_step_s(), 1e-4, 1.0 / 300);
+  CheckRange(n, "physics", "rest_time_step_s", physics.rest_time_step_s(), physics.time_step_s(),
+             0.01);
   CheckRange(n, "physics", "max_sim_time_s", physics.max_sim_time_s(), 0, 600, true);
   CheckRange(n, "physics", "settle_translation_mm", physics.settle_translation_mm(), 0, 100, true);
   CheckRange(n, "physics", "settle_rotation_deg", physics.settle_rotation_deg(), 0, 90, true);

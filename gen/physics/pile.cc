@@ -25,25 +25,29 @@ constexpr double kSimPerMm = 0.1;
 constexpr double kGravityMmS2 = 9810.0;
 
 // contact solver: each step starts from this share of the last step's impulses, and impacts
-// slower than this (mm/s) do not bounce. With Bullet's 0.85 and 20 iterations a resting pile's
-// impulses never converged and heaps crept on for tens of seconds (100 piles: 55 % of the parts
-// moved over 1 mm or 1 degree); the whole impulse and 50 iterations (the default) converge
+// slower than this (mm/s) do not bounce. With Bullet's 0.85 a resting pile's impulses never
+// converged and heaps crept on for tens of seconds; the whole impulse converges
 constexpr double kWarmStartingFactor = 1;
 constexpr double kRestitutionThresholdMmS = 50;
 
-// Friction in two phases (SimulationParams::free_friction_while_falling): while a pile falls and
-// slides, Bullet's own (along the sliding velocity, at most kDropIterations iterations), so a
-// flat box landing on its edge topples flat as a real one does (85.3 % of single 80 x 40 x 10
-// mm boxes on a large face, against 78.9 %; Blender's Bullet 88.6 %); once it has landed
-// (kPileLanded*, or the settle rule where looser: a pile sliding on free friction creeps and
-// never meets a rule of 0.1 mm over 1 s), friction that holds it (two fixed directions, cached)
-// until the settle rule publishes it (free friction alone: 91 % of the parts of 20 piles moved
-// on; holding friction alone lets an edge stand). README, "Checks before publishing", has the
-// figures. A triangle-mesh tote holds throughout (a part sliding freely fell through its floor).
+// A pile in two phases. Falling: split-impulse contacts (overlap is undone by moving the parts
+// apart, which adds no energy to an impact) at time_step_s, and with
+// free_friction_while_falling Bullet's own friction (along the sliding velocity, at most
+// kDropIterations iterations), so a flat box landing on its edge topples flat as a real one does
+// (85.3 % of single 80 x 40 x 10 mm boxes on a large face, against 78.9 %; Blender's Bullet
+// 88.6 %). Once it has landed (kPileLanded*, or the settle rule where looser): friction that
+// holds it (two fixed directions, cached; free friction alone: 91 % of the parts of 20 piles
+// moved on, holding friction alone lets an edge stand), and contacts that leave an overlap of
+// up to kRestSlopMm alone and push deeper overlap back through the velocity: split impulse's
+// moves along a slanted contact slid parts a little each step, and piles at rest crept at
+// 0.1-0.2 mm/s for seconds (a quarter of the drops did not meet 0.1 mm over 2 s within 10 s).
+// Velocities at rest are small, so the pile is stepped at rest_time_step_s. A triangle-mesh tote
+// holds throughout (a part sliding freely fell through its floor).
 constexpr int kDropIterations = 20;
 constexpr double kPileLandedMm = 1.0;
 constexpr double kPileLandedDeg = 1.0;
 constexpr double kPileLandedWindowS = 0.25;
+constexpr double kRestSlopMm = 0.01;
 constexpr int kFreeFriction = SOLVER_USE_WARMSTARTING | SOLVER_SIMD;
 constexpr int kHoldingFriction =
     SOLVER_USE_WARMSTARTING | SOLVER_SIMD | SOLVER_USE_2_FRICTION_DIRECTIONS |
@@ -56,23 +60,20 @@ constexpr double kAngularDamping = 0.3;
 // the floor's collision box reaches at least this far down (nothing tunnels through it), mm
 constexpr double kMinFloorThicknessMm = 20;
 
-// a body slower than this, mm/s, released at least kFallS ago, rests in the pile
-constexpr double kPileSpeedMmS = 100;
-constexpr double kFallS = 0.1;
+// a released part rests in the pile once it moved less than 10 mm over 0.1 s (slower than
+// 100 mm/s; turning not counted)
+constexpr RestRule kInPileRule{10, 180, 0.1, 0};
 
-// sequential drops: a part has landed once it moved less than kLandedMm and kLandedDeg over
-// kLandedWindowS, or kLandedMaxS after its release
-constexpr double kLandedMm = 1;
-constexpr double kLandedDeg = 2;
-constexpr double kLandedWindowS = 0.1;
-constexpr double kLandedMaxS = 2;
+// sequential drops: a part has landed once it moved less than 1 mm and 2 degrees over 0.1 s,
+// or 2 s after its release
+constexpr RestRule kPartLandedRule{1, 2, 0.1, 2};
 
 // a part reaching further than this beyond the inner walls' planes is outside the bin (below the
 // rim) or leans over the rim (above it), mm
 constexpr double kOverhangToleranceMm = 1;
 
-// releases and the settle rule are checked this many times per settle window
-constexpr int kChecksPerWindow = 25;
+// releases and rest rules are checked this often, s of simulated time
+constexpr double kCheckIntervalS = 0.01;
 
 // PickOrder: spacing of the vertical rays over the bin opening, mm, and the fraction of a part's
 // rays that may meet another part first with the part still counting as on top (grazing edges)
@@ -167,25 +168,7 @@ PileSimulator::PileSimulator(const TriangleMesh& part,
 
 PileSimulator::PileSimulator(const std::vector<PartType>& types, const BinSpec& bin,
                              const SimulationParams& params, const std::string& cache_dir) {
-  // inputs
-  CheckRange("BinSpec", "inner_length_mm", bin.inner_length_mm, 1e-3, 1e6);
-  CheckRange("BinSpec", "inner_width_mm", bin.inner_width_mm, 1e-3, 1e6);
-  CheckRange("BinSpec", "inner_height_mm", bin.inner_height_mm, 1e-3, 1e6);
-  CheckRange("BinSpec", "wall_mm", bin.wall_mm, 1e-3, 1e6);
-  CheckRange("BinSpec", "friction", bin.friction, 0, 10);
-  CheckRange("BinSpec", "restitution", bin.restitution, 0, 1);
-  CheckRange("SimulationParams", "time_step_s", params.time_step_s, 1e-4, 0.01);
-  CheckRange("SimulationParams", "max_sim_time_s", params.max_sim_time_s, params.time_step_s, 1e5);
-  CheckRange("SimulationParams", "settle_translation_mm", params.settle_translation_mm, 1e-6, 1e6);
-  CheckRange("SimulationParams", "settle_rotation_deg", params.settle_rotation_deg, 1e-6, 360);
-  CheckRange("SimulationParams", "settle_window_s", params.settle_window_s, params.time_step_s,
-             params.max_sim_time_s);
-  CheckRange("SimulationParams", "drop_height_mm", params.drop_height_mm, 0, 1e6);
-  CheckRange("SimulationParams", "solver_iterations", params.solver_iterations, 5, 500);
-  CheckRange("SimulationParams", "drop_point_mm.x", params.drop_point_mm.x(),
-             -bin.inner_length_mm / 2, bin.inner_length_mm / 2);
-  CheckRange("SimulationParams", "drop_point_mm.y", params.drop_point_mm.y(),
-             -bin.inner_width_mm / 2, bin.inner_width_mm / 2);
+  CheckInputs(bin, params);
   if (types.empty()) throw std::runtime_error("PileSimulator: no part types");
 
   auto model = std::make_unique<Model>();
@@ -267,17 +250,14 @@ class PileWorld {
   PileWorld(const BinSpec& bin, const std::vector<TypeModel>& types, btCollisionShape* tote_shape,
             double tote_bottom_z_mm, int solver_iterations)
       : types_(types), shape_of_type_(types.size(), nullptr), inertia_of_type_(types.size()) {
-    // gravity and the contact solver: split impulse always (position fixes add no energy),
-    // holding friction (see kHoldingFriction; Simulate may drop with free friction first)
+    // gravity and the contact solver, falling with holding friction (see Fall and Rest)
     w_.world->setGravity(btVector3(0, 0, ToSim(-kGravityMmS2)));
     btContactSolverInfo& solver = w_.world->getSolverInfo();
-    solver.m_numIterations = solver_iterations;
     solver.m_warmstartingFactor = static_cast<btScalar>(kWarmStartingFactor);
-    solver.m_splitImpulse = true;
     solver.m_splitImpulsePenetrationThreshold = 0;
     solver.m_restitutionVelocityThreshold = ToSim(kRestitutionThresholdMmS);
-    solver.m_solverMode = kHoldingFriction;
     solver_iterations_ = solver_iterations;
+    Fall(false);
     if (tote_shape != nullptr) {
       btRigidBody::btRigidBodyConstructionInfo info(0, nullptr, tote_shape);
       info.m_friction = Root(bin.friction);
@@ -392,16 +372,44 @@ class PileWorld {
 
   btDiscreteDynamicsWorld& world() { return *w_.world; }
 
-  // the friction of a falling pile, and of a settled one (see kFreeFriction, kHoldingFriction)
-  void FreeFriction() {
+  // The two phases of a pile (see kRestSlopMm). Falling: split-impulse contacts, with free
+  // friction or holding friction.
+  void Fall(bool free_friction) {
     btContactSolverInfo& solver = w_.world->getSolverInfo();
-    solver.m_solverMode = kFreeFriction;
-    solver.m_numIterations = std::min(kDropIterations, solver_iterations_);
+    solver.m_splitImpulse = true;
+    solver.m_linearSlop = 0;
+    solver.m_solverMode = free_friction ? kFreeFriction : kHoldingFriction;
+    solver.m_numIterations =
+        free_friction ? std::min(kDropIterations, solver_iterations_) : solver_iterations_;
   }
-  void HoldingFriction() {
+  // Landed: holding friction and contacts at rest, stepped `step_ratio` times as long as while
+  // falling (the last step's impulses, where each step starts, grow with it). Once only.
+  void Rest(double step_ratio) {
+    if (resting_) return;
+    resting_ = true;
     btContactSolverInfo& solver = w_.world->getSolverInfo();
+    solver.m_splitImpulse = false;
+    solver.m_linearSlop = ToSim(kRestSlopMm);
     solver.m_solverMode = kHoldingFriction;
     solver.m_numIterations = solver_iterations_;
+    const auto scale = static_cast<btScalar>(step_ratio);
+    for (int i = 0; i < w_.dispatcher.getNumManifolds(); ++i) {
+      btPersistentManifold* manifold = w_.dispatcher.getManifoldByIndexInternal(i);
+      for (int c = 0; c < manifold->getNumContacts(); ++c) {
+        btManifoldPoint& point = manifold->getContactPoint(c);
+        point.m_appliedImpulse *= scale;
+        point.m_appliedImpulseLateral1 *= scale;
+        point.m_appliedImpulseLateral2 *= scale;
+      }
+    }
+  }
+
+  // the poses of `bodies` (their centres of mass), mm
+  static std::vector<Eigen::Isometry3d> Poses(const std::vector<btRigidBody*>& bodies) {
+    std::vector<Eigen::Isometry3d> poses;
+    poses.reserve(bodies.size());
+    for (const btRigidBody* body : bodies) poses.push_back(FromSim(body->getWorldTransform()));
+    return poses;
   }
 
  private:
@@ -409,6 +417,7 @@ class PileWorld {
   World w_;
   double bottom_z_mm_ = 0;
   int solver_iterations_ = 0;  // with holding friction
+  bool resting_ = false;
   std::vector<btCompoundShape*> shape_of_type_;
   std::vector<btVector3> inertia_of_type_;
   std::vector<btRigidBody*> parts_;  // in the order added
@@ -455,7 +464,7 @@ void CheckRule(const RestRule& rule) {
 }
 
 // The settle rule of `params` (capped at max_sim_time_s), and the rule that a pile has landed,
-// which ends the free-friction phase (kPileLanded*, or the settle rule where it is looser).
+// which ends the falling phase (kPileLanded*, or the settle rule where it is looser).
 RestRule SettleRule(const SimulationParams& params) {
   return {params.settle_translation_mm, params.settle_rotation_deg, params.settle_window_s,
           params.max_sim_time_s};
@@ -465,8 +474,53 @@ RestRule LandingRule(const SimulationParams& params) {
           std::max(params.settle_rotation_deg, kPileLandedDeg),
           std::min(params.settle_window_s, kPileLandedWindowS), params.max_sim_time_s};
 }
-SettleDetector DetectorOf(const RestRule& rule) {
-  return SettleDetector(rule.translation_mm, rule.rotation_deg, rule.window_s);
+
+// What a check asks of the stepping loop, and how a phase ended.
+enum class Verdict { kGoOn, kAtRest, kTimeUp };
+enum class Ended { kAtRest, kTimeUp, kFellOut };
+
+// The one stepping loop of the simulator: steps `w` by `dt` and every kCheckIntervalS of
+// simulated time asks `check(time_s)` whether to go on; ends when it says at rest or time up,
+// when a part fell out of the bin, or after `max_s`. *time_s runs on from its value.
+template <typename Check>
+Ended Step(PileWorld* w, double dt, double max_s, double* time_s, Check check) {
+  const int check_every = std::max(1, static_cast<int>(std::lround(kCheckIntervalS / dt)));
+  const int max_steps = static_cast<int>(std::ceil(max_s / dt - 1e-9));
+  const double start_s = *time_s;
+  for (int step = 1; step <= max_steps; ++step) {
+    w->world().stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
+    *time_s = start_s + step * dt;
+    if (step % check_every != 0) continue;
+    if (w->FellOut()) return Ended::kFellOut;
+    switch (check(*time_s)) {
+      case Verdict::kGoOn:
+        break;
+      case Verdict::kAtRest:
+        return Ended::kAtRest;
+      case Verdict::kTimeUp:
+        return Ended::kTimeUp;
+    }
+  }
+  return Ended::kTimeUp;
+}
+
+// Steps `bodies` until `rule` holds (its window starts at the first check), within `max_s`; no
+// bodies are at rest at once.
+Ended StepUntilRest(PileWorld* w, double dt, const RestRule& rule,
+                    const std::vector<btRigidBody*>& bodies, double max_s, double* time_s) {
+  if (bodies.empty()) return Ended::kAtRest;
+  SettleDetector detector(rule);
+  return Step(w, dt, max_s, time_s, [&](double now) {
+    return detector.AddSample(now, PileWorld::Poses(bodies)) ? Verdict::kAtRest : Verdict::kGoOn;
+  });
+}
+
+// The rest phase of a landed pile: at rest by the settle rule within `max_s`. Whether it is.
+bool RestPhase(const SimulationParams& params, const std::vector<btRigidBody*>& bodies,
+               double max_s, PileWorld* w, double* time_s) {
+  w->Rest(params.rest_time_step_s / params.time_step_s);
+  return StepUntilRest(w, params.rest_time_step_s, SettleRule(params), bodies, max_s, time_s) ==
+         Ended::kAtRest;
 }
 
 // Puts the parts a ReleaseQueue lets go into the world, at rest, and keeps what the queue asks
@@ -478,8 +532,9 @@ class Dropper {
 
   // Releases what the queue lets go at `time_s`; returns whether any part was released.
   bool ReleaseDue(double time_s) {
-    const bool landed = LastLanded(time_s);
-    // the released bodies' boxes, and which of them rest in the pile
+    // the released bodies' boxes, which of them rest in the pile, whether the last one landed
+    in_pile_.AddSample(time_s, PileWorld::Poses(bodies_));
+    landed_.AddSample(time_s, PileWorld::Poses(bodies_));
     std::vector<Box> boxes;
     std::vector<bool> in_pile;
     for (size_t b = 0; b < bodies_.size(); ++b) {
@@ -488,9 +543,10 @@ class Dropper {
       Box box;
       for (const auto& v : tm.hull_vertices_mm) box.Add(world_from_object * v);
       boxes.push_back(box);
-      const double speed_mm_s = bodies_[b]->getLinearVelocity().length() / kSimPerMm;
-      in_pile.push_back(speed_mm_s < kPileSpeedMmS && time_s - released_at_s_[b] >= kFallS);
+      in_pile.push_back(in_pile_.AtRest(b));
     }
+    const bool landed = bodies_.empty() || landed_.AtRest(bodies_.size() - 1) ||
+                        time_s - released_at_s_.back() >= kPartLandedRule.max_time_s;
     // the new bodies, at rest
     const auto parts = queue_.Next(time_s, std::move(boxes), in_pile, landed);
     for (const auto& [part, z] : parts) {
@@ -500,7 +556,6 @@ class Dropper {
       bodies_.push_back(body);
       types_.push_back(type);
       released_at_s_.push_back(time_s);
-      last_poses_.clear();
     }
     return !parts.empty();
   }
@@ -509,22 +564,6 @@ class Dropper {
   const std::vector<btRigidBody*>& body_of_part() const { return body_of_part_; }
 
  private:
-  // whether the last released part has landed (sequential drops wait for it)
-  bool LastLanded(double time_s) {
-    if (bodies_.empty()) return true;
-    const Eigen::Isometry3d now = FromSim(bodies_.back()->getWorldTransform());
-    last_poses_.emplace_back(time_s, now);
-    if (time_s - released_at_s_.back() >= kLandedMaxS) return true;
-    for (auto it = last_poses_.rbegin(); it != last_poses_.rend(); ++it) {
-      if (it->first > time_s - kLandedWindowS + 1e-9) continue;
-      const double moved_mm = (now.translation() - it->second.translation()).norm();
-      const double turned_deg =
-          Eigen::AngleAxisd(now.linear() * it->second.linear().transpose()).angle() * 180 / M_PI;
-      return moved_mm < kLandedMm && turned_deg < kLandedDeg;
-    }
-    return false;
-  }
-
   const std::vector<TypeModel>& type_models_;
   ReleaseQueue& queue_;
   PileWorld& w_;
@@ -533,61 +572,56 @@ class Dropper {
   std::vector<btRigidBody*> bodies_;
   std::vector<int> types_;
   std::vector<double> released_at_s_;
-  // the last released body's poses since its release, for sequential drops
-  std::vector<std::pair<double, Eigen::Isometry3d>> last_poses_;
+  SettleDetector in_pile_{kInPileRule};
+  SettleDetector landed_{kPartLandedRule};
 };
 
-// Goes on stepping the world `w` of `bodies` (of `types`) until they are at rest by `rule` or
-// rule.max_time_s more has passed; `after` gets the poses and checks then, settled (at rest by
-// the rule) and the time it went on. With `from_now`, the window reaches back to the poses now
-// (going on after a pile was published); without, it starts with the first check (a pile just
-// put into the world).
-void GoOnToRest(const BinSpec& bin, const std::vector<TypeModel>& type_models, double dt,
-                const RestRule& rule, bool from_now, const std::vector<int>& types,
-                const std::vector<btRigidBody*>& bodies, PileWorld* w, PileResult* after) {
-  const int max_steps = static_cast<int>(std::ceil(rule.max_time_s / dt - 1e-9));
-  const int check_every =
-      std::max(1, static_cast<int>(std::lround(rule.window_s / kChecksPerWindow / dt)));
-  SettleDetector settle = DetectorOf(rule);
-  *after = PileResult{};
-  after->settled = bodies.empty();
-  int step = 0;
-  std::vector<Eigen::Isometry3d> poses;
-  const auto sample = [&] {
-    poses.clear();
-    for (const btRigidBody* body : bodies) poses.push_back(FromSim(body->getWorldTransform()));
-    return settle.AddSample(step * dt, poses);
-  };
-  if (from_now) sample();
-  while (step < max_steps && !after->settled) {
-    w->world().stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
-    ++step;
-    if (step % check_every != 0) continue;
-    if (w->FellOut()) break;
-    after->settled = sample();
-  }
-  after->simulated_s = step * dt;
+// Places the parts of `types` (bodies) in `result`, and the deepest penetration now.
+void Place(const BinSpec& bin, const std::vector<TypeModel>& type_models,
+           const std::vector<int>& types, const std::vector<btRigidBody*>& bodies, PileWorld* w,
+           PileResult* result) {
   for (size_t i = 0; i < types.size(); ++i) {
-    AddPlacement(bin, type_models[types[i]], FromSim(bodies[i]->getWorldTransform()), after);
+    AddPlacement(bin, type_models[types[i]], FromSim(bodies[i]->getWorldTransform()), result);
   }
-  after->max_penetration_mm = w->MaxPenetrationMm();
+  result->max_penetration_mm = w->MaxPenetrationMm();
+}
+
+// Goes on stepping the pile of `bodies` (of `types`) at rest until it is at rest by `rule` (its
+// window reaching back to the poses now) or rule.max_time_s more passed; `after` gets the poses
+// and checks then, settled (at rest by the rule) and the time it went on.
+void GoOnToRest(const BinSpec& bin, const SimulationParams& params,
+                const std::vector<TypeModel>& type_models, const RestRule& rule,
+                const std::vector<int>& types, const std::vector<btRigidBody*>& bodies,
+                PileWorld* w, PileResult* after) {
+  *after = PileResult{};
+  w->Rest(params.rest_time_step_s / params.time_step_s);
+  SettleDetector detector(rule);
+  double time_s = 0;
+  after->settled = bodies.empty() || detector.AddSample(0, PileWorld::Poses(bodies));
+  if (!after->settled) {
+    after->settled = Step(w, params.rest_time_step_s, rule.max_time_s, &time_s, [&](double now) {
+                       return detector.AddSample(now, PileWorld::Poses(bodies)) ? Verdict::kAtRest
+                                                                                : Verdict::kGoOn;
+                     }) == Ended::kAtRest;
+  }
+  after->simulated_s = time_s;
+  Place(bin, type_models, types, bodies, w, after);
 }
 
 }  // namespace
 
 PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed) const {
-  return Simulate(types, seed, RestRule{}, nullptr);
+  return Simulate(types, seed, kStrictRestRule, nullptr);
 }
 
 PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
                                    const RestRule& rule, PileResult* after) const {
-  CheckRule(rule);
+  if (after != nullptr) CheckRule(rule);
   const Model& m = *model_;
   for (int type : types) TypeAt(m.types, type);
   const int count = static_cast<int>(types.size());
   const BinSpec& bin = m.bin;
   const SimulationParams& params = m.params;
-  const double dt = params.time_step_s;
   PileWorld w(bin, m.types, m.tote_shape.get(), m.table_z_mm, params.solver_iterations);
   if (count == 0) {
     PileResult empty;
@@ -596,8 +630,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
     return empty;
   }
   w.AddShapes(types);
-  bool holding = !m.FreeWhileFalling();
-  if (!holding) w.FreeFriction();
+  w.Fall(m.FreeWhileFalling());
 
   std::mt19937_64 engine(seed);
   ReleaseQueue queue(DrawReleases(m.types, types, bin, params, engine),
@@ -607,43 +640,29 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
   dropper.ReleaseDue(0);
   const std::vector<btRigidBody*>& body_of_part = dropper.body_of_part();
 
-  // step at the fixed step until every part is released and the pile has settled, or the cap
-  // (max_sim_time_s after the last release; releases get kLandedMaxS per part at most, waves
-  // kStallS); releases and the settle rule are checked every check_every steps
-  const int settle_steps = static_cast<int>(std::ceil(params.max_sim_time_s / dt - 1e-9));
-  const int max_steps =
-      settle_steps +
-      static_cast<int>(std::ceil(count * std::max(kLandedMaxS, kStallS) / dt - 1e-9));
-  int last_release_step = 0;
-  const int check_every =
-      std::max(1, static_cast<int>(std::lround(params.settle_window_s / kChecksPerWindow / dt)));
-  SettleDetector settle = DetectorOf(holding ? SettleRule(params) : LandingRule(params));
+  // falling: every part released (at most kPartLandedRule.max_time_s per part, waves kStallS),
+  // then landed (the window starts after the last release); then at rest by the settle rule;
+  // both within max_sim_time_s after the last release
+  double time_s = 0;
+  double last_release_s = 0;
+  SettleDetector landing(LandingRule(params));
+  const double release_cap_s = count * std::max(kPartLandedRule.max_time_s, kStallS);
   PileResult result;
-  int step = 0;
-  while (step < max_steps && step - last_release_step < settle_steps && !result.settled) {
-    w.world().stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
-    ++step;
-    if (step % check_every != 0) continue;
-    if (w.FellOut()) break;
-    const double time_s = step * dt;
-    if (!queue.empty()) {
-      if (dropper.ReleaseDue(time_s)) last_release_step = step;
-      continue;
-    }
-    // the settle window starts with the last release
-    std::vector<Eigen::Isometry3d> poses;
-    for (const btRigidBody* body : body_of_part)
-      poses.push_back(FromSim(body->getWorldTransform()));
-    result.settled = settle.AddSample(time_s, poses);
-    // landed with free friction: holding friction, and the settle rule met
-    if (result.settled && !holding) {
-      holding = true;
-      w.HoldingFriction();
-      settle = DetectorOf(SettleRule(params));
-      result.settled = false;
-    }
+  const Ended landed =
+      Step(&w, params.time_step_s, release_cap_s + params.max_sim_time_s, &time_s, [&](double now) {
+        if (!queue.empty()) {
+          if (dropper.ReleaseDue(now)) last_release_s = now;
+          return Verdict::kGoOn;
+        }
+        if (now - last_release_s >= params.max_sim_time_s - 1e-9) return Verdict::kTimeUp;
+        return landing.AddSample(now, PileWorld::Poses(body_of_part)) ? Verdict::kAtRest
+                                                                      : Verdict::kGoOn;
+      });
+  if (landed == Ended::kAtRest) {
+    result.settled = RestPhase(params, body_of_part,
+                               last_release_s + params.max_sim_time_s - time_s, &w, &time_s);
   }
-  result.simulated_s = step * dt;
+  result.simulated_s = time_s;
 
   // the mesh frame of each part, and whether it is in the bin
   for (int i = 0; i < count; ++i) {
@@ -662,7 +681,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
       after->settled = false;
       after->simulated_s = 0;
     } else {
-      GoOnToRest(m.bin, m.types, dt, rule, true, types, body_of_part, &w, after);
+      GoOnToRest(bin, params, m.types, rule, types, body_of_part, &w, after);
     }
   }
   return result;
@@ -670,7 +689,7 @@ PileResult PileSimulator::Simulate(const std::vector<int>& types, uint64_t seed,
 
 PileResult PileSimulator::Resettle(const std::vector<int>& types,
                                    const std::vector<Eigen::Isometry3d>& world_from_object) const {
-  return Resettle(types, world_from_object, RestRule{}, nullptr);
+  return Resettle(types, world_from_object, kStrictRestRule, nullptr);
 }
 
 PileResult PileSimulator::Resettle(const std::vector<int>& types,
@@ -683,30 +702,26 @@ PileResult PileSimulator::Resettle(const std::vector<int>& types,
                                 " types but " + std::to_string(world_from_object.size()) +
                                 " poses");
   }
-  CheckRule(rule);
+  if (after != nullptr) CheckRule(rule);
   const SimulationParams& params = m.params;
-  const double dt = params.time_step_s;
-  PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm, m.params.solver_iterations);
+  PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm, params.solver_iterations);
   w.AddShapes(types);
   std::vector<btRigidBody*> bodies;
   for (size_t i = 0; i < types.size(); ++i)
     bodies.push_back(w.AddPart(types[i], world_from_object[i]));
 
-  // step until settled by the simulator's rule (the window starts at once) or its cap; as in
-  // Simulate, with free friction until the parts have landed
-  RestRule settle_rule = SettleRule(params);
+  // as in Simulate, the window of the landing rule starting at once: landed, then at rest by the
+  // settle rule, within max_sim_time_s
+  w.Fall(m.FreeWhileFalling());
+  double time_s = 0;
   PileResult result;
-  const bool two_phase = m.FreeWhileFalling();
-  if (two_phase) {
-    w.FreeFriction();
-    GoOnToRest(m.bin, m.types, dt, LandingRule(params), false, types, bodies, &w, &result);
-    w.HoldingFriction();
-    settle_rule.max_time_s = std::max(dt, settle_rule.max_time_s - result.simulated_s);
+  if (StepUntilRest(&w, params.time_step_s, LandingRule(params), bodies, params.max_sim_time_s,
+                    &time_s) == Ended::kAtRest) {
+    result.settled = RestPhase(params, bodies, params.max_sim_time_s - time_s, &w, &time_s);
   }
-  const double landed_s = two_phase ? result.simulated_s : 0;
-  GoOnToRest(m.bin, m.types, dt, settle_rule, false, types, bodies, &w, &result);
-  result.simulated_s += landed_s;
-  if (after != nullptr) GoOnToRest(m.bin, m.types, dt, rule, true, types, bodies, &w, after);
+  result.simulated_s = time_s;
+  Place(m.bin, m.types, types, bodies, &w, &result);
+  if (after != nullptr) GoOnToRest(m.bin, params, m.types, rule, types, bodies, &w, after);
   return result;
 }
 

@@ -9,6 +9,7 @@
 
 #include "gen/mesh/mesh.h"
 #include "gen/physics/hull_faces.h"
+#include "gen/physics/settle_detector.h"
 
 namespace stackgen {
 
@@ -56,37 +57,31 @@ enum class DropMode {
   kSequential,
 };
 
-/// How a pile is simulated and when it counts as settled.
+/// How a pile is simulated and when it counts as settled. A pile goes through two phases: it
+/// falls (parts released, time_step_s, split-impulse contacts, friction as below) until it has
+/// landed (every part moved less than 1 mm and 1 degree over 0.25 s, or the settle rule where it
+/// is looser), then it rests (holding friction, rest_time_step_s, contacts that push apart only
+/// past a 0.01 mm overlap) until it is at rest by the settle rule, which publishes it.
 struct SimulationParams {
-  double time_step_s = 1.0 / 600;      // fixed physics step, 1e-4..0.01 s
-  double max_sim_time_s = 10;          // simulated-time cap after the last release, s
-  double settle_translation_mm = 0.1;  // settled when every body's centre of mass moved less
-  double settle_rotation_deg = 0.1;    // than this and turned less than this over the last
-  double settle_window_s = 2;          // settle_window_s seconds (a sliding window): at rest
-  double drop_height_mm = 40;          // gap between the rim and the lowest released part, >= 0
+  double time_step_s = 1.0 / 600;       // fixed physics step while falling, 1e-4..0.01 s
+  double rest_time_step_s = 1.0 / 300;  // fixed physics step once landed, time_step_s..0.01 s
+  double max_sim_time_s = 10;           // simulated-time cap after the last release, s
+  double settle_translation_mm = 0.1;   // at rest when every body's centre of mass moved less
+  double settle_rotation_deg = 0.1;     // than this and turned less than this over the last
+  double settle_window_s = 2;           // settle_window_s seconds (a sliding window)
+  double drop_height_mm = 40;           // gap between the rim and the lowest released part, >= 0
   DropMode drop_mode = DropMode::kRandomVolume;
   Eigen::Vector2d drop_point_mm = Eigen::Vector2d::Zero();  // kSequential: x, y of the release
-  int solver_iterations = 50;                               // contact solver, per step, 5..500
-  bool free_friction_while_falling = true;  // Simulate: velocity-aligned friction until settled
-};
-
-/// When a pile counts as at rest for a strict check (Simulate or Resettle with a rule): every
-/// part moved less than translation_mm and turned less than rotation_deg over the last window_s
-/// seconds, within max_time_s of simulated time. The defaults are a strict check of a published
-/// pile (0.1 mm, 0.1 degrees, 1 s, 60 s).
-struct RestRule {
-  double translation_mm = 0.1;
-  double rotation_deg = 0.1;
-  double window_s = 1;
-  double max_time_s = 60;
+  int solver_iterations = 20;                               // contact solver, per step, 5..500
+  bool free_friction_while_falling = true;  // velocity-aligned friction until landed
 };
 
 /// A settled (or capped) pile.
 struct PileResult {
   // mm, the MESH frame of each part (not its centre of mass)
   std::vector<Eigen::Isometry3d> world_from_object;
-  // every body moved < settle_translation_mm and < settle_rotation_deg over the last
-  // settle_window_s
+  // at rest by the settle rule: every body moved < settle_translation_mm and turned
+  // < settle_rotation_deg over the last settle_window_s
   bool settled = false;
   // parts outside the bin: the centre of mass is not inside the bin's inner box (x,y within
   // inner size, z between the floor and the rim + one part size: an overfull pile still counts as
@@ -102,16 +97,21 @@ struct PileResult {
   double max_penetration_mm = 0;
 };
 
+/// The strict check of a published pile (stackgen-rest-check's defaults): every part moved less
+/// than 0.1 mm and 0.1 degree over 1 s, within 60 s.
+inline constexpr RestRule kStrictRestRule{0.1, 0.1, 1, 60};
+
 /// Drops copies of rigid parts (one or more part types) into an open bin with Bullet and runs
-/// until they settle.
+/// until they are at rest.
 /// Bullet works in centimetres with 0.2 mm collision margins (hull pieces are shrunk by the
 /// margin first), SimulationParams::solver_iterations contact-solver iterations per fixed step,
 /// each started from the whole last step's impulses, whole contact manifolds from the first touch,
-/// split-impulse contacts, friction anchors (static friction: contact points held while inside
-/// the friction cone) and a little angular damping; at the default 1/600 s step a 6 mm plate does
-/// not tunnel and penetrations stay far below 0.5 mm (at most 0.09 mm in 100 piles of 12
-/// connectors, measured with 20 iterations). The simulator is immutable
-/// after construction; Simulate() builds a fresh world each call and keeps no state between calls.
+/// friction anchors (static friction: contact points held while inside the friction cone) and a
+/// little angular damping; the two phases of SimulationParams: while falling, split-impulse
+/// contacts at time_step_s (at the default 1/600 s a 6 mm plate does not tunnel), once landed,
+/// contacts that leave a 0.01 mm overlap alone at rest_time_step_s; penetrations stay far below
+/// 0.5 mm. The simulator is immutable after construction and may be used from several threads
+/// at once; Simulate() builds a fresh world each call and keeps no state between calls.
 class PileSimulator {
  public:
   /// collision_pieces: convex pieces (mm, part frame) or empty to compute a convex decomposition
@@ -142,11 +142,12 @@ class PileSimulator {
   /// others (so none overlaps and none falls far). kSequential centres each on drop_point_mm and
   /// releases it once the previous one has landed (moved < 1 mm and < 2 degrees over 0.1 s, or
   /// 2 s passed). If the pile itself reaches the release height, parts go just above it. The
-  /// settle window starts after the last release. Throws std::runtime_error for an unknown type.
+  /// landing rule's window starts after the last release. Throws std::runtime_error for an
+  /// unknown type.
   PileResult Simulate(const std::vector<int>& types, uint64_t seed) const;
 
-  /// As above; then, when `after` is not null, goes on as Resettle with a rule does. The result
-  /// itself is the same as without (bit for bit).
+  /// As above; then, when `after` is not null, goes on as Resettle with a rule does (`rule` is
+  /// not used without `after`). The result itself is the same as without (bit for bit).
   PileResult Simulate(const std::vector<int>& types, uint64_t seed, const RestRule& rule,
                       PileResult* after) const;
 
@@ -155,9 +156,9 @@ class PileSimulator {
 
   /// Puts parts of types[i] at rest with their mesh frames at world_from_object[i] (mm; a pile
   /// Simulate settled, less what was picked from it) and runs until they settle again or
-  /// max_sim_time_s, with Simulate's settle rule (its window starts at once), friction (free until
-  /// they have landed, with free_friction_while_falling) and checks. Pure
-  /// function of the inputs. Throws std::invalid_argument unless there is one pose per type.
+  /// max_sim_time_s, in Simulate's two phases (the landing rule's window starts at once) with its
+  /// checks. Pure function of the inputs. Throws std::invalid_argument unless there is one pose per
+  /// type.
   PileResult Resettle(const std::vector<int>& types,
                       const std::vector<Eigen::Isometry3d>& world_from_object) const;
 
@@ -165,8 +166,8 @@ class PileSimulator {
   /// rest by `rule` or rule.max_time_s more passed, and `after` gets the poses and checks then
   /// (settled: at rest by the rule; simulated_s: the time it went on). A strict check that a
   /// published pile was at rest: how far its parts still move. The result itself is the same
-  /// as without. Throws std::invalid_argument as above, or for a rule whose values are not
-  /// positive or whose window is longer than its cap.
+  /// as without (`rule` is not used without `after`). Throws std::invalid_argument as above, or
+  /// for a rule whose values are not positive or whose window is longer than its cap.
   PileResult Resettle(const std::vector<int>& types,
                       const std::vector<Eigen::Isometry3d>& world_from_object, const RestRule& rule,
                       PileResult* after) const;

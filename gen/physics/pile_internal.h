@@ -34,6 +34,9 @@ inline constexpr double kStallS = 0.5;
 // Throws unless lo <= value <= hi.
 void CheckRange(const char* object, const char* field, double value, double lo, double hi);
 
+// Throws, naming the field, unless the bin's and the simulation's values are in range.
+void CheckInputs(const BinSpec& bin, const SimulationParams& params);
+
 // An axis-aligned box, mm.
 struct Box {
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(HUGE_VAL);

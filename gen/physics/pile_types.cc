@@ -113,5 +113,29 @@ TypeModel MakeTypeModel(const PartType& type, const std::string& what,
   return model;
 }
 
+// Throws, naming the field, unless the bin's and the simulation's values are in range.
+void CheckInputs(const BinSpec& bin, const SimulationParams& params) {
+  CheckRange("BinSpec", "inner_length_mm", bin.inner_length_mm, 1e-3, 1e6);
+  CheckRange("BinSpec", "inner_width_mm", bin.inner_width_mm, 1e-3, 1e6);
+  CheckRange("BinSpec", "inner_height_mm", bin.inner_height_mm, 1e-3, 1e6);
+  CheckRange("BinSpec", "wall_mm", bin.wall_mm, 1e-3, 1e6);
+  CheckRange("BinSpec", "friction", bin.friction, 0, 10);
+  CheckRange("BinSpec", "restitution", bin.restitution, 0, 1);
+  CheckRange("SimulationParams", "time_step_s", params.time_step_s, 1e-4, 0.01);
+  CheckRange("SimulationParams", "rest_time_step_s", params.rest_time_step_s, params.time_step_s,
+             0.01);
+  CheckRange("SimulationParams", "max_sim_time_s", params.max_sim_time_s, params.time_step_s, 1e5);
+  CheckRange("SimulationParams", "settle_translation_mm", params.settle_translation_mm, 1e-6, 1e6);
+  CheckRange("SimulationParams", "settle_rotation_deg", params.settle_rotation_deg, 1e-6, 360);
+  CheckRange("SimulationParams", "settle_window_s", params.settle_window_s, params.time_step_s,
+             params.max_sim_time_s);
+  CheckRange("SimulationParams", "drop_height_mm", params.drop_height_mm, 0, 1e6);
+  CheckRange("SimulationParams", "solver_iterations", params.solver_iterations, 5, 500);
+  CheckRange("SimulationParams", "drop_point_mm.x", params.drop_point_mm.x(),
+             -bin.inner_length_mm / 2, bin.inner_length_mm / 2);
+  CheckRange("SimulationParams", "drop_point_mm.y", params.drop_point_mm.y(),
+             -bin.inner_width_mm / 2, bin.inner_width_mm / 2);
+}
+
 }  // namespace pile_internal
 }  // namespace stackgen

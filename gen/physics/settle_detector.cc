@@ -12,24 +12,27 @@ constexpr double kTimeSlackS = 1e-9;
 
 }  // namespace
 
-SettleDetector::SettleDetector(double translation_mm, double rotation_deg, double window_s)
-    : translation_mm_(translation_mm),
-      rotation_rad_(rotation_deg * M_PI / 180),
-      window_s_(window_s) {
-  if (!(translation_mm > 0 && rotation_deg > 0 && window_s > 0)) {
+SettleDetector::SettleDetector(const RestRule& rule)
+    : translation_mm_(rule.translation_mm),
+      rotation_rad_(rule.rotation_deg * M_PI / 180),
+      window_s_(rule.window_s) {
+  if (!(rule.translation_mm > 0 && rule.rotation_deg > 0 && rule.window_s > 0)) {
     std::ostringstream message;
-    message << "SettleDetector: thresholds must be > 0, got " << translation_mm << " mm, "
-            << rotation_deg << " deg, " << window_s << " s";
+    message << "SettleDetector: thresholds must be > 0, got " << rule.translation_mm << " mm, "
+            << rule.rotation_deg << " deg, " << rule.window_s << " s";
     throw std::runtime_error(message.str());
   }
 }
 
-void SettleDetector::Reset() { window_.clear(); }
+void SettleDetector::Reset() {
+  window_.clear();
+  at_rest_.clear();
+}
 
 bool SettleDetector::AddSample(double time_s, const std::vector<Eigen::Isometry3d>& poses) {
-  if (!window_.empty() && window_.front().position_mm.size() != poses.size()) {
-    throw std::runtime_error("SettleDetector: the number of bodies changed from " +
-                             std::to_string(window_.front().position_mm.size()) + " to " +
+  if (!window_.empty() && window_.back().position_mm.size() > poses.size()) {
+    throw std::runtime_error("SettleDetector: the number of bodies fell from " +
+                             std::to_string(window_.back().position_mm.size()) + " to " +
                              std::to_string(poses.size()) + " without Reset()");
   }
   Sample now;
@@ -43,18 +46,25 @@ bool SettleDetector::AddSample(double time_s, const std::vector<Eigen::Isometry3
   // full window whatever the sampling interval
   const double window_start_s = time_s - window_s_ + kTimeSlackS;
   while (window_.size() >= 2 && window_[1].time_s <= window_start_s) window_.pop_front();
-  bool settled = !window_.empty() && window_.front().time_s <= window_start_s;
+  const bool spans = !window_.empty() && window_.front().time_s <= window_start_s;
 
-  // every body within both thresholds of every sample
-  for (size_t s = 0; settled && s < window_.size(); ++s) {
-    const Sample& then = window_[s];
-    for (size_t i = 0; settled && i < poses.size(); ++i) {
-      settled = (now.position_mm[i] - then.position_mm[i]).norm() < translation_mm_ &&
-                now.rotation[i].angularDistance(then.rotation[i]) < rotation_rad_;
+  // a body is at rest when its samples span the window (it was in the oldest one) and it is
+  // within both thresholds of every sample
+  at_rest_.assign(poses.size(), false);
+  bool all = true;
+  for (size_t i = 0; i < poses.size(); ++i) {
+    bool still = spans && i < window_.front().position_mm.size();
+    for (size_t s = 0; still && s < window_.size(); ++s) {
+      const Sample& then = window_[s];
+      still = (now.position_mm[i] - then.position_mm[i]).norm() < translation_mm_ &&
+              (rotation_rad_ >= M_PI ||
+               now.rotation[i].angularDistance(then.rotation[i]) < rotation_rad_);
     }
+    at_rest_[i] = still;
+    all = all && still;
   }
   window_.push_back(std::move(now));
-  return settled;
+  return all && spans;
 }
 
 }  // namespace stackgen

@@ -7,22 +7,39 @@
 
 namespace stackgen {
 
-/// Decides when a set of bodies has come to rest: settled once every body's position moved less
-/// than `translation_mm` and its orientation turned less than `rotation_deg` between every sample
-/// of the last `window_s` seconds and now (a sliding window of pose samples, not velocities, so a
-/// slow creep or a rocking part does not count as settled).
+/// When bodies count as at rest: every body moved less than translation_mm and turned less than
+/// rotation_deg between every pose sample of the last window_s seconds and now (a sliding window
+/// of poses, not velocities, so a slow creep or a rocking part is not at rest), within max_time_s
+/// of simulated time. The one rule the pile simulator knows: it decides when a sequential drop's
+/// part has landed, when a body rests in the pile, when a pile has landed, when it is published
+/// at rest (SimulationParams' settle_*) and when a strict check ends (PileSimulator::Resettle).
+/// A rotation_deg of 180 or more does not look at turning.
+struct RestRule {
+  double translation_mm = 0;
+  double rotation_deg = 0;
+  double window_s = 0;
+  double max_time_s = 0;
+};
+
+/// Decides when bodies have come to rest by a RestRule, from their poses sampled at increasing
+/// times. Bodies may be added between samples (a part released into the pile): a body is at rest
+/// once its own samples span the window.
 class SettleDetector {
  public:
-  /// Thresholds in millimetres, degrees and seconds; throws std::runtime_error unless all are > 0.
-  SettleDetector(double translation_mm, double rotation_deg, double window_s);
+  /// Throws std::runtime_error unless the rule's thresholds and window are > 0 (max_time_s is
+  /// the caller's).
+  explicit SettleDetector(const RestRule& rule);
 
-  /// Adds the poses (millimetres) of all bodies at `time_s` (seconds, increasing between calls)
-  /// and returns whether they have settled: the samples span at least the window and none moved
-  /// past a threshold within it. Throws std::runtime_error if the number of bodies changes
-  /// without Reset().
+  /// Adds the poses (millimetres) of all bodies at `time_s` (seconds, increasing between calls;
+  /// the bodies of the last sample first, in the same order, then any added since) and returns
+  /// whether every body is at rest. Throws std::runtime_error if there are fewer bodies than
+  /// before without Reset().
   bool AddSample(double time_s, const std::vector<Eigen::Isometry3d>& poses);
 
-  /// Forgets all samples (e.g. after a body was added).
+  /// Whether body `i` was at rest at the last sample (false for a body not sampled).
+  bool AtRest(size_t i) const { return i < at_rest_.size() && at_rest_[i]; }
+
+  /// Forgets all samples (the window starts again).
   void Reset();
 
  private:
@@ -36,6 +53,7 @@ class SettleDetector {
   double rotation_rad_;
   double window_s_;
   std::deque<Sample> window_;
+  std::vector<bool> at_rest_;  // per body, at the last sample
 };
 
 }  // namespace stackgen

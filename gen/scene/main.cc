@@ -2,8 +2,10 @@
 // publishes each scene on LCM. Run with --help for the flags. This file parses them and builds
 // the config, bus and scene generator; the generator node (node.h) does the rest.
 
+#include <sched.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <csignal>
 #include <cstdint>
@@ -24,6 +26,14 @@ namespace {
 std::atomic<bool> g_stop{false};
 
 void OnSignal(int) { g_stop = true; }
+
+// the cores this process may run on (its affinity: taskset, Slurm, a container's cpuset)
+int UsableCores() {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (sched_getaffinity(0, sizeof(set), &set) != 0) return 1;
+  return std::max(1, CPU_COUNT(&set));
+}
 
 constexpr const char* kUsage = R"(usage: stackgen [flags]
 
@@ -59,6 +69,9 @@ flags:
   --resend-ring N     recent scenes kept for resending, 1..10000 (default: 64; each takes the
                       size of an encoded scene, about 1 MB at 640x480); older ones are
                       regenerated from their seed when asked for
+  --physics-threads N piles settled at once, one physics world per thread, 1..256 (default:
+                      the cores this process may use, %d here); the scenes are the same for
+                      any N (with physics.pick_sequence one pile settles ahead)
   --fault-drop F      drop the fraction F in [0, 1) of the messages received (credits, resend
                       requests), from a fixed seed: for tests and demos (default: 0)
   --check             check the flags, the config (meshes and collision shapes included), the
@@ -76,7 +89,8 @@ resends scenes a consumer missed (from the ring, else regenerated: scene k is al
 and after --count scenes waits until every reliable consumer has stored them all.
 Best-effort listeners (stackgen-view, lcm-spy, lcm-logger) are never waited for; with only
 them, pass --no-consumer-ok.
-The next pile settles on a second thread and scenes are encoded on a third while the next one renders.
+The next piles settle on the physics threads and scenes are encoded on another thread while
+the next one renders.
 On exit and on SIGINT it prints the mean milliseconds per scene of each stage.
 )";
 
@@ -94,6 +108,7 @@ int Run(int argc, char** argv) {
   bool no_consumer_ok = false;
   int64_t consumer_timeout = 10;
   int ring_size = 64;
+  int physics_threads = UsableCores();
   BusOptions bus_options;
   FlagParser parser("stackgen");
   parser.String("--config", &config_path);
@@ -109,9 +124,11 @@ int Run(int argc, char** argv) {
   parser.Switch("--no-consumer-ok", &no_consumer_ok);
   parser.Int("--consumer-timeout", &consumer_timeout, 1, 86400);
   parser.Int("--resend-ring", &ring_size, 1, 10000);
+  parser.Int("--physics-threads", &physics_threads, 1, 256);
   parser.FaultDrop(&bus_options.drop_receive_fraction);
-  parser.ParseOrExit(
-      argc, argv, [] { std::printf(kUsage, DefaultConfigPath(STACKGEN_DEFAULT_CONFIG).c_str()); });
+  parser.ParseOrExit(argc, argv, [] {
+    std::printf(kUsage, DefaultConfigPath(STACKGEN_DEFAULT_CONFIG).c_str(), UsableCores());
+  });
   if (first_seq + count - 1 > kMaxSeq) {
     std::fprintf(
         stderr,
@@ -149,6 +166,7 @@ int Run(int argc, char** argv) {
   options.no_consumer_ok = no_consumer_ok;
   options.consumer_timeout_s = static_cast<double>(consumer_timeout);
   options.ring_size = ring_size;
+  options.physics_threads = physics_threads;
   options.progress = isatty(STDERR_FILENO) != 0;
   options.stop = &g_stop;
   GeneratorNode node(&bus, &generator, config, seed, generator_id, options);

@@ -56,20 +56,22 @@ double Seconds(Clock::TimePoint from, Clock::TimePoint to) {
   return std::chrono::duration<double>(to - from).count();
 }
 
-// One long-lived thread that runs the tasks given to it in order. The pipeline's stages run on
-// two of these rather than on a thread per scene: OpenCV keeps the thread-local buffers of
-// threads that have exited, so a thread per scene grew the heap by about 0.7 KB per scene
-// (heaptrack: 5.35 MB leaked after 300 scenes, 5.96 MB after 1,200).
+// Long-lived threads that start the tasks given to them in order (one thread: run in order).
+// The pipeline's stages run on these rather than on a thread per scene: OpenCV keeps the
+// thread-local buffers of threads that have exited, so a thread per scene grew the heap by about
+// 0.7 KB per scene (heaptrack: 5.35 MB leaked after 300 scenes, 5.96 MB after 1,200).
 class Worker {
  public:
-  Worker() : thread_([this] { Loop(); }) {}
+  explicit Worker(int threads = 1) {
+    for (int t = 0; t < threads; ++t) threads_.emplace_back([this] { Loop(); });
+  }
   ~Worker() {
     {
       const std::lock_guard<std::mutex> lock(mutex_);
       stop_ = true;
     }
-    wake_.notify_one();
-    thread_.join();
+    wake_.notify_all();
+    for (std::thread& thread : threads_) thread.join();
   }
   Worker(const Worker&) = delete;
   Worker& operator=(const Worker&) = delete;
@@ -106,7 +108,7 @@ class Worker {
   std::condition_variable wake_;
   std::deque<std::function<void()>> tasks_;
   bool stop_ = false;
-  std::thread thread_;  // last: starts once the rest is ready
+  std::vector<std::thread> threads_;  // last: start once the rest is ready
 };
 
 }  // namespace
@@ -139,10 +141,12 @@ struct GeneratorNode::Impl {
   Clock::TimePoint start;
   Clock::TimePoint last_status;
 
-  // the pipeline's state: the pile settling ahead, the one being rendered, the scene encoding
+  // the pipeline's state: the piles settling ahead (in seq order, at most one per physics
+  // thread), the one being rendered, the scene encoding
   Worker physics_worker;
   Worker encode_worker;
-  std::future<SettledPile> ahead;
+  std::deque<std::future<SettledPile>> ahead;
+  int64_t last_settling_first = -1;  // first seq of the last pile in `ahead`
   std::optional<SettledPile> current;
   std::future<std::pair<scene, StageTimes>> encoding;
 
@@ -176,7 +180,8 @@ GeneratorNode::Impl::Impl(Bus* bus_in, SceneGenerator* generator_in, const Loade
         gethostname(host, sizeof(host) - 1);
         return "stackgen/" + std::to_string(generator_id_in) + "@" + host + ":" +
                std::to_string(getpid());
-      }()) {
+      }()),
+      physics_worker(std::max(1, options_in.physics_threads)) {
   config_message.path = config.path;
   config_message.pbtxt = EffectiveConfigText(config.config);
   config_message.header.seq = -1;
@@ -346,21 +351,31 @@ void GeneratorNode::Impl::WaitForConsumers(int timeout_ms) {
   PublishPeriodic(false);
 }
 
-// the next pile (or, with pick sequences, the pile after the next pick) settles on the physics
-// thread while the scenes of this one are rendered (each scene is the same either way: a pure
-// function of its seq); with views_per_pile V, V scenes in a row show each state
+// the next piles settle on the physics threads while the scenes of this one are rendered, one
+// pile per thread (each scene is the same either way: a pure function of its seq); with
+// views_per_pile V, V scenes in a row show each state. With pick sequences each state follows
+// from the one before: one pile (the state after the next pick) settles ahead.
 void GeneratorNode::Impl::SettleAhead(int64_t first_seq) {
   const int views = generator.views_per_pile();
-  const int64_t next_first = current ? current->first_seq + views : first_seq;
-  if ((options.count != 0 && next_first >= options.first_seq + options.count) ||
-      next_first > kMaxSeq) {
-    return;
-  }
+  const bool picks = generator.pick_sequence();
+  const size_t most = picks ? 1 : static_cast<size_t>(std::max(1, options.physics_threads));
   SceneGenerator* scenes = &generator;
-  if (current) {
-    ahead = physics_worker.Submit([scenes, state = *current] { return scenes->SettleNext(state); });
-  } else {
-    ahead = physics_worker.Submit([scenes, next_first] { return scenes->Settle(next_first); });
+  while (ahead.size() < most) {
+    const int64_t next_first = last_settling_first >= 0 ? last_settling_first + views
+                               : current                ? current->first_seq + views
+                                                        : first_seq;
+    if ((options.count != 0 && next_first >= options.first_seq + options.count) ||
+        next_first > kMaxSeq) {
+      return;
+    }
+    if (picks && current) {
+      ahead.push_back(
+          physics_worker.Submit([scenes, state = *current] { return scenes->SettleNext(state); }));
+    } else {
+      ahead.push_back(
+          physics_worker.Submit([scenes, next_first] { return scenes->Settle(next_first); }));
+    }
+    last_settling_first = next_first;
   }
 }
 
@@ -445,7 +460,7 @@ GeneratorNode::GeneratorNode(Bus* bus, SceneGenerator* generator, const LoadedCo
 GeneratorNode::~GeneratorNode() {
   // work in flight for scenes that will not be published (an error or a signal)
   if (impl_->encoding.valid()) impl_->encoding.wait();
-  if (impl_->ahead.valid()) impl_->ahead.wait();
+  for (auto& pile : impl_->ahead) pile.wait();
 }
 
 void GeneratorNode::Run() {
@@ -472,7 +487,9 @@ void GeneratorNode::Run() {
     RenderedScene rendered;
     try {
       if (!node.current || seq >= node.current->first_seq + views) {
-        node.current = node.ahead.get();
+        node.current = node.ahead.front().get();
+        node.ahead.pop_front();
+        if (node.ahead.empty()) node.last_settling_first = -1;
         node.times.Add(node.current->times);
         node.SettleAhead(first_seq);
       }
@@ -494,7 +511,7 @@ void GeneratorNode::Run() {
   if (node.encoding.valid() && !node.Stopped()) node.PublishEncoded();
   // work in flight for scenes that will not be published (stopped by a signal)
   if (node.encoding.valid()) node.encoding.wait();
-  if (node.ahead.valid()) node.ahead.wait();
+  for (auto& pile : node.ahead) pile.wait();
   // after the last scene, until every reliable consumer has stored it (or went silent)
   if (node.next_seq == last_seq + 1) {
     while (!node.server->AllStoredThrough(last_seq) && !node.Stopped()) node.WaitForConsumers(20);

@@ -40,6 +40,9 @@ struct GeneratorNodeOptions {
   double consumer_timeout_s = 10;
   /// Encoded scenes kept for resending.
   int ring_size = 64;
+  /// Piles settled at once, one world per thread, ahead of the one being rendered; the scenes
+  /// are the same for any number (with physics.pick_sequence one pile settles ahead).
+  int physics_threads = 1;
   /// A progress line on stderr (a terminal).
   bool progress = false;
   /// Set from a signal handler: the node stops at the next scene, prints its summary and

@@ -133,6 +133,8 @@ void StageTimes::Add(const StageTimes& other) {
 
 int SceneGenerator::views_per_pile() const { return impl_->config().physics().views_per_pile(); }
 
+bool SceneGenerator::pick_sequence() const { return impl_->config().physics().pick_sequence(); }
+
 scene SceneGenerator::Generate(int64_t seq, StageTimes* times) {
   const SettledPile pile = Settle(seq);
   if (times != nullptr) times->Add(pile.times);

@@ -130,6 +130,8 @@ class SceneGenerator {
 
   /// Scenes per state of a pile (physics.views_per_pile).
   int views_per_pile() const;
+  /// Whether each state after a pile's first follows from the one before (physics.pick_sequence).
+  bool pick_sequence() const;
 
   /// The pile simulator the scenes' physics runs on (for checks such as stackgen-rest-check).
   const PileSimulator& simulator() const;

@@ -226,6 +226,7 @@ BinSpec LoadBinSpec(const LoadedConfig& config) {
 SimulationParams SimulationParamsOf(const config::PhysicsConfig& p) {
   SimulationParams params;
   params.time_step_s = p.time_step_s();
+  params.rest_time_step_s = p.rest_time_step_s();
   params.max_sim_time_s = p.max_sim_time_s();
   params.settle_translation_mm = p.settle_translation_mm();
   params.settle_rotation_deg = p.settle_rotation_deg();

@@ -1,6 +1,7 @@
 // Runs the stackgen program as separate processes on a free multicast port and compares the
-// poses they publish on STACKGEN_LABELS: a scene is a pure function of (config, seed, generator,
-// scene number), bit for bit, across processes.
+// poses they publish on STACKGEN_LABELS and the whole scenes on STACKGEN_SCENE: a scene is a pure
+// function of (config, seed, generator, scene number), bit for bit, across processes and for
+// any number of physics threads.
 
 #include <gtest/gtest.h>
 #include <sys/stat.h>
@@ -14,6 +15,7 @@
 #include <map>
 #include <set>
 #include <stackgen/labels.hpp>
+#include <stackgen/scene.hpp>
 #include <string>
 #include <vector>
 
@@ -28,9 +30,11 @@ using testing::Process;
 
 constexpr int kScenes = 4;
 
-// One run of the generator: its labels by scene number, its exit code and its output.
+// One run of the generator: its labels and its scenes (encoded, publish time zeroed) by scene
+// number, its exit code and its output.
 struct GeneratorRun {
   std::map<int64_t, labels> scenes;
+  std::map<int64_t, std::vector<unsigned char>> whole;
   int exit_code = -1;
   std::string output;
 };
@@ -41,22 +45,40 @@ struct GeneratorRun {
 GeneratorRun Generate(const std::string& dir, uint64_t seed,
                       const std::string& config = std::string(STACKGEN_SOURCE_DIR) +
                                                   "/config/default.pbtxt",
-                      int count = kScenes) {
+                      int count = kScenes, const std::vector<std::string>& flags = {}) {
   const std::string url = testing::FreeMulticastUrl();
   mkdir(dir.c_str(), 0755);
   GeneratorRun run;
   Bus bus(url);
   bus.Subscribe<labels>(
       kLabelsChannel, [&run](const labels& message) { run.scenes[message.header.seq] = message; });
-  Process generator({std::string(STACKGEN_BIN_DIR) + "/stackgen", "--config", config, "--count",
-                     std::to_string(count), "--seed", std::to_string(seed), "--lcm-url", url,
-                     "--cache-dir", dir + "/cache", "--no-consumer-ok"},
-                    dir + "/stackgen");
+  bus.Subscribe<scene>(kSceneChannel, [&run](const scene& message) {
+    scene copy = message;
+    copy.header.utime = 0;
+    std::vector<unsigned char>& bytes = run.whole[copy.header.seq];
+    bytes.resize(copy.getEncodedSize());
+    copy.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+  });
+  std::vector<std::string> args = {std::string(STACKGEN_BIN_DIR) + "/stackgen",
+                                   "--config",
+                                   config,
+                                   "--count",
+                                   std::to_string(count),
+                                   "--seed",
+                                   std::to_string(seed),
+                                   "--lcm-url",
+                                   url,
+                                   "--cache-dir",
+                                   dir + "/cache",
+                                   "--no-consumer-ok"};
+  args.insert(args.end(), flags.begin(), flags.end());
+  Process generator(args, dir + "/stackgen");
 
   // the labels arrive as the scenes are made; generous time for a slow machine
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::minutes(5);
-  while (static_cast<int>(run.scenes.size()) < count &&
-         std::chrono::steady_clock::now() < deadline) {
+  while (
+      (static_cast<int>(run.scenes.size()) < count || static_cast<int>(run.whole.size()) < count) &&
+      std::chrono::steady_clock::now() < deadline) {
     bus.HandleFor(100);
   }
   run.exit_code = generator.Wait(60);
@@ -81,16 +103,19 @@ std::vector<unsigned char> PoseBytes(const labels& scene) {
   return bytes;
 }
 
-// Two processes given the same seed publish bit-identical poses for every scene; a third given
-// another seed publishes different ones.
+// Two processes given the same seed publish bit-identical poses for every scene, and the same
+// scenes byte for byte (images and labels), one settling its piles on one physics thread and the
+// other on three; a third given another seed publishes different ones.
 TEST(DeterminismTest, SameSeedGivesBitIdenticalPosesAcrossProcesses) {
   const std::string dir = testing::MakeTempDir("stackgen-determinism");
-  const GeneratorRun first = Generate(dir + "/a", 21);
-  const GeneratorRun second = Generate(dir + "/b", 21);
+  const std::string config = std::string(STACKGEN_SOURCE_DIR) + "/config/default.pbtxt";
+  const GeneratorRun first = Generate(dir + "/a", 21, config, kScenes, {"--physics-threads", "1"});
+  const GeneratorRun second = Generate(dir + "/b", 21, config, kScenes, {"--physics-threads", "3"});
   const GeneratorRun other = Generate(dir + "/c", 22);
   for (const GeneratorRun* run : {&first, &second, &other}) {
     ASSERT_EQ(run->exit_code, 0) << run->output;
     ASSERT_EQ(run->scenes.size(), static_cast<size_t>(kScenes)) << run->output;
+    ASSERT_EQ(run->whole.size(), static_cast<size_t>(kScenes)) << run->output;
   }
 
   for (int64_t seq = 0; seq < kScenes; ++seq) {
@@ -113,6 +138,9 @@ TEST(DeterminismTest, SameSeedGivesBitIdenticalPosesAcrossProcesses) {
           << "scene " << seq << ", instance " << i;
     }
     EXPECT_TRUE(PoseBytes(a) == PoseBytes(b)) << "scene " << seq;
+    EXPECT_TRUE(first.whole.at(seq) == second.whole.at(seq))
+        << "scene " << seq << " differs with 3 physics threads";
+    EXPECT_FALSE(first.whole.at(seq) == other.whole.at(seq)) << "scene " << seq;
 
     // another seed: other poses
     EXPECT_FALSE(PoseBytes(a) == PoseBytes(c)) << "scene " << seq;

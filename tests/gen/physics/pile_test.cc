@@ -318,7 +318,7 @@ TEST_F(PileTest, EmptyPile) {
   // simulated on, it is at rest at once
   PileResult after;
   after.settled = false;
-  ConnectorSimulator().Simulate({}, 1, RestRule{}, &after);
+  ConnectorSimulator().Simulate({}, 1, kStrictRestRule, &after);
   EXPECT_TRUE(after.settled);
   EXPECT_EQ(after.simulated_s, 0);
 }
@@ -432,20 +432,21 @@ MovedOn Moved(const PileResult& published, const PileResult& after) {
   return moved;
 }
 
-// Connector piles published by the default settle rule (0.1 mm and 0.1 degree over 2 s) are at
+// Connector piles published by the default settle rule (0.1 mm and 0.1 degree over 1 s) are at
 // rest: simulated on in the same world until every part moved less than 0.1 mm and 0.1 degree
 // over 1 s (60 s at most), none of the 24 parts of 2 piles moves more than 1 mm or 1 degree, and
-// the heaps do not sink. The drop of seed 4, published by the rule before (1 mm, 1 degree, 0.25
-// s), has a part that moves on (1 of the 96 parts of seeds 1 to 8 did): the check tells the rules
-// apart; by the default rule it is not at rest within 10 s and is redrawn. With the rule before
-// as the default this test fails. stackgen-rest-check measures the rules over 100 piles (README).
+// the heaps do not sink. The rule before (1 mm, 1 degree, 0.25 s) publishes a pile with a part
+// that moves on (seed 14, the first of seeds 1 to 24 that does; later ones where the physics
+// changed): the check tells the rules apart. With the rule before as the default this test fails.
+// stackgen-rest-check measures the rules over 300 piles (README).
 TEST_F(PileTest, DefaultSettleRulePublishesPilesThatStayPut) {
   const PileSimulator simulator = ConnectorSimulator();
   int piles = 0, parts = 0, over_1 = 0, at_rest = 0, tries = 0;
   double sank_mm = 0;
   for (uint64_t seed = 4; piles < 2 && tries < 10; ++seed, ++tries) {
     PileResult after;
-    const PileResult pile = simulator.Simulate(std::vector<int>(12, 0), seed, RestRule{}, &after);
+    const PileResult pile =
+        simulator.Simulate(std::vector<int>(12, 0), seed, kStrictRestRule, &after);
     if (!pile.settled || pile.num_outside > 0) continue;  // the generator redraws those
     if (piles == 0) {
       // going on changes nothing about what was published
@@ -471,11 +472,18 @@ TEST_F(PileTest, DefaultSettleRulePublishesPilesThatStayPut) {
 
   const PileSimulator loose(Connector(), ConnectorPieces(), PartPhysics{}, kBin,
                             testing::LandedRule(), (dir_ / "cache").string());
-  PileResult loose_after;
-  const PileResult loose_pile =
-      loose.Simulate(std::vector<int>(12, 0), 4, RestRule{}, &loose_after);
-  ASSERT_TRUE(loose_pile.settled && loose_pile.num_outside == 0);
-  EXPECT_GT(Moved(loose_pile, loose_after).over_1, 0);
+  uint64_t moved_seed = 0;
+  for (uint64_t seed = 14; seed <= 24 && moved_seed == 0; ++seed) {
+    PileResult loose_after;
+    const PileResult loose_pile =
+        loose.Simulate(std::vector<int>(12, 0), seed, kStrictRestRule, &loose_after);
+    if (loose_pile.settled && loose_pile.num_outside == 0 &&
+        Moved(loose_pile, loose_after).over_1 > 0) {
+      moved_seed = seed;
+    }
+  }
+  std::cout << "RULE_BEFORE_SEED " << moved_seed << "\n";
+  EXPECT_GT(moved_seed, 0u) << "no pile of the rule before moved on";
 }
 
 // A flat 80 x 40 x 10 mm box dropped alone is published at rest: simulated on, at most one of 100
@@ -489,7 +497,7 @@ TEST_F(PileTest, PublishedFlatBoxesStayAtRest) {
   int over_1 = 0, over_5 = 0, at_rest = 0;
   for (uint64_t seed = 0; seed < 100; ++seed) {
     PileResult after;
-    const PileResult pile = simulator.Simulate({0}, seed, RestRule{}, &after);
+    const PileResult pile = simulator.Simulate({0}, seed, kStrictRestRule, &after);
     ASSERT_TRUE(pile.settled) << "seed " << seed;
     const MovedOn moved = Moved(pile, after);
     over_1 += moved.over_1;
@@ -521,7 +529,7 @@ TEST_F(PileTest, FreeFrictionWhileFallingLaysFlatBoxesFlat) {
   for (uint64_t seed = 0; seed < 400; ++seed) {
     flat_holding += flat(holding.Simulate(1, seed)) ? 1 : 0;
     PileResult after;
-    const PileResult pile = free.Simulate({0}, seed, RestRule{}, &after);
+    const PileResult pile = free.Simulate({0}, seed, kStrictRestRule, &after);
     ASSERT_TRUE(pile.settled) << "seed " << seed;
     flat_free += flat(pile) ? 1 : 0;
     over_1 += Moved(pile, after).over_1;
@@ -533,7 +541,7 @@ TEST_F(PileTest, FreeFrictionWhileFallingLaysFlatBoxesFlat) {
   EXPECT_LE(over_1, 1);
 }
 
-// SimulationParams::solver_iterations is the contact solver's: the default 50 and 10 drop the
+// SimulationParams::solver_iterations is the contact solver's: the default 20 and 10 drop the
 // same parts to other poses (the same seed, a pile of 12 connectors; a falling pile gets at
 // most 20 iterations, so the test is below that).
 TEST_F(PileTest, SolverIterationsReachTheSolver) {

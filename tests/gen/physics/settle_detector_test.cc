@@ -9,6 +9,8 @@
 namespace stackgen {
 namespace {
 
+constexpr RestRule kRule{1.0, 1.0, 0.25, 10};
+
 Eigen::Isometry3d Pose(double x_mm, double angle_deg) {
   Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
   pose.translation().x() = x_mm;
@@ -18,7 +20,7 @@ Eigen::Isometry3d Pose(double x_mm, double angle_deg) {
 
 // Bodies that do not move settle once the samples span the window, not before.
 TEST(SettleDetectorTest, StillBodiesSettleAfterWindow) {
-  SettleDetector detector(1.0, 1.0, 0.25);
+  SettleDetector detector(kRule);
   const std::vector<Eigen::Isometry3d> poses = {Pose(0, 0), Pose(50, 30)};
   for (int k = 0; k <= 24; ++k) EXPECT_FALSE(detector.AddSample(k * 0.01, poses)) << k;
   EXPECT_TRUE(detector.AddSample(0.25, poses));
@@ -27,7 +29,7 @@ TEST(SettleDetectorTest, StillBodiesSettleAfterWindow) {
 // Samples on a grid that does not divide the window (every 10.5 ms) still settle, a full window
 // after the first sample.
 TEST(SettleDetectorTest, SettlesWithUnalignedSampling) {
-  SettleDetector detector(1.0, 1.0, 0.25);
+  SettleDetector detector(kRule);
   const std::vector<Eigen::Isometry3d> poses = {Pose(0, 0)};
   bool settled = false;
   int k = 0;
@@ -38,7 +40,7 @@ TEST(SettleDetectorTest, SettlesWithUnalignedSampling) {
 
 // A slow creep (0.8 mm per 0.1 s) is not settled, though each step is tiny.
 TEST(SettleDetectorTest, CreepIsNotSettled) {
-  SettleDetector detector(1.0, 1.0, 0.25);
+  SettleDetector detector(kRule);
   for (int k = 0; k <= 100; ++k) {
     EXPECT_FALSE(detector.AddSample(k * 0.01, {Pose(0, 0), Pose(0.08 * k, 0)})) << k;
   }
@@ -46,7 +48,7 @@ TEST(SettleDetectorTest, CreepIsNotSettled) {
 
 // A part rocking back and forth by 2 degrees is not settled, though it returns to its start.
 TEST(SettleDetectorTest, RockingIsNotSettled) {
-  SettleDetector detector(1.0, 1.0, 0.25);
+  SettleDetector detector(kRule);
   for (int k = 0; k <= 100; ++k) {
     EXPECT_FALSE(detector.AddSample(k * 0.01, {Pose(0, 2 * std::sin(k * 0.5))})) << k;
   }
@@ -54,7 +56,7 @@ TEST(SettleDetectorTest, RockingIsNotSettled) {
 
 // Motion below both thresholds settles; Reset() starts a new window.
 TEST(SettleDetectorTest, SmallMotionSettlesAndResetRestarts) {
-  SettleDetector detector(1.0, 1.0, 0.25);
+  SettleDetector detector(kRule);
   bool settled = false;
   for (int k = 0; k <= 30 && !settled; ++k) {
     settled = detector.AddSample(k * 0.01, {Pose(0.01 * k, 0.01 * k)});
@@ -63,7 +65,40 @@ TEST(SettleDetectorTest, SmallMotionSettlesAndResetRestarts) {
   detector.Reset();
   EXPECT_FALSE(detector.AddSample(0.31, {Pose(0, 0), Pose(1, 1)}));
   EXPECT_THROW(detector.AddSample(0.32, {Pose(0, 0)}), std::runtime_error);
-  EXPECT_THROW(SettleDetector(0, 1, 1), std::runtime_error);
+  EXPECT_THROW(SettleDetector(RestRule{0, 1, 1, 1}), std::runtime_error);
+}
+
+// Bodies added between samples (parts released into a pile) are at rest once their own samples
+// span the window; the others keep theirs. Fewer bodies than before is an error.
+TEST(SettleDetectorTest, AddedBodiesNeedTheirOwnWindow) {
+  SettleDetector detector(kRule);
+  for (int k = 0; k <= 25; ++k) detector.AddSample(k * 0.01, {Pose(0, 0)});
+  EXPECT_TRUE(detector.AtRest(0));
+  EXPECT_FALSE(detector.AddSample(0.26, {Pose(0, 0), Pose(50, 0)}));
+  EXPECT_TRUE(detector.AtRest(0));
+  EXPECT_FALSE(detector.AtRest(1));
+  bool settled = false;
+  int k = 27;
+  for (; k < 100 && !settled; ++k)
+    settled = detector.AddSample(k * 0.01, {Pose(0, 0), Pose(50, 0)});
+  EXPECT_EQ(k, 52);  // sample 51, at 0.51 s: a window after the second body's first sample
+  EXPECT_TRUE(detector.AtRest(1));
+  EXPECT_FALSE(detector.AtRest(2));
+  EXPECT_THROW(detector.AddSample(0.6, {Pose(0, 0)}), std::runtime_error);
+}
+
+// A rule of 180 degrees or more does not look at turning: a spinning body that stays in place is
+// at rest by it, and not by a rule of 90 degrees.
+TEST(SettleDetectorTest, HalfATurnOrMoreIgnoresTurning) {
+  SettleDetector ignoring(RestRule{1, 180, 0.25, 1});
+  SettleDetector looking(RestRule{1, 90, 0.25, 1});
+  bool ignored = false, looked = false;
+  for (int k = 0; k <= 30; ++k) {
+    ignored = ignoring.AddSample(k * 0.01, {Pose(0, 40.0 * k)});
+    looked = looking.AddSample(k * 0.01, {Pose(0, 40.0 * k)});
+  }
+  EXPECT_TRUE(ignored);
+  EXPECT_FALSE(looked);
 }
 
 }  // namespace

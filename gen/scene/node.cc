@@ -375,7 +375,9 @@ void GeneratorNode::Impl::SettleAhead(int64_t first_seq) {
       ahead.push_back(
           physics_worker.Submit([scenes, next_first] { return scenes->Settle(next_first); }));
     }
-    last_settling_first = next_first;
+    // without picks a pile's first seq (pile k shows seqs k*V .. k*V+V-1), also when the run
+    // starts inside a pile
+    last_settling_first = picks ? next_first : next_first - next_first % views;
   }
 }
 

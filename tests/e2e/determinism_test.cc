@@ -161,6 +161,39 @@ TEST(DeterminismTest, SameSeedGivesBitIdenticalPosesAcrossProcesses) {
   std::filesystem::remove_all(dir);
 }
 
+// A run that starts inside a pile (views_per_pile 4, --first-seq 5: seqs 5-7 show pile 1, seq 8
+// starts pile 2) with two physics threads publishes the scenes it was asked for, the same as
+// with one.
+TEST(DeterminismTest, PhysicsThreadsFromInsideAPile) {
+  const std::string dir = testing::MakeTempDir("stackgen-inside");
+  const std::string config = dir + "/views.pbtxt";
+  {
+    std::ofstream out(config);
+    out << "part { mesh: \"" << STACKGEN_SOURCE_DIR
+        << "/config/models/corner_connector.obj\" collision_mesh: \"" << STACKGEN_SOURCE_DIR
+        << "/config/models/corner_connector_collision.obj\" class_name: \"connector\" count: 4 }\n"
+        << "bin { inner_length_mm: 200 inner_width_mm: 150 inner_height_mm: 100 "
+           "wall_thickness_mm: 8 }\n"
+        << "camera { width: 160 height: 120 fx: 200 fy: 200 }\n"
+        << "physics { views_per_pile: 4 settle_translation_mm: 1 settle_rotation_deg: 1 "
+           "settle_window_s: 0.25 }\n";
+  }
+  const std::vector<std::string> from_5 = {"--first-seq", "5"};
+  std::vector<std::string> two = from_5, one = from_5;
+  two.insert(two.end(), {"--physics-threads", "2"});
+  one.insert(one.end(), {"--physics-threads", "1"});
+  const GeneratorRun a = Generate(dir + "/a", 3, config, 4, two);
+  const GeneratorRun b = Generate(dir + "/b", 3, config, 4, one);
+  ASSERT_EQ(a.exit_code, 0) << a.output;
+  ASSERT_EQ(b.exit_code, 0) << b.output;
+  ASSERT_EQ(a.whole.size(), 4u) << a.output;
+  for (int64_t seq = 5; seq <= 8; ++seq) {
+    ASSERT_EQ(a.whole.count(seq), 1u) << "scene " << seq << "\n" << a.output;
+    EXPECT_TRUE(a.whole.at(seq) == b.whole.at(seq)) << "scene " << seq;
+  }
+  std::filesystem::remove_all(dir);
+}
+
 // The program's pipeline with pick sequences: piles of 3 parts show 3, 2, 1 and 0 parts in
 // scenes 0-3 and again in 4-7 (the next pile settles while a state is shown and picks are made
 // one after the other), and the states of a pile share no camera seed.

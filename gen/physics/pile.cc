@@ -33,16 +33,15 @@ constexpr double kRestitutionThresholdMmS = 50;
 // A pile in two phases. Falling: split-impulse contacts (overlap is undone by moving the parts
 // apart, which adds no energy to an impact) at time_step_s, and with
 // free_friction_while_falling Bullet's own friction (along the sliding velocity, at most
-// kDropIterations iterations), so a flat box landing on its edge topples flat as a real one does
-// (85.3 % of single 80 x 40 x 10 mm boxes on a large face, against 78.9 %; Blender's Bullet
-// 88.6 %). Once it has landed (kPileLanded*, or the settle rule where looser): friction that
-// holds it (two fixed directions, cached; free friction alone: 91 % of the parts of 20 piles
-// moved on, holding friction alone lets an edge stand), and contacts that leave an overlap of
-// up to kRestSlopMm alone and push deeper overlap back through the velocity: split impulse's
-// moves along a slanted contact slid parts a little each step, and piles at rest crept at
-// 0.1-0.2 mm/s for seconds (a quarter of the drops did not meet 0.1 mm over 2 s within 10 s).
-// Velocities at rest are small, so the pile is stepped at rest_time_step_s. A triangle-mesh tote
-// holds throughout (a part sliding freely fell through its floor).
+// kDropIterations iterations), so a flat box landing on its edge topples flat as a real one does.
+// Once it has landed (kPileLanded*, or the settle rule where looser): friction that holds it
+// (two fixed directions, cached: free friction alone lets a pile creep on, holding friction
+// alone lets an edge stand), and contacts that leave an overlap of up to kRestSlopMm alone and
+// push deeper overlap back through the velocity (split impulse's moves along a slanted contact
+// slide resting parts a little every step, so a pile never comes to rest). Velocities at rest are
+// small, so the pile is stepped at rest_time_step_s. A triangle-mesh tote holds throughout (a
+// part sliding freely passes through its floor). README, "Checks before publishing", has the
+// figures.
 constexpr int kDropIterations = 20;
 constexpr double kPileLandedMm = 1.0;
 constexpr double kPileLandedDeg = 1.0;
@@ -504,12 +503,14 @@ Ended Step(PileWorld* w, double dt, double max_s, double* time_s, Check check) {
   return Ended::kTimeUp;
 }
 
-// Steps `bodies` until `rule` holds (its window starts at the first check), within `max_s`; no
-// bodies are at rest at once.
+// Steps `bodies` until `rule` holds, within `max_s`; its window starts at the first check, or
+// with `from_now` at the poses now. No bodies are at rest at once.
 Ended StepUntilRest(PileWorld* w, double dt, const RestRule& rule,
-                    const std::vector<btRigidBody*>& bodies, double max_s, double* time_s) {
+                    const std::vector<btRigidBody*>& bodies, double max_s, double* time_s,
+                    bool from_now = false) {
   if (bodies.empty()) return Ended::kAtRest;
   SettleDetector detector(rule);
+  if (from_now && detector.AddSample(*time_s, PileWorld::Poses(bodies))) return Ended::kAtRest;
   return Step(w, dt, max_s, time_s, [&](double now) {
     return detector.AddSample(now, PileWorld::Poses(bodies)) ? Verdict::kAtRest : Verdict::kGoOn;
   });
@@ -533,8 +534,9 @@ class Dropper {
   // Releases what the queue lets go at `time_s`; returns whether any part was released.
   bool ReleaseDue(double time_s) {
     // the released bodies' boxes, which of them rest in the pile, whether the last one landed
-    in_pile_.AddSample(time_s, PileWorld::Poses(bodies_));
-    landed_.AddSample(time_s, PileWorld::Poses(bodies_));
+    const std::vector<Eigen::Isometry3d> poses = PileWorld::Poses(bodies_);
+    in_pile_.AddSample(time_s, poses);
+    landed_.AddSample(time_s, poses);
     std::vector<Box> boxes;
     std::vector<bool> in_pile;
     for (size_t b = 0; b < bodies_.size(); ++b) {
@@ -595,15 +597,9 @@ void GoOnToRest(const BinSpec& bin, const SimulationParams& params,
                 PileWorld* w, PileResult* after) {
   *after = PileResult{};
   w->Rest(params.rest_time_step_s / params.time_step_s);
-  SettleDetector detector(rule);
   double time_s = 0;
-  after->settled = bodies.empty() || detector.AddSample(0, PileWorld::Poses(bodies));
-  if (!after->settled) {
-    after->settled = Step(w, params.rest_time_step_s, rule.max_time_s, &time_s, [&](double now) {
-                       return detector.AddSample(now, PileWorld::Poses(bodies)) ? Verdict::kAtRest
-                                                                                : Verdict::kGoOn;
-                     }) == Ended::kAtRest;
-  }
+  after->settled = StepUntilRest(w, params.rest_time_step_s, rule, bodies, rule.max_time_s,
+                                 &time_s, true) == Ended::kAtRest;
   after->simulated_s = time_s;
   Place(bin, type_models, types, bodies, w, after);
 }

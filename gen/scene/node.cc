@@ -146,7 +146,7 @@ struct GeneratorNode::Impl {
   Worker physics_worker;
   Worker encode_worker;
   std::deque<std::future<SettledPile>> ahead;
-  int64_t last_settling_first = -1;  // first seq of the last pile in `ahead`
+  int64_t last_settling_first = -1;  // without picks: first seq of the pile queued last
   std::optional<SettledPile> current;
   std::future<std::pair<scene, StageTimes>> encoding;
 
@@ -361,9 +361,11 @@ void GeneratorNode::Impl::SettleAhead(int64_t first_seq) {
   const size_t most = picks ? 1 : static_cast<size_t>(std::max(1, options.physics_threads));
   SceneGenerator* scenes = &generator;
   while (ahead.size() < most) {
-    const int64_t next_first = last_settling_first >= 0 ? last_settling_first + views
-                               : current                ? current->first_seq + views
-                                                        : first_seq;
+    // with picks the state after the one in hand; without, the pile after the one queued last
+    // (pile k shows seqs k*V .. k*V+V-1, also when the run starts inside a pile)
+    const int64_t next_first = picks ? (current ? current->first_seq + views : first_seq)
+                               : last_settling_first >= 0 ? last_settling_first + views
+                                                          : first_seq;
     if ((options.count != 0 && next_first >= options.first_seq + options.count) ||
         next_first > kMaxSeq) {
       return;
@@ -375,9 +377,7 @@ void GeneratorNode::Impl::SettleAhead(int64_t first_seq) {
       ahead.push_back(
           physics_worker.Submit([scenes, next_first] { return scenes->Settle(next_first); }));
     }
-    // without picks a pile's first seq (pile k shows seqs k*V .. k*V+V-1), also when the run
-    // starts inside a pile
-    last_settling_first = picks ? next_first : next_first - next_first % views;
+    last_settling_first = next_first - next_first % views;
   }
 }
 
@@ -491,7 +491,6 @@ void GeneratorNode::Run() {
       if (!node.current || seq >= node.current->first_seq + views) {
         node.current = node.ahead.front().get();
         node.ahead.pop_front();
-        if (node.ahead.empty()) node.last_settling_first = -1;
         node.times.Add(node.current->times);
         node.SettleAhead(first_seq);
       }

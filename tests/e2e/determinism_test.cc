@@ -86,6 +86,20 @@ GeneratorRun Generate(const std::string& dir, uint64_t seed,
   return run;
 }
 
+// Writes a config of `count` corner connectors in the default bin, then `rest` (config text), to
+// `path`; returns the path.
+std::string WriteConnectorConfig(const std::string& path, int count, const std::string& rest) {
+  std::ofstream out(path);
+  out << "part { mesh: \"" << STACKGEN_SOURCE_DIR
+      << "/config/models/corner_connector.obj\" collision_mesh: \"" << STACKGEN_SOURCE_DIR
+      << "/config/models/corner_connector_collision.obj\" class_name: \"connector\" count: "
+      << count << " }\n"
+      << "bin { inner_length_mm: 200 inner_width_mm: 150 inner_height_mm: 100 "
+         "wall_thickness_mm: 8 }\n"
+      << rest;
+  return path;
+}
+
 // The pose fields of every instance of a scene, as raw bytes.
 std::vector<unsigned char> PoseBytes(const labels& scene) {
   std::vector<unsigned char> bytes;
@@ -166,18 +180,11 @@ TEST(DeterminismTest, SameSeedGivesBitIdenticalPosesAcrossProcesses) {
 // with one.
 TEST(DeterminismTest, PhysicsThreadsFromInsideAPile) {
   const std::string dir = testing::MakeTempDir("stackgen-inside");
-  const std::string config = dir + "/views.pbtxt";
-  {
-    std::ofstream out(config);
-    out << "part { mesh: \"" << STACKGEN_SOURCE_DIR
-        << "/config/models/corner_connector.obj\" collision_mesh: \"" << STACKGEN_SOURCE_DIR
-        << "/config/models/corner_connector_collision.obj\" class_name: \"connector\" count: 4 }\n"
-        << "bin { inner_length_mm: 200 inner_width_mm: 150 inner_height_mm: 100 "
-           "wall_thickness_mm: 8 }\n"
-        << "camera { width: 160 height: 120 fx: 200 fy: 200 }\n"
-        << "physics { views_per_pile: 4 settle_translation_mm: 1 settle_rotation_deg: 1 "
-           "settle_window_s: 0.25 }\n";
-  }
+  const std::string config = WriteConnectorConfig(
+      dir + "/views.pbtxt", 4,
+      "camera { width: 160 height: 120 fx: 200 fy: 200 }\n"
+      "physics { views_per_pile: 4 settle_translation_mm: 1 settle_rotation_deg: 1 "
+      "settle_window_s: 0.25 }\n");
   const std::vector<std::string> from_5 = {"--first-seq", "5"};
   std::vector<std::string> two = from_5, one = from_5;
   two.insert(two.end(), {"--physics-threads", "2"});
@@ -199,16 +206,8 @@ TEST(DeterminismTest, PhysicsThreadsFromInsideAPile) {
 // one after the other), and the states of a pile share no camera seed.
 TEST(DeterminismTest, PickSequenceEmptiesEachPileInTurn) {
   const std::string dir = testing::MakeTempDir("stackgen-picks");
-  const std::string config = dir + "/picks.pbtxt";
-  {
-    std::ofstream out(config);
-    out << "part { mesh: \"" << STACKGEN_SOURCE_DIR
-        << "/config/models/corner_connector.obj\" collision_mesh: \"" << STACKGEN_SOURCE_DIR
-        << "/config/models/corner_connector_collision.obj\" class_name: \"connector\" count: 3 }\n"
-        << "bin { inner_length_mm: 200 inner_width_mm: 150 inner_height_mm: 100 "
-           "wall_thickness_mm: 8 }\n"
-        << "physics { pick_sequence: true }\n";
-  }
+  const std::string config =
+      WriteConnectorConfig(dir + "/picks.pbtxt", 3, "physics { pick_sequence: true }\n");
   const GeneratorRun run = Generate(dir + "/a", 5, config, 8);
   ASSERT_EQ(run.exit_code, 0) << run.output;
   ASSERT_EQ(run.scenes.size(), 8u) << run.output;

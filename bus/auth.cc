@@ -260,12 +260,14 @@ void KeyEvidence::Note(const MessageAuth& auth, const uint8_t* data, size_t size
   ++mismatched;
   if (!signed_message) ++unsigned_messages;
   if (signed_message && trailer.key_id != auth.key_id()) other_key_id = trailer.key_id;
+  if (signed_message && auth.keyed() && trailer.key_id == auth.key_id()) ++forged;
 }
 
 void KeyEvidence::Add(const KeyEvidence& other) {
   taken += other.taken;
   mismatched += other.mismatched;
   unsigned_messages += other.unsigned_messages;
+  forged += other.forged;
   if (other.other_key_id != 0) other_key_id = other.other_key_id;
 }
 
@@ -279,9 +281,13 @@ std::string KeyEvidence::Mismatch(const MessageAuth& auth, const std::string& wh
   }
   const std::string ours =
       "this process's key " + auth.key_file() + " (key id " + KeyIdText(auth.key_id()) + ")";
-  if (unsigned_messages * 2 > mismatched) {
+  if (unsigned_messages * 2 > mismatched || (other_key_id == 0 && unsigned_messages > forged)) {
     return heard + " are not signed (their sender runs with --open-bus, or recorded them so): " +
            "give it " + ours + ", or open this process too (--open-bus)";
+  }
+  if (other_key_id == 0) {
+    return heard + " carry the key id of " + ours +
+           " but fail its check: forged, or altered on the way; no peer of this key was heard";
   }
   return heard + " are signed with another bus key (key id " + KeyIdText(other_key_id) + ") than " +
          ours +

@@ -161,7 +161,9 @@ struct KeyEvidence {
   /// Messages of another key or unsigned (keyed), or signed (open).
   int64_t mismatched = 0;
   int64_t unsigned_messages = 0;
-  /// The key id of the last message of another key.
+  /// Keyed: messages that carry this process's key id but fail its check (forged or altered).
+  int64_t forged = 0;
+  /// The key id of the last message of another key (0: none heard).
   uint64_t other_key_id = 0;
 
   /// Notes one message: `verified` is what MessageAuth::Verify said of it.
@@ -170,7 +172,10 @@ struct KeyEvidence {
   void Add(const KeyEvidence& other);
   /// One line saying that `what` (e.g. "the messages on STACKGEN_SCENE of URL") came from
   /// processes with another key than `auth`'s, with none, or (auth open) with one, and what to
-  /// do; "" when nothing shows it (one message this process could take is enough).
+  /// do, or (keyed, no other key id heard) that they carry this key's id but fail its check;
+  /// "" when nothing shows it (one message this process could take is enough). Nothing heard
+  /// here is verified: a stranger can send any of it, so programs say the line and go on
+  /// waiting (a live bus), or give it as the reason when they end for a reason of their own.
   std::string Mismatch(const MessageAuth& auth, const std::string& what) const;
 };
 

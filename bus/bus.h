@@ -191,8 +191,9 @@ class Bus {
   /// One line when what was heard on `channels` shows that the processes sending there use
   /// another bus key than this one (or none, or this bus is open and they sign): messages of
   /// another key (or unsigned, or signed) for at least `seconds` since the first of them, and
-  /// not one this bus could take; "" otherwise. Programs call it to stop with that line rather
-  /// than wait for ever.
+  /// not one this bus could take; "" otherwise. None of it is verified: a keyed program says
+  /// the line and goes on, or gives it as the reason when it ends for its own (a timeout, a log
+  /// that ended); an open one, which verifies nothing, stops with it.
   std::string KeyMismatch(const std::vector<std::string>& channels, double seconds) const;
   /// Hears `channels` for KeyMismatch: each one not subscribed to yet is subscribed with a queue
   /// of one whose messages are dropped unread. KeyMismatch judges only what was heard, so a

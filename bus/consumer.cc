@@ -1,6 +1,7 @@
 #include "bus/consumer.h"
 
 #include <csignal>
+#include <cstdio>
 #include <stdexcept>
 
 #include "bus/auth.h"
@@ -82,15 +83,32 @@ void ConsumerSession::Skipped(int32_t generator_id, int64_t seq) {
   if (client_) client_->Skipped(generator_id, seq);
 }
 
-void ConsumerSession::CheckKeys(double seconds) const {
-  if (!client_ && !bus_->keyed() && !options_.strict_keys) return;
-  const std::string mismatch = bus_->KeyMismatch(options_.generator_channels, seconds);
+std::string ConsumerSession::KeyHint() const {
+  if (!client_ && !bus_->keyed() && !options_.strict_keys) return "";
+  return bus_->KeyMismatch(options_.generator_channels, 0);
+}
+
+void ConsumerSession::CheckKeys() const {
+  const std::string mismatch = KeyHint();
   if (!mismatch.empty()) throw std::runtime_error(mismatch);
 }
 
 void ConsumerSession::Service(int64_t held, int64_t taken) {
   if (client_) client_->Service();
-  CheckKeys(options_.key_mismatch_s);
+  if (live_ && (client_ || bus_->keyed() || options_.strict_keys)) {
+    // said, never a reason to stop: none of it is verified. An open consumer, which verifies
+    // nothing, stops (its keyed generators refuse its credits, or it their scenes)
+    const std::string mismatch =
+        bus_->KeyMismatch(options_.generator_channels, options_.key_mismatch_s);
+    if (!bus_->keyed() && !mismatch.empty()) throw std::runtime_error(mismatch);
+    if (!keys_said_ && !mismatch.empty()) {
+      std::fprintf(stderr, "%s: warning: %s; still waiting\n", options_.process.c_str(),
+                   mismatch.c_str());
+      keys_said_ = true;
+    } else if (keys_said_ && KeyHint().empty()) {
+      keys_said_ = false;  // a message of this key came
+    }
+  }
   if (held_at_last_status_ < 0) held_at_last_status_ = held;
   if (live_ && options_.status_period_s > 0 &&
       clock_->Now() - last_status_ >= std::chrono::duration<double>(options_.status_period_s)) {

@@ -86,10 +86,13 @@ struct ConsumerSessionOptions {
   /// The channels the generators publish on, for the bus key check (Bus::KeyMismatch); empty:
   /// STACKGEN_SCENE and STACKGEN_CONFIG.
   std::vector<std::string> generator_channels;
-  /// CheckKeys stops a consumer whose generators use another bus key once that has been so for
-  /// this long (seconds). It checks a reliable or keyed consumer, or any with `strict_keys` (a
-  /// dataset writer: an open one cannot take what keyed generators publish either; an open
-  /// best-effort stream or viewer reads signed scenes all the same).
+  /// On a live bus Service says once on stderr (as `process`) that the generators heard use
+  /// another bus key (or none) once that has been so for this long (seconds), and goes on
+  /// waiting: nothing it cannot verify stops it (a stranger can send anything). An open
+  /// consumer, which verifies nothing, stops then with that line (an exception from Service),
+  /// and a log that ends so stops any (CheckKeys). It looks at a reliable or keyed consumer, or any with
+  /// `strict_keys` (a dataset writer: an open one cannot take what keyed generators publish
+  /// either; an open best-effort stream or viewer reads signed scenes all the same).
   double key_mismatch_s = 2.0;
   bool strict_keys = false;
   /// A live session publishes its status this often (seconds) and when it leaves; 0: only when
@@ -150,10 +153,13 @@ class ConsumerSession {
   void CountRefused() { ++refused_; }
 
   /// Throws std::runtime_error with Bus::KeyMismatch's line when the generators heard use
-  /// another bus key for `seconds` (see key_mismatch_s; at the end of a log, 0).
-  void CheckKeys(double seconds) const;
-  /// Once per turn of the consumer's loop: the client's credits and resends, the bus key check
-  /// and, when due, the status. `held`: the scenes the consumer holds (stored, handed out,
+  /// another bus key (at the end of a log; see key_mismatch_s).
+  void CheckKeys() const;
+  /// Bus::KeyMismatch's line now (see key_mismatch_s), "" when there is none: what a consumer
+  /// that ends for a reason of its own (a timeout) adds to its message.
+  std::string KeyHint() const;
+  /// Once per turn of the consumer's loop: the client's credits and resends, the bus key
+  /// warning and, when due, the status. `held`: the scenes the consumer holds (stored, handed out,
   /// drawn); `taken`: those it took in this run.
   void Service(int64_t held, int64_t taken);
   /// Publishes the status now (see Service).
@@ -175,6 +181,7 @@ class ConsumerSession {
   ConsumerSessionOptions options_;
   std::unique_ptr<Bus> bus_;
   bool live_ = false;
+  bool keys_said_ = false;  // the bus key warning, until a message of this key is heard
   std::unique_ptr<SceneClient> client_;
   Clock* clock_;
   BadCopies bad_copies_;

@@ -56,7 +56,7 @@ constexpr int64_t kMaxMaskBytes = int64_t{1} << 30;
 constexpr int kQueueCapacity = 16;
 // warnings printed one by one; later ones are only counted
 constexpr int kMaxReportedWarnings = 10;
-// generators heard for this long that all use another bus key end the wait (seconds)
+// generators heard for this long that all use another bus key are said (seconds)
 constexpr double kKeyMismatchS = 2.0;
 // the channels a generator signs with its key before its first scene: scenes and configs
 const std::vector<std::string>& GeneratorChannels() {
@@ -591,9 +591,8 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
               stackgen::kSceneChannel, flags.count);
   std::fflush(stdout);
 
-  // scenes until enough, the timeout or a signal; generators that use another key: one line
-  // now rather than an empty sheet at the timeout (an open viewer reads signed scenes all the
-  // same)
+  // scenes until enough, the timeout or a signal; generators that use another key: a warning
+  // now, and the reason at the timeout (an open viewer reads signed scenes all the same)
   const auto deadline = std::chrono::steady_clock::now() +
                         std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                             std::chrono::duration<double>(flags.timeout_s));

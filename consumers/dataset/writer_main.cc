@@ -26,8 +26,8 @@ namespace {
 
 // scenes LCM keeps waiting for us while a scene is written
 constexpr int kQueueCapacity = 1000;
-// generators heard for this long that all use another bus key stop the writer (seconds): they
-// publish their config every second, so one with the right key would have been heard by then
+// generators heard for this long that all use another bus key are said (seconds): they publish
+// their config every second, so one with the right key would have been heard by then
 constexpr double kKeyMismatchS = 2.0;
 // decode errors and invalid scenes reported one by one; later ones are only counted
 constexpr int kMaxReportedErrors = 10;
@@ -263,7 +263,7 @@ class WriterSession {
     }
     if (show_progress_) std::fprintf(stderr, "\n");
     // a log whose scenes were all refused for their key is an error, not an empty dataset
-    if (bus.log_ended() && writer_->num_images() == stored_at_start_) session_->CheckKeys(0);
+    if (bus.log_ended() && writer_->num_images() == stored_at_start_) session_->CheckKeys();
   }
 
   // generators stop waiting for us; a valid dataset of what arrived; the summary
@@ -391,7 +391,8 @@ class WriterSession {
     if (silent_s < 1) {
       warned_silent_ = false;
     } else if (!warned_silent_ && flags_.warn_silent_s > 0 && silent_s >= flags_.warn_silent_s &&
-               session_->live()) {
+               session_->live() && session_->KeyHint().empty()) {
+      // (generators of another key were heard, and said: the session's warning)
       warned_silent_ = true;
       const Bus& bus = session_->bus();
       if (show_progress_) std::fprintf(stderr, "\n");

@@ -35,7 +35,8 @@ using SceneKey = std::pair<int32_t, int64_t>;  // generator_id, seq
 
 // problems reported one by one on stderr; later ones are only counted
 constexpr int kMaxReported = 10;
-// generators heard for this long that all use another bus key fail a live stream (seconds)
+// generators heard for this long that all use another bus key are said on a live stream
+// (seconds); a timeout names them
 constexpr double kKeyMismatchS = 2.0;
 // best effort: scene keys remembered to recognise a repeat (a resend for a reliable consumer)
 constexpr size_t kRecentKeys = 4096;
@@ -280,7 +281,7 @@ struct SceneStream::Impl {
       }
       // the client's credits, the status, and generators that use another key, which would
       // never be heard (an open best-effort stream reads signed scenes all the same; a reliable
-      // one's credits would be refused): said rather than waited for
+      // one's credits would be refused): said, and named when the wait times out
       const int64_t handed = Counters().handed;
       try {
         session->Service(handed, handed);
@@ -594,9 +595,10 @@ std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
     if (impl.ended || impl.closed) return nullptr;
     const double waited = std::chrono::duration<double>(Clock::now() - start).count();
     if (timeout_s >= 0 && waited >= timeout_s) {
+      const std::string keys = impl.session ? impl.session->KeyHint() : "";
       throw FeedTimeout("no scene on " + impl.options.channel + " of " + impl.url + " for " +
-                        std::to_string(static_cast<int>(timeout_s + 0.5)) +
-                        " s: is a generator publishing there?");
+                        std::to_string(static_cast<int>(timeout_s + 0.5)) + " s: " +
+                        (keys.empty() ? "is a generator publishing there?" : keys));
     }
     double slice = 0.1;
     if (timeout_s >= 0) slice = std::min(slice, timeout_s - waited);

@@ -31,8 +31,8 @@
 namespace stackgen {
 namespace {
 
-// consumers heard for this long that all use another bus key stop the generator (seconds): they
-// credit every 0.2 s, so one with the right key would have been heard by then
+// consumers heard for this long that all use another bus key are said (seconds): they credit
+// every 0.2 s, so one with the right key would have been heard by then
 constexpr double kKeyMismatchS = 2.0;
 // the models go out with every kModelPeriod-th status (about every 5 s)
 constexpr int64_t kModelPeriod = 5;
@@ -136,6 +136,7 @@ struct GeneratorNode::Impl {
   double publish_ms = 0;
   double held_back_s = 0;
   bool warned_of_twin = false;
+  bool keys_said = false;  // consumers of another bus key, until one of this key is heard
   int64_t published_at_last_status = 0;
   int64_t periods = 0;
   Clock::TimePoint start;
@@ -155,6 +156,7 @@ struct GeneratorNode::Impl {
   void OnStatus(const status& other);
   void Announce();
   void Serve(int timeout_ms);
+  std::string KeyHint() const;
   void Listen(double seconds, const std::function<bool()>& done);
   int64_t FirstSeq();
   void PublishPeriodic(bool force);
@@ -264,8 +266,10 @@ void GeneratorNode::Impl::Announce() {
   bus.Publish(kConfigChannel, config_message);
 }
 
-// serves the consumers; one that holds scenes of another run stops this one with an error, and
-// so do consumers heard for seconds that use another bus key (they would never be served)
+// serves the consumers; one that holds scenes of another run stops this one with an error.
+// Consumers heard for seconds that use another bus key (they would never be served) are said
+// once, never a reason to stop: nothing of theirs is verified, and a stranger can send it. An
+// open generator, which verifies nothing, stops then (its keyed consumers refuse its scenes)
 void GeneratorNode::Impl::Serve(int timeout_ms) {
   server->Service(timeout_ms);
   if (!server->run_conflict().empty()) {
@@ -274,7 +278,22 @@ void GeneratorNode::Impl::Serve(int timeout_ms) {
                              "writer another --out");
   }
   const std::string mismatch = bus.KeyMismatch(consumer_channels, kKeyMismatchS);
-  if (!mismatch.empty()) throw std::runtime_error(mismatch);
+  // an open bus trusts every sender anyway: its keyed consumers would refuse every scene
+  if (!bus.keyed() && !mismatch.empty()) throw std::runtime_error(mismatch);
+  if (!keys_said && !mismatch.empty()) {
+    if (options.progress) std::fprintf(stderr, "\n");
+    std::fprintf(stderr, "stackgen: warning: %s; going on\n", mismatch.c_str());
+    keys_said = true;
+  } else if (keys_said && bus.KeyMismatch(consumer_channels, 0).empty()) {
+    keys_said = false;  // a consumer of this key came
+  }
+}
+
+// " (LINE)" when consumers of another bus key were heard and none of this one, else "": the
+// reason a wait for consumers may have ended
+std::string GeneratorNode::Impl::KeyHint() const {
+  const std::string mismatch = bus.KeyMismatch(consumer_channels, 0);
+  return mismatch.empty() ? "" : " (" + mismatch + ")";
 }
 
 // hears which reliable consumers are there (they credit every 0.2 s)
@@ -294,7 +313,7 @@ int64_t GeneratorNode::Impl::FirstSeq() {
     throw std::runtime_error("--resume: no reliable consumer (stackgen-coco) sent a credit on " +
                              bus.url() + " within " +
                              std::to_string(static_cast<int64_t>(options.consumer_timeout_s)) +
-                             " s; start the writers first");
+                             " s; start the writers first" + KeyHint());
   }
   Listen(0.5, [] { return false; });
   const int64_t first_seq = std::max(options.first_seq, *server->ResumeSeq());
@@ -443,7 +462,8 @@ void GeneratorNode::Impl::CheckDelivered() const {
         " on " + bus.url() +
         " and no reliable consumer (stackgen-coco, stackgen-bop, a reliable Stream) took "
         "them: start the writer first, with this --lcm-url and bus key; pass --no-consumer-ok "
-        "when listeners alone are meant");
+        "when listeners alone are meant" +
+        KeyHint());
   }
   const std::vector<std::string> silent = server->gone_silent();
   if (!silent.empty()) {
@@ -523,9 +543,6 @@ void GeneratorNode::Run() {
           node.generator_id, static_cast<long long>(last_seq));
     }
   }
-  // consumers that use another key were heard, and none with this one: nothing was delivered
-  const std::string mismatch = node.bus.KeyMismatch(node.consumer_channels, 0);
-  if (!mismatch.empty()) throw std::runtime_error(mismatch);
   node.PublishPeriodic(true);
   if (node.options.progress) std::fprintf(stderr, "\n");
   node.PrintSummary();

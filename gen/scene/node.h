@@ -67,8 +67,9 @@ class GeneratorNode {
   /// publishes the scenes, waits until every reliable consumer stored the last one, and prints
   /// the summary on stdout. Throws std::runtime_error (one line) when another generator with
   /// this id publishes more, a consumer holds another run's scenes, the consumers heard use
-  /// another bus key, --resume finds no consumer, or (without no_consumer_ok) no reliable
-  /// consumer took the scenes or one went silent; and what the scene generator throws.
+  /// another bus key while this bus is open (a keyed one says so and goes on), --resume finds
+  /// no consumer, or (without no_consumer_ok) no reliable consumer took the scenes or one went
+  /// silent (naming consumers of another key, if heard); and what the scene generator throws.
   void Run();
 
  private:

@@ -180,6 +180,19 @@ TEST(MessageAuthTest, KeyEvidenceNamesTheMismatch) {
   KeyEvidence no_key;
   no_key.Note(ours, payload.data(), payload.size(), false);
   EXPECT_NE(no_key.Mismatch(ours, "the scenes").find("not signed"), std::string::npos);
+
+  // altered messages of this key, with an unsigned one beside: they blame no other key id
+  // (they said "another bus key (key id 0000000000000000)")
+  std::vector<uint8_t> altered = own;
+  altered[0] ^= 1;
+  KeyEvidence forged;
+  forged.Note(ours, altered.data(), altered.size(), false);
+  forged.Note(ours, altered.data(), altered.size(), false);
+  forged.Note(ours, payload.data(), payload.size(), false);
+  const std::string forged_line = forged.Mismatch(ours, "the scenes");
+  EXPECT_NE(forged_line.find("but fail its check: forged, or altered"), std::string::npos)
+      << forged_line;
+  EXPECT_EQ(forged_line.find("0000000000000000"), std::string::npos) << forged_line;
   KeyEvidence signed_for_open;
   signed_for_open.Note(open, own.data(), own.size(), true);
   EXPECT_NE(signed_for_open.Mismatch(open, "the scenes").find("--open-bus"), std::string::npos);

@@ -196,6 +196,17 @@ class Process {
     return false;
   }
 
+  /// Waits up to `timeout_s` until stderr contains `text`; false if it did not appear.
+  bool WaitForError(const std::string& text, double timeout_s) const {
+    const auto deadline =
+        std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    while (std::chrono::steady_clock::now() < deadline) {
+      if (Stderr().find(text) != std::string::npos) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    return false;
+  }
+
   /// True once the process has exited (without waiting); Wait then returns its exit code.
   bool Exited() {
     if (exited_) return true;

@@ -360,7 +360,6 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
     }
     UdpmLimits limits;
     limits.max_message_bytes = options.decode_limits.max_message_bytes + kAuthTrailerBytes;
-    limits.max_partial_bytes = std::max(limits.max_partial_bytes, limits.max_message_bytes);
     impl_->receiver = std::make_unique<UdpmReceiver>(
         ParseUdpmUrl(url), limits,
         [impl](const UdpmMessage& message) { return impl->Screen(message); },

@@ -1,5 +1,6 @@
 #include "bus/liveness.h"
 
+#include <algorithm>
 #include <utility>
 
 namespace stackgen {
@@ -63,6 +64,27 @@ void LivenessCheck::Handle(const liveness& message, uint64_t from, uint64_t coun
   if (message.kind == liveness::CHALLENGE) {
     // a challenge must come from the challenger it names
     if (challenger != from || (responder != 0 && responder != self)) return;
+    // a challenge heard before (its sender's counter: a replay) is not answered again; a real
+    // challenger asks again in a message of its own
+    if (!answered_.emplace(from, counter).second) {
+      ++repeats_;
+      return;
+    }
+    answered_order_.emplace_back(from, counter);
+    if (answered_order_.size() > kMaxAnswered) {
+      answered_.erase(answered_order_.front());
+      answered_order_.pop_front();
+    }
+    // and no more than kAnswersPerS a second: an unanswered challenger asks again
+    if (tokens_us_ != 0) {
+      tokens_ = std::min(kAnswersPerS, tokens_ + (now_us - tokens_us_) * 1e-6 * kAnswersPerS);
+    }
+    tokens_us_ = now_us;
+    if (tokens_ < 1) {
+      ++throttled_;
+      return;
+    }
+    tokens_ -= 1;
     ++answers_;
     send_(Make(liveness::ANSWER, challenger, self, message.nonce, now_us));
     // and the challenger in turn, so that its messages are taken from its first one on

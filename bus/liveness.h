@@ -20,9 +20,12 @@
 // come from one thread (a Bus's receiving thread); time is passed in, so tests drive it.
 
 #include <cstdint>
+#include <deque>
 #include <functional>
 #include <map>
+#include <set>
 #include <string>
+#include <utility>
 
 #include <stackgen/liveness.hpp>
 
@@ -41,6 +44,13 @@ class LivenessCheck {
   static constexpr double kUnansweredS = 2.0;
   /// Senders challenged and not answered yet, remembered at most.
   static constexpr size_t kMaxChallenged = 1024;
+  /// Challenges answered, remembered (by sender and counter) so that a repeat of one (a replay)
+  /// is not answered again.
+  static constexpr size_t kMaxAnswered = 4096;
+  /// Challenges answered per second at most, in bursts of as many (a bus of a few hundred
+  /// processes challenges this one a few times each at its start; a stranger's flood of
+  /// recorded or fresh challenges costs an answer each no faster than this).
+  static constexpr double kAnswersPerS = 200;
 
   /// Publishes a liveness message (signed by the caller's Bus).
   using Send = std::function<void(const liveness& message)>;
@@ -61,9 +71,12 @@ class LivenessCheck {
   /// due; once it has not answered for kUnansweredS, counts the message as replayed.
   void Unanswered(uint64_t sender, const std::string& channel, int64_t now_us);
 
-  /// Challenges sent and answers sent so far.
+  /// Challenges sent and answers sent so far; challenges not answered: repeats of one answered
+  /// already, and those beyond kAnswersPerS.
   int64_t challenges() const { return challenges_; }
   int64_t answers() const { return answers_; }
+  int64_t repeats() const { return repeats_; }
+  int64_t throttled() const { return throttled_; }
 
  private:
   struct Challenged {
@@ -82,6 +95,12 @@ class LivenessCheck {
   bool warned_ = false;
   int64_t challenges_ = 0;
   int64_t answers_ = 0;
+  std::set<std::pair<uint64_t, uint64_t>> answered_;  // (challenger, counter)
+  std::deque<std::pair<uint64_t, uint64_t>> answered_order_;
+  double tokens_ = kAnswersPerS;
+  int64_t tokens_us_ = 0;
+  int64_t repeats_ = 0;
+  int64_t throttled_ = 0;
 };
 
 }  // namespace stackgen

@@ -35,6 +35,21 @@ constexpr size_t kLongHeaderBytes = 20;
 constexpr size_t kMaxChannelBytes = 63;
 // the largest UDP payload over IPv4 is 65507 bytes; one more shows a datagram cut short
 constexpr size_t kDatagramBuffer = 65536;
+// what reassembly counts for bookkeeping beside the bytes heard: a message in reassembly (its
+// record, channel and place in the table; plus a bit per fragment), and each fragment heard (its
+// node and buffer header, and the allocator's overhead); more than they take here
+constexpr size_t kPartialBytes = 512;
+constexpr size_t kFragmentBytes = 128;
+
+// what a whole message of `size` bytes in `fragments` fragments holds in reassembly
+size_t MessageCost(uint32_t size, uint16_t fragments) {
+  return kPartialBytes + fragments / 8 + size + size_t{fragments} * kFragmentBytes;
+}
+
+double SteadySeconds() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
 
 uint32_t GetU32(const uint8_t* in) {
   return (uint32_t{in[0]} << 24) | (uint32_t{in[1]} << 16) | (uint32_t{in[2]} << 8) | in[3];
@@ -105,18 +120,19 @@ std::string ReceiveSummary(const UdpmCounters& counters) {
 // UdpmReassembler
 
 struct UdpmReassembler::Impl {
-  // one message in reassembly
+  // one message in reassembly: the fragments heard, each kept as it came (nothing is allocated
+  // for bytes that did not arrive; the message is put together when its last fragment comes)
   struct Partial {
     std::string channel;
     uint32_t seqno = 0;
     uint32_t size = 0;
     uint16_t fragments = 0;
-    std::unique_ptr<uint8_t[]> data;     // not initialised: every byte is written before use
-    std::vector<bool> heard;             // by fragment number
-    std::map<uint32_t, uint32_t> spans;  // offset -> end of the fragments heard
-    uint16_t fragments_heard = 0;
+    std::vector<bool> heard;  // by fragment number
+    std::map<uint32_t, std::vector<uint8_t>> pieces;  // by offset
     uint64_t bytes_heard = 0;
+    size_t cost = 0;  // what it holds, bookkeeping included (kPartialBytes, kFragmentBytes)
     uint64_t last_use = 0;
+    double last_heard_s = 0;
   };
 
   UdpmLimits limits;
@@ -127,7 +143,7 @@ struct UdpmReassembler::Impl {
   UdpmCounters counters;
 
   void Forget(std::unordered_map<uint64_t, Partial>::iterator it) {
-    partial_bytes -= it->second.size;
+    partial_bytes -= it->second.cost;
     partials.erase(it);
   }
 
@@ -147,16 +163,32 @@ struct UdpmReassembler::Impl {
     return false;
   }
 
-  // room for `size` more bytes and one more message in reassembly, the least recent giving way
-  void MakeRoom(size_t size) {
-    while (!partials.empty() && (partial_bytes + size > limits.max_partial_bytes ||
-                                 static_cast<int>(partials.size()) >= limits.max_partials)) {
-      auto oldest = partials.begin();
+  // room for `bytes` more (and, with `another`, one more message) in reassembly, the least
+  // recent other than `keep`'s giving way
+  void MakeRoom(size_t bytes, bool another, uint64_t keep) {
+    while (partial_bytes + bytes > limits.max_partial_bytes ||
+           (another && static_cast<int>(partials.size()) >= limits.max_partials)) {
+      auto oldest = partials.end();
       for (auto it = partials.begin(); it != partials.end(); ++it) {
-        if (it->second.last_use < oldest->second.last_use) oldest = it;
+        if (it->first == keep) continue;
+        if (oldest == partials.end() || it->second.last_use < oldest->second.last_use) oldest = it;
       }
+      if (oldest == partials.end()) return;
       ++counters.abandoned;
       Forget(oldest);
+    }
+  }
+
+  // messages that heard no fragment for partial_timeout_s are given up
+  void Expire(double now_s) {
+    for (auto it = partials.begin(); it != partials.end();) {
+      if (now_s - it->second.last_heard_s >= limits.partial_timeout_s) {
+        ++counters.abandoned;
+        partial_bytes -= it->second.cost;
+        it = partials.erase(it);
+      } else {
+        ++it;
+      }
     }
   }
 
@@ -175,7 +207,8 @@ struct UdpmReassembler::Impl {
     return true;
   }
 
-  bool Fragment(uint64_t sender, const uint8_t* data, size_t size, UdpmMessage* message) {
+  bool Fragment(uint64_t sender, const uint8_t* data, size_t size, double now_s,
+                UdpmMessage* message) {
     if (size < kLongHeaderBytes) return Malformed(sender);
     const uint32_t seqno = GetU32(data + 4);
     const uint32_t msg_size = GetU32(data + 8);
@@ -208,17 +241,19 @@ struct UdpmReassembler::Impl {
       if (!wanted(channel)) return false;
       bytes += channel_length + 1;
       length -= static_cast<size_t>(channel_length) + 1;
-      if (msg_size > limits.max_partial_bytes) return Malformed(sender);
-      MakeRoom(msg_size);
+      // what the whole message would hold: more than reassembly may, and it is never begun
+      if (MessageCost(msg_size, fragments) > limits.max_partial_bytes) return Malformed(sender);
+      const size_t cost = kPartialBytes + fragments / 8;
+      MakeRoom(cost, true, sender);
       Partial partial;
       partial.channel = std::move(channel);
       partial.seqno = seqno;
       partial.size = msg_size;
       partial.fragments = fragments;
-      partial.data.reset(new uint8_t[msg_size]);
       partial.heard.assign(fragments, false);
+      partial.cost = cost;
       found = partials.emplace(sender, std::move(partial)).first;
-      partial_bytes += msg_size;
+      partial_bytes += cost;
     } else if (found == partials.end()) {
       return false;  // its fragment 0 was not heard: nothing to add it to
     }
@@ -229,23 +264,30 @@ struct UdpmReassembler::Impl {
     if (length == 0 || end > partial.size || partial.heard[number]) {
       return Malformed(sender);
     }
-    const auto after = partial.spans.lower_bound(offset);
-    if (after != partial.spans.end() && after->first < end) return Malformed(sender);
-    if (after != partial.spans.begin() && std::prev(after)->second > offset) {
+    const auto after = partial.pieces.lower_bound(offset);
+    if (after != partial.pieces.end() && after->first < end) return Malformed(sender);
+    if (after != partial.pieces.begin() &&
+        std::prev(after)->first + std::prev(after)->second.size() > offset) {
       return Malformed(sender);
     }
-    partial.spans.emplace_hint(after, offset, static_cast<uint32_t>(end));
+    const size_t cost = length + kFragmentBytes;
+    MakeRoom(cost, false, sender);
+    partial.pieces.emplace_hint(after, offset, std::vector<uint8_t>(bytes, bytes + length));
     partial.heard[number] = true;
-    std::memcpy(partial.data.get() + offset, bytes, length);
-    ++partial.fragments_heard;
     partial.bytes_heard += length;
+    partial.cost += cost;
+    partial_bytes += cost;
     partial.last_use = ++uses;
-    if (partial.fragments_heard < partial.fragments) return false;
+    partial.last_heard_s = now_s;
+    if (partial.pieces.size() < partial.fragments) return false;
 
     // every fragment heard: complete when they cover the message
     if (partial.bytes_heard != partial.size) return Malformed(sender);
     message->channel = std::move(partial.channel);
-    message->data = std::move(partial.data);
+    message->data.reset(new uint8_t[partial.size]);
+    for (const auto& [at, piece] : partial.pieces) {
+      std::memcpy(message->data.get() + at, piece.data(), piece.size());
+    }
     message->size = partial.size;
     Forget(found);
     ++counters.messages;
@@ -263,14 +305,24 @@ UdpmReassembler::UdpmReassembler(const UdpmLimits& limits,
 UdpmReassembler::~UdpmReassembler() = default;
 
 bool UdpmReassembler::Add(uint64_t sender, const uint8_t* data, size_t size, UdpmMessage* message) {
+  return Add(sender, data, size, SteadySeconds(), message);
+}
+
+bool UdpmReassembler::Add(uint64_t sender, const uint8_t* data, size_t size, double now_s,
+                          UdpmMessage* message) {
   Impl& impl = *impl_;
   ++impl.counters.datagrams;
+  impl.Expire(now_s);
   if (size < kShortHeaderBytes || size >= kDatagramBuffer) return impl.Malformed(sender);
   const uint32_t magic = GetU32(data);
   if (magic == kMagicShort) return impl.Short(sender, data, size, message);
-  if (magic == kMagicLong) return impl.Fragment(sender, data, size, message);
+  if (magic == kMagicLong) return impl.Fragment(sender, data, size, now_s, message);
   return impl.Malformed(sender);
 }
+
+void UdpmReassembler::Expire() { Expire(SteadySeconds()); }
+
+void UdpmReassembler::Expire(double now_s) { impl_->Expire(now_s); }
 
 size_t UdpmReassembler::partial_bytes() const { return impl_->partial_bytes; }
 
@@ -325,8 +377,19 @@ struct UdpmReceiver::Impl {
     std::vector<uint8_t> buffer(kDatagramBuffer);
     while (true) {
       pollfd fds[2] = {{socket_fd, POLLIN, 0}, {stop_fd, POLLIN, 0}};
-      if (poll(fds, 2, -1) < 0) continue;
+      // with messages in reassembly, wake up to give up those timed out even when nothing comes
+      const int timeout_ms = reassembler->partials() > 0
+                                 ? std::max(1, static_cast<int>(limits.partial_timeout_s * 500))
+                                 : -1;
+      const int ready = poll(fds, 2, timeout_ms);
+      if (ready < 0) continue;
       if (fds[1].revents != 0) return;
+      if (ready == 0) {
+        reassembler->Expire();
+        const std::lock_guard<std::mutex> lock(mutex);
+        CopyCounters();
+        continue;
+      }
       sockaddr_in from{};
       socklen_t from_length = sizeof(from);
       const ssize_t size = recvfrom(socket_fd, buffer.data(), buffer.size(), MSG_DONTWAIT,

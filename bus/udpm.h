@@ -34,10 +34,14 @@
 //   count 1..65535; each fragment holds at least one byte, lies inside the message (64-bit
 //   arithmetic), comes once and overlaps no other; the message is complete when all its
 //   fragments have come and cover it exactly;
-// - memory: messages in reassembly claim at most max_partial_bytes together and number at most
-//   max_partials (the one heard from least recently gives way); complete messages waiting to be
-//   handled hold at most max_queued_bytes, and each channel at most its queue capacity (a
-//   message beyond either is dropped, as liblcm drops one beyond a subscription's queue).
+// - memory: a message in reassembly holds the fragments heard, nothing for what it only claims;
+//   the messages in reassembly hold at most max_partial_bytes together, counted with their
+//   bookkeeping (a record per message, one per fragment), and number at most max_partials (the
+//   one heard from least recently gives way); a message that could not fit whole is never
+//   begun; one that hears no fragment for partial_timeout_s is given up, its memory freed;
+//   complete messages waiting to be handled hold at most max_queued_bytes, and each channel at
+//   most its queue capacity (a message beyond either is dropped, as liblcm drops one beyond a
+//   subscription's queue).
 
 #include <cstddef>
 #include <cstdint>
@@ -64,11 +68,15 @@ UdpmAddress ParseUdpmUrl(const std::string& url);
 struct UdpmLimits {
   /// The largest message taken (bytes, its bus-key trailer included). Default 256 MiB + 64.
   size_t max_message_bytes = (size_t{256} << 20) + 64;
-  /// What the messages in reassembly may claim together (bytes). Default 256 MiB + 64: one
-  /// message of the largest size.
-  size_t max_partial_bytes = (size_t{256} << 20) + 64;
+  /// What the messages in reassembly may hold together (bytes heard and bookkeeping). Default
+  /// 64 MiB: a scene of the default config is about 1 MB; a message that would hold more whole
+  /// (about 63.8 MiB of bytes) is not received.
+  size_t max_partial_bytes = size_t{64} << 20;
   /// Messages in reassembly at once, of different senders. Default 64.
   int max_partials = 64;
+  /// A message in reassembly that hears no fragment for this long is given up (seconds; liblcm
+  /// sends a message's fragments back to back). Default 2.
+  double partial_timeout_s = 2;
   /// Complete messages waiting to be handled, all channels together (bytes). Default 1 GiB.
   size_t max_queued_bytes = size_t{1} << 30;
 };
@@ -113,11 +121,16 @@ class UdpmReassembler {
   UdpmReassembler(const UdpmReassembler&) = delete;
   UdpmReassembler& operator=(const UdpmReassembler&) = delete;
 
-  /// Takes one datagram from `sender` (its address and port, as one number). Returns true and
+  /// Takes one datagram from `sender` (its address and port, as one number) at `now_s` (seconds
+  /// on a steady clock; without it, now), giving up messages timed out first. Returns true and
   /// fills `*message` when the datagram completes a message of a wanted channel.
   bool Add(uint64_t sender, const uint8_t* data, size_t size, UdpmMessage* message);
+  bool Add(uint64_t sender, const uint8_t* data, size_t size, double now_s, UdpmMessage* message);
+  /// Gives up the messages that heard no fragment for partial_timeout_s (at `now_s`, or now).
+  void Expire();
+  void Expire(double now_s);
 
-  /// The bytes the messages in reassembly claim now, and how many they are.
+  /// The bytes the messages in reassembly hold now (bookkeeping included), and how many they are.
   size_t partial_bytes() const;
   int partials() const;
   /// Counted so far (datagrams, messages, malformed, abandoned; the rest stay 0 here).

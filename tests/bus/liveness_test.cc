@@ -90,6 +90,36 @@ TEST(LivenessCheckTest, OneRoundTripProvesBothWays) {
   EXPECT_EQ(writer.auth.Open("STACKGEN_SCENE", early.data(), early.size(), nullptr), -1);
 }
 
+// A challenge heard again (a stranger replays a recorded one, the same sender and counter) is
+// answered once, not 100,000 times; fresh challenges of a flood are answered no faster than
+// kAnswersPerS (200 in a burst, then 200 a second); a real challenger that was not answered
+// asks again in a message of its own and is answered once the rate allows.
+TEST(LivenessCheckTest, ChallengesAreAnsweredOnceAndAtABoundedRate) {
+  const testing::ScratchDir dir("liveness");
+  Peer writer(KeyFile(dir)), generator(KeyFile(dir));
+  writer.check.Start(0);
+  ASSERT_EQ(writer.outbox.size(), 1u);
+  const std::vector<uint8_t> recorded = writer.outbox.front();
+  for (int i = 0; i < 100000; ++i) generator.Hear(recorded, 1000 + i);
+  EXPECT_EQ(generator.check.answers(), 1);
+  EXPECT_EQ(generator.check.repeats(), 99999);
+
+  // 1000 fresh challenges within 10 ms: the burst is answered, the rest not
+  Peer flood(KeyFile(dir));
+  for (int i = 0; i < 1000; ++i) {
+    flood.check.Start(200000 + i * 10);
+    flood.DeliverTo(generator, 200000 + i * 10);
+  }
+  const int64_t answered = generator.check.answers() - 1;
+  EXPECT_GE(answered, 200);
+  EXPECT_LE(answered, 203);
+  EXPECT_EQ(generator.check.throttled(), 1000 - answered);
+  // a second later the rate allows one more: a new challenge is answered
+  flood.check.Start(1300000);
+  flood.DeliverTo(generator, 1300000);
+  EXPECT_EQ(generator.check.answers(), answered + 2);
+}
+
 // A recording cannot answer: a writer that starts while a log of an earlier run plays back
 // challenges its senders, hears the recorded answers (to another run's nonces) and takes
 // nothing; once they have sent for 2 s without answering, their messages count as replayed,

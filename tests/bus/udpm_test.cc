@@ -138,8 +138,9 @@ TEST(UdpmReassemblerTest, EveryInconsistentDatagramIsDropped) {
   }
 }
 
-// Messages in reassembly never claim more than the limits: a new sender's message pushes out
-// the least recent, and a sender's next message ends its last.
+// Reassembly holds the fragments heard, counted with their bookkeeping, within its bounds: the
+// least recent message gives way to a new one past max_partials, a sender's next message ends
+// its last, and a message that could not fit whole is never begun.
 TEST(UdpmReassemblerTest, ReassemblyMemoryIsBounded) {
   UdpmLimits limits;
   limits.max_partial_bytes = 450000;
@@ -147,26 +148,96 @@ TEST(UdpmReassemblerTest, ReassemblyMemoryIsBounded) {
   Reassembler reassembler(limits);
   const std::vector<uint8_t> large = Payload(200000, 6);
   const std::vector<std::vector<uint8_t>> datagrams = LcmDatagrams(kChannel, large, 1);
+  ASSERT_EQ(datagrams.size(), 4u);
   for (uint64_t sender = 1; sender <= 10; ++sender) {
     EXPECT_TRUE(reassembler.Add({datagrams[0]}, sender).empty());
     EXPECT_LE(reassembler.get().partial_bytes(), limits.max_partial_bytes);
-    EXPECT_LE(reassembler.get().partials(), 2);  // two of 200000 bytes fit 450000
+    EXPECT_LE(reassembler.get().partials(), 3);
+    // the fragment heard and its bookkeeping, not the 200000 bytes the message claims
+    EXPECT_LT(reassembler.get().partial_bytes(), 3 * (datagrams[0].size() + 1024));
   }
-  EXPECT_EQ(reassembler.get().counters().abandoned, 8);
+  EXPECT_EQ(reassembler.get().counters().abandoned, 7);
   // sender 10 starts another message: its first one is given up
   const std::vector<std::vector<uint8_t>> next = LcmDatagrams(kChannel, large, 2);
   EXPECT_TRUE(reassembler.Add({next[0]}, 10).empty());
-  EXPECT_EQ(reassembler.get().counters().abandoned, 9);
-  // the most recent (sender 9) is whole once its fragments come
+  EXPECT_EQ(reassembler.get().counters().abandoned, 8);
+  // sender 9's message is whole once its fragments come (the bytes make the least recent, 8,
+  // give way)
   EXPECT_EQ(reassembler.Add({datagrams[1], datagrams[2], datagrams[3]}, 9),
             std::vector<std::vector<uint8_t>>{large});
+  EXPECT_LE(reassembler.get().partial_bytes(), limits.max_partial_bytes);
   // a message larger than reassembly may hold is never begun
   UdpmLimits tight;
-  tight.max_message_bytes = 100000;
+  tight.max_partial_bytes = 150000;
   Reassembler small(tight);
   EXPECT_TRUE(small.Add(datagrams).empty());
   EXPECT_EQ(small.get().partial_bytes(), 0u);
-  EXPECT_EQ(small.get().counters().malformed, 4);  // each of its fragments
+  EXPECT_EQ(small.get().partials(), 0);
+  EXPECT_EQ(small.get().counters().malformed, 1);  // its fragment 0; the others have no message
+}
+
+// What a stranger's fragments can pin: claims of messages cost nothing until their bytes come,
+// 200,000 one-byte fragments from 64 senders stay within the bound (counted with their
+// bookkeeping they would hold 26 MB) while a real message completes among them, and what is left is given up partial_timeout_s after its last fragment, its memory
+// freed. With the bytes claimed held at once (as before), the first check fails.
+TEST(UdpmReassemblerTest, AFragmentFloodIsBoundedAndExpires) {
+  UdpmLimits limits;
+  limits.max_partial_bytes = 4 << 20;
+  limits.partial_timeout_s = 2;
+  Reassembler reassembler(limits);
+  UdpmReassembler& r = reassembler.get();
+  const auto fragment = [](uint32_t seqno, uint32_t size, uint32_t offset, uint16_t number,
+                           uint16_t count, size_t bytes) {
+    std::vector<uint8_t> datagram = LcmFragmentHeader(seqno, size, offset, number, count);
+    if (number == 0) {
+      datagram.insert(datagram.end(), kChannel.begin(), kChannel.end());
+      datagram.push_back(0);
+    }
+    datagram.resize(datagram.size() + bytes, 0x5A);
+    return datagram;
+  };
+  UdpmMessage message;
+  // 64 claims of 2 MB in 4000 fragments, one byte heard each
+  for (uint64_t sender = 100; sender < 164; ++sender) {
+    const std::vector<uint8_t> claim = fragment(1, 2000000, 0, 0, 4000, 1);
+    EXPECT_FALSE(r.Add(sender, claim.data(), claim.size(), 0.0, &message));
+  }
+  EXPECT_EQ(r.partials(), 64);
+  EXPECT_LT(r.partial_bytes(), size_t{128} * 1024);  // of 128 MB claimed
+  // one-byte fragments, spread over the senders, with a real message in the middle
+  const std::vector<uint8_t> real = Payload(150000, 9);
+  const std::vector<std::vector<uint8_t>> real_datagrams = LcmDatagrams(kChannel, real, 5);
+  int whole = 0;
+  for (int i = 0; i < 200000; ++i) {
+    const uint64_t sender = 100 + i % 64;
+    const uint16_t number = static_cast<uint16_t>(1 + i / 64);
+    const std::vector<uint8_t> tiny = fragment(1, 2000000, number, number, 4000, 1);
+    const double now_s = i * 1e-5;
+    r.Add(sender, tiny.data(), tiny.size(), now_s, &message);
+    if (i == 100000) {
+      for (const auto& datagram : real_datagrams) {
+        if (r.Add(7, datagram.data(), datagram.size(), now_s, &message)) {
+          ++whole;
+          EXPECT_EQ(std::vector<uint8_t>(message.data.get(), message.data.get() + message.size),
+                    real);
+        }
+      }
+    }
+    ASSERT_LE(r.partial_bytes(), limits.max_partial_bytes);
+    ASSERT_LE(r.partials(), limits.max_partials);
+  }
+  EXPECT_EQ(whole, 1);
+  EXPECT_GT(r.partials(), 0);
+  // nothing more comes: 2 s after the last fragment (at 2 s) all is given up and freed
+  r.Expire(3.9);
+  EXPECT_GT(r.partials(), 0);
+  r.Expire(4.1);
+  EXPECT_EQ(r.partials(), 0);
+  EXPECT_EQ(r.partial_bytes(), 0u);
+  // a claim beyond what reassembly may hold is never begun
+  const std::vector<uint8_t> huge = fragment(2, 200000000, 0, 0, 4000, 100);
+  EXPECT_FALSE(r.Add(200, huge.data(), huge.size(), 5.0, &message));
+  EXPECT_EQ(r.partials(), 0);
 }
 
 // 50,000 mutations of real datagrams (bits flipped, headers rewritten, cut, grown, fragments

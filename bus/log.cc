@@ -144,6 +144,13 @@ void LogWriter::WriteBytes(const std::string& channel, const uint8_t* data, size
   }
 }
 
+void LogWriter::Flush() {
+  if (!impl_->log) throw std::runtime_error("log " + impl_->path + " is already closed");
+  if (std::fflush(impl_->log->getFilePtr()) != 0) {
+    throw std::runtime_error("cannot write " + impl_->path + ": " + std::strerror(errno));
+  }
+}
+
 void LogWriter::Close() {
   if (!impl_->log) return;
   // flush before LCM closes the file, so a full disk is reported

@@ -92,6 +92,10 @@ class LogWriter {
   /// Appends raw bytes as an event on `channel`. Throws std::runtime_error naming the file.
   void WriteBytes(const std::string& channel, const uint8_t* data, size_t size, int64_t utime);
 
+  /// Hands what was written to the kernel (a reader sees it); throws std::runtime_error naming
+  /// the file if that fails.
+  void Flush();
+
   /// Flushes and closes the file; throws std::runtime_error naming it if that fails. Writing
   /// after Close() throws.
   void Close();

@@ -342,6 +342,9 @@ struct UdpmReceiver::Impl {
 
   mutable std::mutex mutex;             // guards what follows
   std::map<std::string, int> capacity;  // by channel
+  std::function<bool(const std::string&)> matches;  // SubscribeMatching
+  int matched_capacity = 0;
+  size_t matched_channels = 0;
   std::map<std::string, int> queued;    // by channel
   std::deque<UdpmMessage> queue;
   size_t queued_bytes = 0;
@@ -364,9 +367,15 @@ struct UdpmReceiver::Impl {
     counters.abandoned = read.abandoned;
   }
 
-  bool Wanted(const std::string& channel) const {
+  bool Wanted(const std::string& channel) {
     const std::lock_guard<std::mutex> lock(mutex);
-    return capacity.count(channel) != 0;
+    if (capacity.count(channel) != 0) return true;
+    if (!matches || matched_channels >= UdpmReceiver::kMaxMatchedChannels || !matches(channel)) {
+      return false;
+    }
+    ++matched_channels;
+    capacity[channel] = matched_capacity;
+    return true;
   }
 
   // reads datagrams until told to stop
@@ -503,6 +512,13 @@ void UdpmReceiver::Subscribe(const std::string& channel, int queue_capacity) {
   const std::lock_guard<std::mutex> lock(impl_->mutex);
   int& capacity = impl_->capacity[channel];
   capacity = std::max(capacity, queue_capacity);
+}
+
+void UdpmReceiver::SubscribeMatching(std::function<bool(const std::string&)> matches,
+                                     int queue_capacity) {
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->matches = std::move(matches);
+  impl_->matched_capacity = queue_capacity;
 }
 
 UdpmReceiver::Taken UdpmReceiver::Take(int timeout_ms, UdpmMessage* message) {

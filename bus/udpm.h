@@ -166,6 +166,11 @@ class UdpmReceiver {
   /// Keeps messages of `channel` (an exact name), at most `queue_capacity` of them waiting;
   /// subscribing again raises the capacity to the larger one. Thread-safe.
   void Subscribe(const std::string& channel, int queue_capacity);
+  /// Also keeps messages of every channel `matches` says yes to (a recorder's pattern), each
+  /// channel at most `queue_capacity` waiting, kMaxMatchedChannels channels at most (a
+  /// stranger's channel names cannot grow the table without bound). Thread-safe.
+  void SubscribeMatching(std::function<bool(const std::string&)> matches, int queue_capacity);
+  static constexpr size_t kMaxMatchedChannels = 256;
 
   /// The oldest queued message, waiting up to `timeout_ms` for one (0: only one already
   /// queued). kInterrupted when a signal interrupted the wait.

@@ -19,10 +19,12 @@
 #include <openssl/evp.h>
 #include <openssl/rand.h>
 
+#include "bus/udpm.h"
+
 namespace stackgen {
 namespace {
 
-constexpr char kMagic[8] = {'S', 'G', 'A', 'U', 'T', 'H', '0', '2'};
+constexpr char kMagic[8] = {'S', 'G', 'A', 'U', 'T', 'H', '0', '3'};
 constexpr size_t kMacBytes = 32;
 // counters remembered per sender, and senders remembered
 constexpr uint64_t kReplayWindow = 1024;
@@ -125,7 +127,10 @@ struct ReplayWindow {
   }
 };
 
-// the MAC of channel, bytes and the trailer's first three fields, into `out`, from a copy of
+// the trailer's fields before the MAC: sender, counter, key id, bus
+constexpr size_t kFieldBytes = 32;
+
+// the MAC of channel, bytes and the trailer's first four fields, into `out`, from a copy of
 // `keyed` (so that threads may compute at once)
 void ComputeMac(EVP_MAC_CTX* keyed, const std::string& channel, const uint8_t* data, size_t size,
                 const uint8_t* fields, uint8_t* out) {
@@ -136,7 +141,7 @@ void ComputeMac(EVP_MAC_CTX* keyed, const std::string& channel, const uint8_t* d
   const bool ok =
       ctx != nullptr && EVP_MAC_update(ctx, length, sizeof(length)) == 1 &&
       EVP_MAC_update(ctx, reinterpret_cast<const uint8_t*>(channel.data()), channel.size()) == 1 &&
-      EVP_MAC_update(ctx, data, size) == 1 && EVP_MAC_update(ctx, fields, 24) == 1 &&
+      EVP_MAC_update(ctx, data, size) == 1 && EVP_MAC_update(ctx, fields, kFieldBytes) == 1 &&
       EVP_MAC_final(ctx, out, &written, kMacBytes) == 1 && written == kMacBytes;
   EVP_MAC_CTX_free(ctx);
   if (!ok) throw std::runtime_error("OpenSSL cannot compute an HMAC-SHA256");
@@ -235,7 +240,23 @@ bool ReadTrailer(const uint8_t* data, size_t size, Trailer* trailer) {
   trailer->sender = GetU64(fields);
   trailer->counter = GetU64(fields + 8);
   trailer->key_id = GetU64(fields + 16);
+  trailer->bus = GetU64(fields + 24);
   return true;
+}
+
+uint64_t BusTag(const std::string& url) {
+  if (url.rfind("udpm://", 0) != 0) return 0;
+  const UdpmAddress address = ParseUdpmUrl(url);
+  return (uint64_t{address.group} << 16) | address.port;
+}
+
+std::string BusTagText(uint64_t bus) {
+  if (bus == 0) return "no bus (a log)";
+  char text[32];
+  std::snprintf(text, sizeof(text), "%u.%u.%u.%u:%u", static_cast<unsigned>((bus >> 40) & 255),
+                static_cast<unsigned>((bus >> 32) & 255), static_cast<unsigned>((bus >> 24) & 255),
+                static_cast<unsigned>((bus >> 16) & 255), static_cast<unsigned>(bus & 0xFFFF));
+  return text;
 }
 
 int64_t UnixMicros() {
@@ -247,7 +268,8 @@ int64_t UnixMicros() {
 std::string RefusedSummary(const AuthCounters& counters) {
   return "refused " + std::to_string(counters.unsigned_messages) + " unsigned, " +
          std::to_string(counters.forged) + " forged or altered, " +
-         std::to_string(counters.replayed) + " replayed";
+         std::to_string(counters.replayed) + " replayed, " + std::to_string(counters.relayed) +
+         " relayed from another bus";
 }
 
 void KeyEvidence::Note(const MessageAuth& auth, const uint8_t* data, size_t size, bool verified) {
@@ -260,7 +282,10 @@ void KeyEvidence::Note(const MessageAuth& auth, const uint8_t* data, size_t size
   ++mismatched;
   if (!signed_message) ++unsigned_messages;
   if (signed_message && trailer.key_id != auth.key_id()) other_key_id = trailer.key_id;
-  if (signed_message && auth.keyed() && trailer.key_id == auth.key_id()) ++forged;
+  if (signed_message && auth.keyed() && trailer.key_id == auth.key_id()) {
+    ++forged;
+    if (auth.liveness() && auth.bus() != 0 && trailer.bus != auth.bus()) ++relayed;
+  }
 }
 
 void KeyEvidence::Add(const KeyEvidence& other) {
@@ -268,6 +293,7 @@ void KeyEvidence::Add(const KeyEvidence& other) {
   mismatched += other.mismatched;
   unsigned_messages += other.unsigned_messages;
   forged += other.forged;
+  relayed += other.relayed;
   if (other.other_key_id != 0) other_key_id = other.other_key_id;
 }
 
@@ -284,6 +310,10 @@ std::string KeyEvidence::Mismatch(const MessageAuth& auth, const std::string& wh
   if (unsigned_messages * 2 > mismatched || (other_key_id == 0 && unsigned_messages > forged)) {
     return heard + " are not signed (their sender runs with --open-bus, or recorded them so): " +
            "give it " + ours + ", or open this process too (--open-bus)";
+  }
+  if (other_key_id == 0 && relayed * 2 > forged) {
+    return heard + " are signed with " + ours + " for another bus (group and port): relayed " +
+           "from another run's bus, not this one's; no peer of this bus was heard";
   }
   if (other_key_id == 0) {
     return heard + " carry the key id of " + ours +
@@ -305,6 +335,7 @@ struct SenderState {
 struct MessageAuth::Impl {
   std::string key_file;
   bool liveness = true;
+  uint64_t bus = 0;
   // HMAC-SHA256 keyed once; each message works on a copy
   EVP_MAC* mac = nullptr;
   EVP_MAC_CTX* keyed = nullptr;
@@ -356,10 +387,11 @@ struct MessageAuth::Impl {
   }
 };
 
-MessageAuth::MessageAuth(const std::string& key_file, bool liveness)
+MessageAuth::MessageAuth(const std::string& key_file, bool liveness, uint64_t bus)
     : impl_(std::make_unique<Impl>()) {
   impl_->key_file = key_file;
   impl_->liveness = liveness;
+  impl_->bus = bus;
   if (key_file.empty()) return;
   const std::string key = ReadKeyFile(key_file);
   impl_->mac = EVP_MAC_fetch(nullptr, "HMAC", nullptr);
@@ -402,6 +434,8 @@ uint64_t MessageAuth::key_id() const { return impl_->key_id; }
 uint64_t MessageAuth::sender() const { return impl_->sender; }
 
 bool MessageAuth::liveness() const { return impl_->liveness; }
+
+uint64_t MessageAuth::bus() const { return impl_->bus; }
 
 AuthCounters MessageAuth::counters() const {
   const std::lock_guard<std::mutex> lock(impl_->mutex);
@@ -454,8 +488,9 @@ uint64_t MessageAuth::Seal(const std::string& channel, const uint8_t* data, size
   PutU64(impl_->sender, trailer);
   PutU64(counter, trailer + 8);
   PutU64(impl_->key_id, trailer + 16);
-  ComputeMac(impl_->keyed, channel, data, size, trailer, trailer + 24);
-  std::memcpy(trailer + 56, kMagic, 8);
+  PutU64(impl_->bus, trailer + 24);
+  ComputeMac(impl_->keyed, channel, data, size, trailer, trailer + kFieldBytes);
+  std::memcpy(trailer + kFieldBytes + kMacBytes, kMagic, 8);
   return counter;
 }
 
@@ -491,9 +526,18 @@ int64_t MessageAuth::Verify(const std::string& channel, const uint8_t* data, siz
   const uint8_t* fields = data + body;
   uint8_t expected[kMacBytes];
   ComputeMac(impl_->keyed, channel, data, body, fields, expected);
-  if (CRYPTO_memcmp(expected, fields + 24, kMacBytes) != 0) {
+  if (CRYPTO_memcmp(expected, fields + kFieldBytes, kMacBytes) != 0) {
     return impl_->Refuse(&AuthCounters::forged, channel,
                          "its MAC does not match (forged or altered)", why);
+  }
+  // signed for this bus: not relayed from another group or port (a replay or a log may come
+  // from anywhere)
+  if (impl_->liveness && impl_->bus != 0 && trailer.bus != impl_->bus) {
+    return impl_->Refuse(&AuthCounters::relayed, channel,
+                         "it was signed for another bus (" + BusTagText(trailer.bus) +
+                             "; this one is " + BusTagText(impl_->bus) +
+                             "): relayed from another group or port",
+                         why);
   }
   return static_cast<int64_t>(body);
 }

@@ -8,17 +8,19 @@
 //
 // With the key, every message a Bus publishes carries a trailer after its LCM bytes:
 //
-//   sender (8 bytes) | counter (8) | key id (8) | MAC (32) | magic "SGAUTH02" (8)
+//   sender (8 bytes) | counter (8) | key id (8) | bus (8) | MAC (32) | magic "SGAUTH03" (8)
 //
 // all integers big-endian. `sender` is a random id drawn once per Bus (OpenSSL's RAND_bytes),
 // `counter` counts that Bus's messages from 1, `key id` is the first 8 bytes of
 // HMAC-SHA256(key, "stackgen bus key id"), the same for every holder of the key and telling
-// nothing else about it (a process that hears another key's id can say so), and MAC is
-// HMAC-SHA256 keyed with the bus key over the channel name, the LCM bytes and the three fields
-// before it. A receiver with the key refuses a message without a trailer (unsigned), one of
-// another key id or whose MAC does not match (forged, altered, or signed with another key), and
-// one it has seen before (its sender's counter seen already, or too old: the newest 1024
-// counters of each sender are remembered).
+// nothing else about it (a process that hears another key's id can say so), `bus` is the bus it
+// was published on (BusTag: a udpm:// group and port; 0 for a log written by a LogAppender),
+// and MAC is HMAC-SHA256 keyed with the bus key over the channel name, the LCM bytes and the
+// four fields before it. A receiver with the key refuses a message without a trailer (unsigned),
+// one of another key id or whose MAC does not match (forged, altered, or signed with another
+// key), on a live bus one signed for another bus (relayed from another group or port), and one
+// it has seen before (its sender's counter seen already, or too old: the newest 1024 counters
+// of each sender are remembered).
 //
 // Replays are bound to the run, not to a time window: on a live bus a receiver takes a sender's
 // messages only once that sender has answered a liveness challenge (bus/liveness.h: a random
@@ -39,7 +41,7 @@
 namespace stackgen {
 
 /// Bytes the trailer adds to every message published with a key.
-inline constexpr size_t kAuthTrailerBytes = 64;
+inline constexpr size_t kAuthTrailerBytes = 72;
 /// The fewest bytes a bus key file must hold (after trailing white space is dropped).
 inline constexpr size_t kMinBusKeyBytes = 32;
 
@@ -70,7 +72,9 @@ struct AuthCounters {
   /// their sender answered this process's liveness challenge, or of a sender that never
   /// answered (a recording played back onto the bus).
   int64_t replayed = 0;
-  int64_t total() const { return unsigned_messages + forged + replayed; }
+  /// Messages signed for another bus (a relay from another group or port), on a live bus.
+  int64_t relayed = 0;
+  int64_t total() const { return unsigned_messages + forged + replayed + relayed; }
 };
 
 /// The fields of a message's trailer.
@@ -78,7 +82,14 @@ struct Trailer {
   uint64_t sender = 0;
   uint64_t counter = 0;
   uint64_t key_id = 0;
+  uint64_t bus = 0;
 };
+
+/// The bus a udpm:// URL names, as a trailer carries it: its IPv4 group and port
+/// ((group << 16) | port); 0 for any other URL.
+uint64_t BusTag(const std::string& url);
+/// "239.255.76.67:7667" for a tag, "no bus (a log)" for 0.
+std::string BusTagText(uint64_t bus);
 
 /// Reads the trailer of a message; false when it has none (unsigned). Checks nothing else.
 bool ReadTrailer(const uint8_t* data, size_t size, Trailer* trailer);
@@ -92,9 +103,10 @@ class MessageAuth {
   /// at least kMinBusKeyBytes bytes (64 KiB at most) that other users cannot read or write; its
   /// bytes, without trailing white space, are the key. `liveness`: a sender's messages are taken
   /// only once it has answered a liveness challenge (Proven), as on a live bus; false for a log
-  /// and for a consumer told that it reads a replay. Throws std::runtime_error naming the file
-  /// and what is wrong with it.
-  MessageAuth(const std::string& key_file, bool liveness);
+  /// and for a consumer told that it reads a replay. `bus` (BusTag) goes into what it seals,
+  /// and with `liveness` a message signed for another bus is refused (relayed); 0: none (a log).
+  /// Throws std::runtime_error naming the file and what is wrong with it.
+  MessageAuth(const std::string& key_file, bool liveness, uint64_t bus = 0);
   ~MessageAuth();
   MessageAuth(const MessageAuth&) = delete;
   MessageAuth& operator=(const MessageAuth&) = delete;
@@ -107,6 +119,8 @@ class MessageAuth {
   uint64_t sender() const;
   /// Whether senders must answer a liveness challenge before their messages are taken.
   bool liveness() const;
+  /// The bus its messages are sealed for (BusTag; 0: none).
+  uint64_t bus() const;
 
   /// `data` followed by its trailer for `channel` (with a key), or `data` alone (without).
   /// Returns the counter the trailer carries (0 without a key).
@@ -118,8 +132,8 @@ class MessageAuth {
   /// not null) says why in one line naming the channel.
   int64_t Open(const std::string& channel, const uint8_t* data, size_t size, std::string* why);
 
-  /// The first half of Open: refuses a message that is not signed, signed with another key, or
-  /// whose MAC does not match. Returns the size of its LCM bytes, or -1 (counted, with `*why`).
+  /// The first half of Open: refuses a message that is not signed, signed with another key,
+  /// whose MAC does not match, or (with liveness and a bus) signed for another bus. Returns the size of its LCM bytes, or -1 (counted, with `*why`).
   int64_t Verify(const std::string& channel, const uint8_t* data, size_t size, std::string* why);
 
   /// The second half, for a message Verify passed: refuses one of a sender that has not
@@ -161,8 +175,10 @@ struct KeyEvidence {
   /// Messages of another key or unsigned (keyed), or signed (open).
   int64_t mismatched = 0;
   int64_t unsigned_messages = 0;
-  /// Keyed: messages that carry this process's key id but fail its check (forged or altered).
+  /// Keyed: messages that carry this process's key id but fail its check (forged or altered),
+  /// and of those, the ones signed for another bus (relayed).
   int64_t forged = 0;
+  int64_t relayed = 0;
   /// The key id of the last message of another key (0: none heard).
   uint64_t other_key_id = 0;
 

@@ -118,7 +118,7 @@ struct Bus::Impl {
   std::exception_ptr pending_error;
   // the first refusal of each kind (unsigned, forged, replayed) was reported; a message of another
   // process was taken
-  std::atomic<bool> reported[3] = {false, false, false};
+  std::atomic<bool> reported[4] = {false, false, false, false};
   std::atomic<bool> taken_any{false};
   // by channel; written by the receiving thread too
   mutable std::mutex key_use_mutex;
@@ -149,9 +149,10 @@ struct Bus::Impl {
   void ReportRefusal(const AuthCounters& before, const std::string& why) {
     if (!taken_any) return;
     const AuthCounters now = auth->counters();
-    const bool first[3] = {before.unsigned_messages < now.unsigned_messages,
-                           before.forged < now.forged, before.replayed < now.replayed};
-    for (int kind = 0; kind < 3; ++kind) {
+    const bool first[4] = {before.unsigned_messages < now.unsigned_messages,
+                           before.forged < now.forged, before.replayed < now.replayed,
+                           before.relayed < now.relayed};
+    for (int kind = 0; kind < 4; ++kind) {
       if (first[kind] && !reported[kind].exchange(true)) {
         std::fprintf(stderr, "%s: warning: %s; further ones are only counted (status: refused)\n",
                      program_invocation_short_name, why.c_str());
@@ -331,7 +332,8 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
   const bool is_log = url.rfind("file://", 0) == 0;
   const bool is_udpm = url.rfind("udpm://", 0) == 0;
   impl_->auth = std::make_unique<MessageAuth>(
-      options.open_bus ? "" : ResolveBusKeyFile(options.key_file), !is_log && !options.replay);
+      options.open_bus ? "" : ResolveBusKeyFile(options.key_file), !is_log && !options.replay,
+      BusTag(url));
   if (options.open_bus && is_udpm) {
     static std::atomic<bool> warned{false};
     if (!warned.exchange(true)) {

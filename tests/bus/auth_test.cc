@@ -139,6 +139,46 @@ TEST(MessageAuthTest, LivenessTakesOnlyWhatFollowsTheAnswer) {
   EXPECT_EQ(Open(live, "S", own).size, 5);
 }
 
+// A message is bound to the bus it was signed for: on another group or port (a relay between
+// two runs of one key) a live receiver refuses it as relayed, naming both buses, and so does the
+// key evidence, without blaming a forgery; a log reader and a consumer told that it reads a
+// replay take it (a recording may be played onto any bus). Without the bus in the trailer a
+// relayed message is taken.
+TEST(MessageAuthTest, AMessageIsBoundToItsBus) {
+  const testing::ScratchDir dir("auth");
+  const std::string key = KeyFile(dir, "a.key", kKey);
+  const uint64_t bus_a = BusTag("udpm://239.255.76.67:7000?ttl=0");
+  const uint64_t bus_b = BusTag("udpm://239.255.76.67:7001");
+  ASSERT_NE(bus_a, bus_b);
+  EXPECT_EQ(BusTagText(bus_a), "239.255.76.67:7000");
+  EXPECT_EQ(BusTag("file:///x.lcmlog"), 0u);
+  MessageAuth sender(key, true, bus_a);
+  MessageAuth here(key, true, bus_a);
+  MessageAuth there(key, true, bus_b);
+  MessageAuth log(key, false);
+  MessageAuth replay(key, false, bus_b);
+  const std::vector<uint8_t> payload = Bytes("scene");
+  std::vector<uint8_t> sealed;
+  sender.Seal("S", payload.data(), payload.size(), &sealed);
+  EXPECT_EQ(here.Verify("S", sealed.data(), sealed.size(), nullptr), 5);
+  std::string why;
+  EXPECT_EQ(there.Verify("S", sealed.data(), sealed.size(), &why), -1);
+  EXPECT_NE(why.find("signed for another bus (239.255.76.67:7000; this one is "
+                     "239.255.76.67:7001): relayed"),
+            std::string::npos)
+      << why;
+  EXPECT_EQ(there.counters().relayed, 1);
+  EXPECT_EQ(there.counters().forged, 0);
+  EXPECT_EQ(log.Verify("S", sealed.data(), sealed.size(), nullptr), 5);
+  EXPECT_EQ(replay.Verify("S", sealed.data(), sealed.size(), nullptr), 5);
+  KeyEvidence evidence;
+  evidence.Note(there, sealed.data(), sealed.size(), false);
+  const std::string line = evidence.Mismatch(there, "the scenes");
+  EXPECT_NE(line.find("for another bus (group and port): relayed"), std::string::npos) << line;
+  EXPECT_NE(RefusedSummary(there.counters()).find("1 relayed from another bus"),
+            std::string::npos);
+}
+
 // One key has one key id on every host, another key another; an open process has none.
 TEST(MessageAuthTest, KeyIdsTellKeysApart) {
   const testing::ScratchDir dir("auth");

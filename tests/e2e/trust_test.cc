@@ -4,8 +4,15 @@
 // every channel; lcm-logplayer replays a recording of the run into it. Every such message is
 // refused and counted, the generator is not held back, and the dataset equals a clean run's.
 
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
 #include <sys/stat.h>
+#include <sys/time.h>
+#include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <csignal>
 #include <cstdio>
@@ -370,6 +377,106 @@ TEST(TrustKeysTest, OneUnsignedDatagramStopsNoOne) {
     EXPECT_EQ(writer.Wait(60), 0) << writer.Stderr();
     EXPECT_EQ(ImagesStored(out), 3);
   }
+}
+
+// A relay between the buses of two runs of one user (one key): every datagram of run B's port
+// sent again onto run A's port and back, liveness challenges and answers included, while a
+// writer on A waits for its own generator. The writer stores none of B's scenes (before
+// messages were bound to their bus it took them all, a dataset byte-identical to B's), says in
+// one warning that what it hears was signed for another bus, and counts them relayed; run B
+// completes untouched.
+TEST(TrustKeysTest, ARelayFromAnotherBusStoresNothing) {
+  const testing::ScratchDir scratch("trust-relay");
+  const std::string url_a = testing::FreeMulticastUrl();
+  const std::string url_b = testing::FreeMulticastUrl();
+  const std::string out_a = scratch.path() + "/a";
+  const std::string out_b = scratch.path() + "/b";
+  Process writer_a({kBin + "/stackgen-coco", "--out", out_a, "--count", "3", "--lcm-url", url_a},
+                   out_a + "-coco");
+  ASSERT_TRUE(writer_a.WaitForOutput("listening", 30)) << writer_a.Stderr();
+
+  // the relay: a socket in each group on its port; what one hears goes out to the other (not
+  // what the relay itself sent, which it hears back)
+  const UdpmAddress a = ParseUdpmUrl(url_a), b = ParseUdpmUrl(url_b);
+  const auto listen = [](const UdpmAddress& at) {
+    const int fd = socket(AF_INET, SOCK_DGRAM, 0);
+    const int yes = 1;
+    setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof(yes));
+    sockaddr_in bind_to{};
+    bind_to.sin_family = AF_INET;
+    bind_to.sin_port = htons(at.port);
+    bind_to.sin_addr.s_addr = htonl(at.group);
+    EXPECT_EQ(bind(fd, reinterpret_cast<const sockaddr*>(&bind_to), sizeof(bind_to)), 0);
+    ip_mreq join{};
+    join.imr_multiaddr.s_addr = htonl(at.group);
+    join.imr_interface.s_addr = htonl(INADDR_ANY);
+    EXPECT_EQ(setsockopt(fd, IPPROTO_IP, IP_ADD_MEMBERSHIP, &join, sizeof(join)), 0);
+    return fd;
+  };
+  const int in_a = listen(a), in_b = listen(b);
+  const int out = socket(AF_INET, SOCK_DGRAM, 0);
+  const unsigned char ttl = 0;
+  setsockopt(out, IPPROTO_IP, IP_MULTICAST_TTL, &ttl, sizeof(ttl));
+  sockaddr_in any{};
+  any.sin_family = AF_INET;
+  ASSERT_EQ(bind(out, reinterpret_cast<const sockaddr*>(&any), sizeof(any)), 0);
+  socklen_t any_length = sizeof(any);
+  getsockname(out, reinterpret_cast<sockaddr*>(&any), &any_length);
+  const uint16_t own_port = any.sin_port;
+  std::atomic<bool> relaying{true};
+  std::atomic<int64_t> relayed{0};
+  std::thread relay([&] {
+    std::vector<uint8_t> buffer(65536);
+    while (relaying) {
+      pollfd fds[2] = {{in_a, POLLIN, 0}, {in_b, POLLIN, 0}};
+      if (poll(fds, 2, 100) <= 0) continue;
+      for (int k = 0; k < 2; ++k) {
+        if (fds[k].revents == 0) continue;
+        sockaddr_in from{};
+        socklen_t from_length = sizeof(from);
+        const ssize_t size = recvfrom(fds[k].fd, buffer.data(), buffer.size(), 0,
+                                      reinterpret_cast<sockaddr*>(&from), &from_length);
+        if (size <= 0 || from.sin_port == own_port) continue;
+        const UdpmAddress& to_address = k == 0 ? b : a;
+        sockaddr_in to{};
+        to.sin_family = AF_INET;
+        to.sin_port = htons(to_address.port);
+        to.sin_addr.s_addr = htonl(to_address.group);
+        if (sendto(out, buffer.data(), static_cast<size_t>(size), 0,
+                   reinterpret_cast<const sockaddr*>(&to), sizeof(to)) == size) {
+          ++relayed;
+        }
+      }
+    }
+  });
+
+  Process writer_b({kBin + "/stackgen-coco", "--out", out_b, "--count", "3", "--lcm-url", url_b},
+                   out_b + "-coco");
+  EXPECT_TRUE(writer_b.WaitForOutput("listening", 30)) << writer_b.Stderr();
+  Process generator_b({kBin + "/stackgen", "--config", testing::kLandedRule, "--count", "3",
+                       "--seed", "7", "--lcm-url", url_b, "--cache-dir",
+                       scratch.path() + "/cache"},
+                      out_b + "-gen");
+  EXPECT_EQ(generator_b.Wait(300), 0) << generator_b.Stderr();
+  EXPECT_EQ(writer_b.Wait(60), 0) << writer_b.Stderr();
+  std::this_thread::sleep_for(std::chrono::seconds(1));
+  relaying = false;
+  relay.join();
+  for (const int fd : {in_a, in_b, out}) close(fd);
+  EXPECT_GT(relayed.load(), 10);
+  EXPECT_EQ(ImagesStored(out_b), 3);
+
+  EXPECT_FALSE(writer_a.Exited()) << writer_a.Stderr();
+  writer_a.Signal(SIGINT);
+  writer_a.Wait(30);
+  EXPECT_TRUE(!std::filesystem::exists(out_a) || ImagesStored(out_a) == 0) << writer_a.Stderr();
+  const std::string err = writer_a.Stderr();
+  EXPECT_NE(err.find("for another bus (group and port): relayed"), std::string::npos) << err;
+  const std::string text = writer_a.Stdout() + err;
+  const std::regex counted(R"((\d+) relayed from another bus)");
+  std::smatch match;
+  ASSERT_TRUE(std::regex_search(text, match, counted)) << text;
+  EXPECT_GT(std::stoll(match[1]), 0) << text;
 }
 
 }  // namespace

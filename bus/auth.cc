@@ -313,7 +313,8 @@ std::string KeyEvidence::Mismatch(const MessageAuth& auth, const std::string& wh
   }
   if (other_key_id == 0 && relayed * 2 > forged) {
     return heard + " are signed with " + ours + " for another bus (group and port): relayed " +
-           "from another run's bus, not this one's; no peer of this bus was heard";
+           "from another run's bus, or a recording played back onto this one (a consumer takes " +
+           "a recording with --replay); no peer of this bus was heard";
   }
   if (other_key_id == 0) {
     return heard + " carry the key id of " + ours +
@@ -536,7 +537,8 @@ int64_t MessageAuth::Verify(const std::string& channel, const uint8_t* data, siz
     return impl_->Refuse(&AuthCounters::relayed, channel,
                          "it was signed for another bus (" + BusTagText(trailer.bus) +
                              "; this one is " + BusTagText(impl_->bus) +
-                             "): relayed from another group or port",
+                             "): relayed from another group or port, or a recording played "
+                             "back here (a consumer takes a recording with --replay)",
                          why);
   }
   return static_cast<int64_t>(body);

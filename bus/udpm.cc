@@ -179,8 +179,11 @@ struct UdpmReassembler::Impl {
     }
   }
 
-  // messages that heard no fragment for partial_timeout_s are given up
+  // messages that heard no fragment for partial_timeout_s are given up (Add looks every quarter
+  // of it)
+  double swept_s = 0;
   void Expire(double now_s) {
+    swept_s = now_s;
     for (auto it = partials.begin(); it != partials.end();) {
       if (now_s - it->second.last_heard_s >= limits.partial_timeout_s) {
         ++counters.abandoned;
@@ -312,7 +315,7 @@ bool UdpmReassembler::Add(uint64_t sender, const uint8_t* data, size_t size, dou
                           UdpmMessage* message) {
   Impl& impl = *impl_;
   ++impl.counters.datagrams;
-  impl.Expire(now_s);
+  if (now_s - impl.swept_s >= impl.limits.partial_timeout_s / 4) impl.Expire(now_s);
   if (size < kShortHeaderBytes || size >= kDatagramBuffer) return impl.Malformed(sender);
   const uint32_t magic = GetU32(data);
   if (magic == kMagicShort) return impl.Short(sender, data, size, message);

@@ -69,8 +69,7 @@ struct UdpmLimits {
   /// The largest message taken (bytes, its bus-key trailer included). Default 256 MiB + 64.
   size_t max_message_bytes = (size_t{256} << 20) + 64;
   /// What the messages in reassembly may hold together (bytes heard and bookkeeping). Default
-  /// 64 MiB: a scene of the default config is about 1 MB; a message that would hold more whole
-  /// (about 63.8 MiB of bytes) is not received.
+  /// 64 MiB; a message that would hold more whole is not received.
   size_t max_partial_bytes = size_t{64} << 20;
   /// Messages in reassembly at once, of different senders. Default 64.
   int max_partials = 64;

@@ -51,22 +51,22 @@ int Run(int argc, char** argv) {
   parser.String("--out", &out, "a file");
   parser.Require("--out");
   parser.String("--channels", &channels, "a regular expression");
-  parser.ParseOrExit(argc, argv, [] { std::printf("%s", kUsage); });
-
   // everything that can be checked before a file is made
   std::regex pattern;
-  try {
-    pattern = std::regex(channels, std::regex::ECMAScript);
-  } catch (const std::regex_error& error) {
-    throw UsageError("--channels '" + channels + "' is not a regular expression (" +
-                     error.what() + ")");
-  }
   UdpmAddress address;
-  try {
-    address = ParseUdpmUrl(url);
-  } catch (const std::runtime_error& error) {
-    throw UsageError(std::string("--lcm-url: ") + error.what());
-  }
+  parser.ParseOrExit(argc, argv, [] { std::printf("%s", kUsage); }, [&] {
+    try {
+      pattern = std::regex(channels, std::regex::ECMAScript);
+    } catch (const std::regex_error& error) {
+      throw UsageError("--channels '" + channels + "' is not a regular expression (" +
+                       error.what() + ")");
+    }
+    try {
+      address = ParseUdpmUrl(url);
+    } catch (const std::runtime_error& error) {
+      throw UsageError(std::string("--lcm-url: ") + error.what());
+    }
+  });
   if (std::filesystem::exists(out)) {
     throw std::runtime_error(out + " exists; pass another --out or remove it");
   }
@@ -115,9 +115,6 @@ int Run(int argc, char** argv) {
 int main(int argc, char** argv) {
   try {
     return stackgen::Run(argc, argv);
-  } catch (const stackgen::UsageError& error) {
-    std::fprintf(stderr, "stackgen-record: error: %s (see --help)\n", error.what());
-    return 2;
   } catch (const std::exception& error) {
     std::fprintf(stderr, "stackgen-record: error: %s\n", error.what());
     return 1;

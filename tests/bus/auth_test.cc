@@ -221,8 +221,8 @@ TEST(MessageAuthTest, KeyEvidenceNamesTheMismatch) {
   no_key.Note(ours, payload.data(), payload.size(), false);
   EXPECT_NE(no_key.Mismatch(ours, "the scenes").find("not signed"), std::string::npos);
 
-  // altered messages of this key, with an unsigned one beside: they blame no other key id
-  // (they said "another bus key (key id 0000000000000000)")
+  // altered messages of this key, with an unsigned one beside: they blame no other key id (no
+  // "another bus key (key id 0000000000000000)")
   std::vector<uint8_t> altered = own;
   altered[0] ^= 1;
   KeyEvidence forged;

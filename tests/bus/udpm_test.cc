@@ -179,7 +179,7 @@ TEST(UdpmReassemblerTest, ReassemblyMemoryIsBounded) {
 // What a stranger's fragments can pin: claims of messages cost nothing until their bytes come,
 // 200,000 one-byte fragments from 64 senders stay within the bound (counted with their
 // bookkeeping they would hold 26 MB) while a real message completes among them, and what is left is given up partial_timeout_s after its last fragment, its memory
-// freed. With the bytes claimed held at once (as before), the first check fails.
+// freed. Holding the bytes claimed at once fails the first check.
 TEST(UdpmReassemblerTest, AFragmentFloodIsBoundedAndExpires) {
   UdpmLimits limits;
   limits.max_partial_bytes = 4 << 20;

@@ -263,8 +263,8 @@ TEST_F(TrustTest, ARecordingIsTakenOnlyAsAReplay) {
 // (and the key ids) and goes on waiting, not saying "no generator heard" (nothing it cannot
 // verify stops it), and stores nothing; the keyed generator makes its scenes and ends with exit
 // 1, its error naming the mismatch as the reason no reliable consumer took them; the open one,
-// which verifies nothing, stops within seconds with that line as before. With the writer
-// stopping at the first mismatch (as it did), the writer's checks fail.
+// which verifies nothing, stops within seconds with that line. A writer that stopped at the
+// first mismatch would fail the writer's checks.
 TEST(TrustKeysTest, DifferentKeysAreSaidAndStopNoKeyedProcess) {
   const testing::ScratchDir scratch("trust-keys");
   const std::string wrong_key = scratch.path() + "/wrong.key";
@@ -325,8 +325,8 @@ TEST(TrustKeysTest, DifferentKeysAreSaidAndStopNoKeyedProcess) {
 
 // One unsigned 22-byte message, what any stranger on the LAN can send, on STACKGEN_CONFIG at a
 // writer that waits for its generator and on STACKGEN_CREDIT at a generator that waits for its
-// writer's credit (--resume) stops neither (both stopped after 2 s before): each is still
-// running 3 s later, and the run then completes. The writer says what it heard in one warning.
+// writer's credit (--resume) stops neither: each is still running 3 s later, and the run then
+// completes. The writer says what it heard in one warning.
 TEST(TrustKeysTest, OneUnsignedDatagramStopsNoOne) {
   const testing::ScratchDir scratch("trust-one");
   const std::string cache = scratch.path() + "/cache";
@@ -383,10 +383,9 @@ TEST(TrustKeysTest, OneUnsignedDatagramStopsNoOne) {
 
 // A relay between the buses of two runs of one user (one key): every datagram of run B's port
 // sent again onto run A's port and back, liveness challenges and answers included, while a
-// writer on A waits for its own generator. The writer stores none of B's scenes (before
-// messages were bound to their bus it took them all, a dataset byte-identical to B's), says in
-// one warning that what it hears was signed for another bus, and counts them relayed; run B
-// completes untouched.
+// writer on A waits for its own generator. The writer stores none of B's scenes (with messages
+// not bound to their bus it takes them all), says in one warning that what it hears was signed
+// for another bus, and counts them relayed; run B completes untouched.
 TEST(TrustKeysTest, ARelayFromAnotherBusStoresNothing) {
   const testing::ScratchDir scratch("trust-relay");
   const std::string url_a = testing::FreeMulticastUrl();

@@ -190,8 +190,8 @@ TEST(LcmToolsTest, SpyCheckFailsOnMissingType) {
 
 // tools/record on a private port records what is published on stackgen's channels and nothing
 // else, stops cleanly on SIGINT, and the log reads back with every message it heard; the two
-// datagrams of lcm#628 on every channel every 20 ms (stackgen-forger --lcm628), which made
-// liblcm's lcm-logger (the recorder before) write past a buffer, change nothing of that.
+// datagrams of lcm#628 on every channel every 20 ms (stackgen-forger --lcm628), which make
+// liblcm's receiver (lcm-logger's) write past a buffer, change nothing of that.
 TEST(LcmToolsTest, RecordWritesOnlyStackgenChannels) {
   const ScratchDir scratch("lcm-tools");
   const std::string url = testing::FreeMulticastUrl();

@@ -20,6 +20,7 @@
 
 #include <openssl/rand.h>
 #include <lcm/lcm-cpp.hpp>
+#include <stackgen/fragment_repair.hpp>
 #include <stackgen/liveness.hpp>
 
 #include "bus/channels.h"
@@ -126,9 +127,11 @@ struct Bus::Impl {
   // subscribers live here (a list: addresses stay valid) and outlive the LCM instance and the
   // receiver below.
   std::list<Subscriber> subscribers;
-  // LCM sends on every URL and receives memq:// and file://; udpm:// is received by our own
-  // receiver (udpm.h: liblcm's can be crashed by two datagrams), so LCM never listens there
+  // LCM sends and receives memq:// and file://; udpm:// is sent and received by our own code
+  // (udpm.h: liblcm's receiver can be crashed by two datagrams, and its sender cannot keep
+  // datagrams within the MTU or send a lost fragment again), so LCM is not opened there
   std::unique_ptr<lcm::LCM> lcm;
+  std::unique_ptr<UdpmSender> sender;
   // the liveness check of a keyed udpm:// bus, run by the receiver's thread (declared before
   // the receiver, so that it outlives the thread)
   std::unique_ptr<LivenessCheck> liveness;
@@ -233,6 +236,10 @@ struct Bus::Impl {
   bool Screen(const UdpmMessage& message) {
     const uint8_t* data = message.data.get();
     if (!auth->keyed()) {
+      if (message.channel == kRepairChannel) {
+        Repair(data, message.size);
+        return false;
+      }
       NoteKeyUse(message.channel, data, message.size, true);
       return true;
     }
@@ -258,16 +265,68 @@ struct Bus::Impl {
       liveness->Unanswered(trailer.sender, message.channel, UnixMicros());
       return false;
     }
+    if (message.channel == kRepairChannel) {
+      if (auth->Admit(message.channel, data, message.size, nullptr) >= 0) {
+        Repair(data, message.size - kAuthTrailerBytes);
+      }
+      return false;
+    }
     return true;
   }
 
-  // publishes a liveness message from the receiver's thread (LCM's udpm sending takes a lock)
+  // a receiver asks for fragments (on the receiver's thread): this bus's sender sends those of
+  // its own messages again
+  void Repair(const uint8_t* data, size_t size) {
+    fragment_repair ask;
+    if (!DecodeBounded(data, size, options.decode_limits, &ask, nullptr)) return;
+    if (ask.seqno < 0 || ask.seqno > UINT32_MAX || ask.size <= 0 || ask.fragments <= 0 ||
+        ask.fragments > 65535 || ask.first < 0 || ask.missing_bytes < 0 ||
+        static_cast<size_t>(ask.missing_bytes) * 8 > kMaxRepairBits) {
+      return;
+    }
+    UdpmRepair repair;
+    repair.sender = static_cast<uint64_t>(ask.sender);
+    repair.seqno = static_cast<uint32_t>(ask.seqno);
+    repair.size = static_cast<uint32_t>(ask.size);
+    repair.fragments = static_cast<uint16_t>(ask.fragments);
+    repair.first = static_cast<uint32_t>(ask.first);
+    repair.missing.assign(ask.missing, ask.missing + ask.missing_bytes);
+    try {
+      sender->Repair(repair);
+    } catch (const std::exception&) {
+      // sending failed: the receiver asks again, or its delivery layer asks for the message
+    }
+  }
+
+  // asks a message's sender for the fragments this bus lacks (on the receiver's thread)
+  void AskRepair(const UdpmRepair& repair) {
+    fragment_repair ask{};
+    ask.header.seq = -1;
+    ask.header.generator_id = -1;
+    ask.header.utime = UnixMicros();
+    ask.sender = static_cast<int64_t>(repair.sender);
+    ask.seqno = repair.seqno;
+    ask.size = static_cast<int32_t>(repair.size);
+    ask.fragments = repair.fragments;
+    ask.first = static_cast<int32_t>(repair.first);
+    ask.missing_bytes = static_cast<int16_t>(std::min<size_t>(repair.missing.size(), 1024));
+    std::copy_n(repair.missing.begin(), ask.missing_bytes, ask.missing);
+    const std::vector<uint8_t> bytes = EncodeMessage(ask);
+    std::vector<uint8_t> sealed_bytes;
+    auth->Seal(kRepairChannel, bytes.data(), bytes.size(), &sealed_bytes);
+    try {
+      sender->Send(kRepairChannel, sealed_bytes.data(), sealed_bytes.size());
+    } catch (const std::exception&) {
+      // asked again later, while the message waits
+    }
+  }
+
+  // publishes a liveness message from the receiver's thread (the sender takes a lock)
   void SendLiveness(const stackgen::liveness& message) {
     const std::vector<uint8_t> bytes = EncodeMessage(message);
     std::vector<uint8_t> sealed_bytes;
     auth->Seal(kLivenessChannel, bytes.data(), bytes.size(), &sealed_bytes);
-    lcm->publish(kLivenessChannel, sealed_bytes.data(),
-                 static_cast<unsigned int>(sealed_bytes.size()));
+    sender->Send(kLivenessChannel, sealed_bytes.data(), sealed_bytes.size());
   }
 
   Subscriber* Find(const std::string& channel) {
@@ -343,9 +402,11 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
                    program_invocation_short_name, url.c_str());
     }
   }
-  impl_->lcm = OpenLcm(url);
+  if (!is_udpm) impl_->lcm = OpenLcm(url);
   if (is_udpm) {
     Impl* impl = impl_.get();
+    const UdpmAddress address = ParseUdpmUrl(url);
+    impl_->sender = std::make_unique<UdpmSender>(address);
     if (impl_->auth->keyed()) {
       impl_->liveness = std::make_unique<LivenessCheck>(
           impl_->auth.get(), [impl](const liveness& message) { impl->SendLiveness(message); },
@@ -363,9 +424,10 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
     UdpmLimits limits;
     limits.max_message_bytes = options.decode_limits.max_message_bytes + kAuthTrailerBytes;
     impl_->receiver = std::make_unique<UdpmReceiver>(
-        ParseUdpmUrl(url), limits,
-        [impl](const UdpmMessage& message) { return impl->Screen(message); },
-        program_invocation_short_name);
+        address, limits, [impl](const UdpmMessage& message) { return impl->Screen(message); },
+        program_invocation_short_name,
+        [impl](const UdpmRepair& repair) { impl->AskRepair(repair); });
+    impl_->receiver->Subscribe(kRepairChannel, 1);
     if (impl_->liveness) {
       impl_->receiver->Subscribe(kLivenessChannel, 1);
       // every process hears that this one starts, and answers
@@ -447,7 +509,9 @@ void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t s
     data = impl_->sealed.data();
     size = impl_->sealed.size();
   }
-  if (impl_->lcm->publish(channel, data, static_cast<unsigned int>(size)) != 0) {
+  if (impl_->sender) {
+    impl_->sender->Send(channel, data, size);
+  } else if (impl_->lcm->publish(channel, data, static_cast<unsigned int>(size)) != 0) {
     throw std::runtime_error("cannot publish " + std::to_string(size) + " bytes on channel " +
                              channel + " (" + impl_->url + ")");
   }

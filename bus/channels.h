@@ -21,5 +21,8 @@ inline constexpr const char* kResendChannel = "STACKGEN_RESEND";
 /// The bus key's liveness check: challenges and answers between every two keyed processes
 /// (stackgen::liveness; bus/liveness.h). Sent and heard by the Bus itself.
 inline constexpr const char* kLivenessChannel = "STACKGEN_LIVENESS";
+/// Asks for the fragments of a message heard only in part (stackgen::fragment_repair;
+/// bus/udpm.h). Sent and heard by the Bus itself.
+inline constexpr const char* kRepairChannel = "STACKGEN_REPAIR";
 
 }  // namespace stackgen

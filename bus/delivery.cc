@@ -87,6 +87,8 @@ struct SceneServer::Impl {
     // when last_received last grew; tail resends since then (each waits twice the one before)
     TimePoint last_progress;
     int tail_resends = 0;
+    // scenes sent again while it lacked them, since it last progressed (stalled())
+    int64_t resent_since_progress = 0;
     // since when it offers no window (window 0), if it does
     std::optional<TimePoint> closed_since;
   };
@@ -195,6 +197,7 @@ struct SceneServer::Impl {
     if (received > consumer.last_received) {
       consumer.last_progress = now;
       consumer.tail_resends = 0;
+      consumer.resent_since_progress = 0;
     }
     consumer.last_received = received;
     consumer.window = message.window;
@@ -263,6 +266,9 @@ struct SceneServer::Impl {
       ++regenerated;
     }
     resent_at[seq] = clock->Now();
+    for (auto& [name, consumer] : consumers) {
+      if (consumer.stored_through < seq) ++consumer.resent_since_progress;
+    }
   }
 };
 
@@ -366,6 +372,26 @@ void SceneServer::Service(int timeout_ms) {
   for (auto it = impl.resent_at.begin(); it != impl.resent_at.end();) {
     it = SecondsSince(it->second, now) > 10 ? impl.resent_at.erase(it) : std::next(it);
   }
+}
+
+std::string SceneServer::stalled() const {
+  const Impl& impl = *impl_;
+  const TimePoint now = impl.clock->Now();
+  for (const auto& [name, consumer] : impl.consumers) {
+    const double stalled_s = SecondsSince(consumer.last_progress, now);
+    if (consumer.resent_since_progress == 0 || stalled_s < impl.options.stall_timeout_s ||
+        SecondsSince(consumer.last_heard, now) > kListeningS ||
+        consumer.stored_through >= impl.next_seq - 1) {
+      continue;
+    }
+    return "reliable consumer " + name + " has received none of the scenes it lacks (from seq " +
+           std::to_string(consumer.stored_through + 1) + ") for " +
+           std::to_string(static_cast<int>(stalled_s)) + " s though it still credits and they " +
+           "were sent again " + std::to_string(consumer.resent_since_progress) +
+           " times: the bus loses them on the way (between hosts: frame loss with a large mtu= " +
+           "in the URL, a firewall or a full receive buffer; README, Across hosts)";
+  }
+  return "";
 }
 
 bool SceneServer::AllStoredThrough(int64_t last_seq) const {

@@ -54,6 +54,11 @@ struct SceneServerOptions {
   /// A seq resent less than this ago is not resent again for another request (seconds,
   /// default 0.1), so that several consumers asking for it at once cost one resend.
   double min_resend_interval_s = 0.1;
+  /// A registered consumer that still credits but has received nothing of what it lacks and can
+  /// take, while it was sent again, for this long cannot be served over this bus (it loses every
+  /// copy): stalled() says so and the generator stops instead of waiting for ever (seconds,
+  /// default 60).
+  double stall_timeout_s = 60;
   /// This generator's RunName; empty: not checked. A credit naming another run (a consumer that
   /// holds scenes of another seed or config) registers nothing and sets run_conflict().
   std::string run;
@@ -122,6 +127,10 @@ class SceneServer {
   /// Empty, or one line naming the first consumer whose credit named another run than
   /// options.run, and both runs: the generator must not go on for it.
   const std::string& run_conflict() const;
+  /// Empty, or one line naming a consumer that has received nothing it lacks for
+  /// stall_timeout_s though it still credits and was sent its scenes again, and what it lacks:
+  /// the run cannot progress.
+  std::string stalled() const;
 
  private:
   struct Impl;

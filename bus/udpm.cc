@@ -18,6 +18,7 @@
 #include <deque>
 #include <map>
 #include <mutex>
+#include <set>
 #include <stdexcept>
 #include <thread>
 #include <unordered_map>
@@ -92,19 +93,32 @@ UdpmAddress ParseUdpmUrl(const std::string& url) {
     throw std::runtime_error("LCM URL " + url + " does not name an IPv4 multicast group");
   }
   address.group = ntohl(parsed.s_addr);
-  // the options LCM reads; the others are LCM's to warn about when it opens the URL
+  const auto number = [&url](const std::string& option, const std::string& name, long low,
+                             long high, const std::string& unit) {
+    const std::string text = option.substr(name.size() + 1);
+    char* end = nullptr;
+    const long value = std::strtol(text.c_str(), &end, 10);
+    if (text.empty() || *end != '\0' || value < low || value > high) {
+      throw std::runtime_error("bad " + name + " in LCM URL " + url + " (" + unit +
+                               std::to_string(low) + ".." + std::to_string(high) + ")");
+    }
+    return static_cast<int>(value);
+  };
   for (size_t at = query; at != std::string::npos && at + 1 < url.size();) {
     const size_t next = url.find('&', at + 1);
     const std::string option = url.substr(at + 1, next == std::string::npos ? next : next - at - 1);
     at = next;
-    if (option.rfind("recv_buf_size=", 0) != 0) continue;
-    const std::string text = option.substr(14);
-    char* end = nullptr;
-    const long value = std::strtol(text.c_str(), &end, 10);
-    if (text.empty() || *end != '\0' || value < 0 || value > (1L << 30)) {
-      throw std::runtime_error("bad recv_buf_size in LCM URL " + url + " (bytes, 0..1073741824)");
+    if (option.rfind("recv_buf_size=", 0) == 0) {
+      address.recv_buf_size = number(option, "recv_buf_size", 0, 1L << 30, "bytes, ");
+    } else if (option.rfind("ttl=", 0) == 0) {
+      address.ttl = number(option, "ttl", 0, 255, "");
+    } else if (option.rfind("mtu=", 0) == 0) {
+      address.mtu = number(option, "mtu", 576, 65535, "bytes, ");
+    } else {
+      // a typo (tll=1) would otherwise leave a default in force without a word
+      throw std::runtime_error("unknown option '" + option + "' in LCM URL " + url +
+                               " (udpm:// takes ttl=, recv_buf_size= and mtu=)");
     }
-    address.recv_buf_size = static_cast<int>(value);
   }
   return address;
 }
@@ -113,7 +127,10 @@ std::string ReceiveSummary(const UdpmCounters& counters) {
   return "received " + std::to_string(counters.datagrams) +
          " datagrams: " + std::to_string(counters.malformed) + " malformed, " +
          std::to_string(counters.abandoned) + " messages given up incomplete, " +
-         std::to_string(counters.queue_full) + " dropped for a full queue";
+         std::to_string(counters.queue_full) + " dropped for a full queue, " +
+         std::to_string(counters.repaired) + " completed by asking for " +
+         std::to_string(counters.repair_asks) +
+         " repairs";
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -124,7 +141,6 @@ struct UdpmReassembler::Impl {
   // for bytes that did not arrive; the message is put together when its last fragment comes)
   struct Partial {
     std::string channel;
-    uint32_t seqno = 0;
     uint32_t size = 0;
     uint16_t fragments = 0;
     std::vector<bool> heard;  // by fragment number
@@ -133,71 +149,193 @@ struct UdpmReassembler::Impl {
     size_t cost = 0;  // what it holds, bookkeeping included (kPartialBytes, kFragmentBytes)
     uint64_t last_use = 0;
     double last_heard_s = 0;
+    double last_asked_s = 0;  // a repair ask (0: none yet)
+    int asks = 0;             // asks since a fragment last came
+    bool asked = false;       // asked at least once
   };
+  // a message: its sender and msg_seqno
+  using Key = std::pair<uint64_t, uint32_t>;
 
   UdpmLimits limits;
   std::function<bool(const std::string&)> wanted;
-  std::unordered_map<uint64_t, Partial> partials;  // by sender
+  Repair repair;
+  std::map<Key, Partial> partials;
   size_t partial_bytes = 0;
   uint64_t uses = 0;
   UdpmCounters counters;
+  // the messages completed lately (or of channels not wanted), so that a late copy of a fragment
+  // begins nothing
+  std::deque<Key> completed;
+  std::set<Key> completed_set;
+  static constexpr size_t kCompletedKept = 256;
+  // messages heard without their fragment 0 (lost on the way): nothing is kept of them but that
+  // they exist, and they ask for their fragment 0, whose channel says whether they are wanted
+  struct Orphan {
+    uint32_t size = 0;
+    uint16_t fragments = 0;
+    double first_heard_s = 0;
+    double last_asked_s = 0;
+    int asks = 0;
+  };
+  std::map<Key, Orphan> orphans;
 
-  void Forget(std::unordered_map<uint64_t, Partial>::iterator it) {
+  void Done(const Key& key) {
+    if (!completed_set.insert(key).second) return;
+    completed.push_back(key);
+    if (completed.size() > kCompletedKept) {
+      completed_set.erase(completed.front());
+      completed.pop_front();
+    }
+  }
+
+  // notes a message heard without its fragment 0 (when repairs are asked for at all)
+  void NoteOrphan(const Key& key, uint32_t size, uint16_t fragments, double now_s) {
+    if (!repair || orphans.count(key) != 0) return;
+    // at most max_partials of them, and max_partials_per_sender of one sender: the oldest goes
+    const auto oldest_where = [&](bool same_sender) {
+      auto oldest = orphans.end();
+      for (auto it = orphans.begin(); it != orphans.end(); ++it) {
+        if (same_sender && it->first.first != key.first) continue;
+        if (oldest == orphans.end() || it->second.first_heard_s < oldest->second.first_heard_s) {
+          oldest = it;
+        }
+      }
+      return oldest;
+    };
+    int of_sender = 0;
+    for (auto it = orphans.lower_bound({key.first, 0});
+         it != orphans.end() && it->first.first == key.first; ++it) {
+      ++of_sender;
+    }
+    if (of_sender >= limits.max_partials_per_sender) orphans.erase(oldest_where(true));
+    if (static_cast<int>(orphans.size()) >= limits.max_partials) orphans.erase(oldest_where(false));
+    orphans[key] = Orphan{size, fragments, now_s, 0, 0};
+  }
+
+  void Forget(std::map<Key, Partial>::iterator it) {
     partial_bytes -= it->second.cost;
     partials.erase(it);
   }
 
-  // the message of `sender` is given up
-  void Abandon(uint64_t sender) {
-    const auto found = partials.find(sender);
-    if (found == partials.end()) return;
-    ++counters.abandoned;
-    Forget(found);
-  }
-
-  // a datagram that breaks the rules; the message of its sender in reassembly goes with it
-  bool Malformed(uint64_t sender) {
+  // a datagram that breaks the rules; the message it names in reassembly goes with it
+  bool Malformed(const Key* key = nullptr) {
     ++counters.malformed;
-    const auto found = partials.find(sender);
-    if (found != partials.end()) Forget(found);
+    if (key != nullptr) {
+      const auto found = partials.find(*key);
+      if (found != partials.end()) Forget(found);
+    }
     return false;
   }
 
-  // room for `bytes` more (and, with `another`, one more message) in reassembly, the least
-  // recent other than `keep`'s giving way
-  void MakeRoom(size_t bytes, bool another, uint64_t keep) {
-    while (partial_bytes + bytes > limits.max_partial_bytes ||
-           (another && static_cast<int>(partials.size()) >= limits.max_partials)) {
+  // room for `bytes` more (and, with `another`, one more message of `keep`'s sender) in
+  // reassembly, the least recent other than `keep` giving way
+  void MakeRoom(size_t bytes, bool another, const Key& keep) {
+    const auto oldest_where = [&](auto&& eligible) {
       auto oldest = partials.end();
       for (auto it = partials.begin(); it != partials.end(); ++it) {
-        if (it->first == keep) continue;
+        if (it->first == keep || !eligible(it->first)) continue;
         if (oldest == partials.end() || it->second.last_use < oldest->second.last_use) oldest = it;
       }
+      return oldest;
+    };
+    if (another) {
+      // the sender's own limit first: its least recent message gives way
+      while (true) {
+        int of_sender = 0;
+        for (auto it = partials.lower_bound({keep.first, 0});
+             it != partials.end() && it->first.first == keep.first; ++it) {
+          if (it->first != keep) ++of_sender;
+        }
+        if (of_sender < limits.max_partials_per_sender) break;
+        const auto oldest = oldest_where([&](const Key& key) { return key.first == keep.first; });
+        if (oldest == partials.end()) break;
+        ++counters.abandoned;
+        Forget(oldest);
+      }
+    }
+    while (partial_bytes + bytes > limits.max_partial_bytes ||
+           (another && static_cast<int>(partials.size()) >= limits.max_partials)) {
+      const auto oldest = oldest_where([](const Key&) { return true; });
       if (oldest == partials.end()) return;
       ++counters.abandoned;
       Forget(oldest);
     }
   }
 
-  // messages that heard no fragment for partial_timeout_s are given up (Add looks every quarter
-  // of it)
+  // the ask for what `partial` lacks, from its first missing fragment
+  void Ask(const Key& key, Partial& partial, double now_s) {
+    UdpmRepair ask;
+    ask.sender = key.first;
+    ask.seqno = key.second;
+    ask.size = partial.size;
+    ask.fragments = partial.fragments;
+    uint32_t first = 0;
+    while (first < partial.fragments && partial.heard[first]) ++first;
+    if (first >= partial.fragments) return;
+    ask.first = first;
+    const uint32_t bits = std::min<uint32_t>(kMaxRepairBits, partial.fragments - first);
+    ask.missing.assign((bits + 7) / 8, 0);
+    for (uint32_t i = 0; i < bits; ++i) {
+      if (!partial.heard[first + i]) ask.missing[i / 8] |= static_cast<uint8_t>(1u << (i % 8));
+    }
+    partial.last_asked_s = now_s;
+    partial.asked = true;
+    ++partial.asks;
+    ++counters.repair_asks;
+    repair(ask);
+  }
+
+  // messages that heard no fragment for partial_timeout_s are given up; those quiet for
+  // repair_after_s ask for what they lack (Add looks every repair_after_s, or quarter timeout)
   double swept_s = 0;
   void Expire(double now_s) {
     swept_s = now_s;
-    for (auto it = partials.begin(); it != partials.end();) {
-      if (now_s - it->second.last_heard_s >= limits.partial_timeout_s) {
-        ++counters.abandoned;
-        partial_bytes -= it->second.cost;
-        it = partials.erase(it);
-      } else {
-        ++it;
+    for (auto it = orphans.begin(); it != orphans.end();) {
+      Orphan& orphan = it->second;
+      if (now_s - orphan.first_heard_s >= limits.partial_timeout_s ||
+          orphan.asks >= limits.max_repair_asks) {
+        it = orphans.erase(it);
+        continue;
       }
+      if (now_s - std::max(orphan.first_heard_s, orphan.last_asked_s) >= limits.repair_after_s) {
+        UdpmRepair ask;
+        ask.sender = it->first.first;
+        ask.seqno = it->first.second;
+        ask.size = orphan.size;
+        ask.fragments = orphan.fragments;
+        ask.first = 0;
+        ask.missing = {1};
+        orphan.last_asked_s = now_s;
+        ++orphan.asks;
+        ++counters.repair_asks;
+        repair(ask);
+      }
+      ++it;
+    }
+    for (auto it = partials.begin(); it != partials.end();) {
+      Partial& partial = it->second;
+      if (now_s - partial.last_heard_s >= limits.partial_timeout_s) {
+        ++counters.abandoned;
+        partial_bytes -= partial.cost;
+        it = partials.erase(it);
+        continue;
+      }
+      if (repair && partial.asks < limits.max_repair_asks &&
+          now_s - std::max(partial.last_heard_s, partial.last_asked_s) >= limits.repair_after_s) {
+        Ask(it->first, partial, now_s);
+      }
+      ++it;
     }
   }
 
-  bool Short(uint64_t sender, const uint8_t* data, size_t size, UdpmMessage* message) {
+  double Interval() const {
+    return repair ? std::min(limits.repair_after_s, limits.partial_timeout_s / 4)
+                  : limits.partial_timeout_s / 4;
+  }
+
+  bool Short(const uint8_t* data, size_t size, UdpmMessage* message) {
     const int64_t length = ChannelLength(data + kShortHeaderBytes, size - kShortHeaderBytes);
-    if (length < 0) return Malformed(sender);
+    if (length < 0) return Malformed();
     std::string channel(reinterpret_cast<const char*>(data + kShortHeaderBytes),
                         static_cast<size_t>(length));
     if (!wanted(channel)) return false;
@@ -212,24 +350,25 @@ struct UdpmReassembler::Impl {
 
   bool Fragment(uint64_t sender, const uint8_t* data, size_t size, double now_s,
                 UdpmMessage* message) {
-    if (size < kLongHeaderBytes) return Malformed(sender);
+    if (size < kLongHeaderBytes) return Malformed();
     const uint32_t seqno = GetU32(data + 4);
     const uint32_t msg_size = GetU32(data + 8);
     const uint32_t offset = GetU32(data + 12);
     const uint16_t number = GetU16(data + 16);
     const uint16_t fragments = GetU16(data + 18);
+    const Key key{sender, seqno};
     if (msg_size == 0 || msg_size > limits.max_message_bytes || fragments == 0 ||
         number >= fragments) {
-      return Malformed(sender);
+      return Malformed(&key);
     }
-
-    // another message of this sender ends the one in reassembly
-    auto found = partials.find(sender);
+    auto found = partials.find(key);
+    if (found == partials.end() && completed_set.count(key) != 0) {
+      ++counters.repeats;  // a late copy of a message already complete (or not wanted)
+      return false;
+    }
     if (found != partials.end() &&
-        (found->second.seqno != seqno || found->second.size != msg_size ||
-         found->second.fragments != fragments)) {
-      Abandon(sender);
-      found = partials.end();
+        (found->second.size != msg_size || found->second.fragments != fragments)) {
+      return Malformed(&key);
     }
 
     // fragment 0 begins a message: its channel first
@@ -237,44 +376,59 @@ struct UdpmReassembler::Impl {
     size_t length = size - kLongHeaderBytes;
     if (number == 0) {
       const int64_t channel_length = ChannelLength(bytes, length);
-      if (channel_length < 0 || offset != 0) return Malformed(sender);
-      if (found != partials.end()) return Malformed(sender);  // fragment 0 again
+      if (channel_length < 0 || offset != 0) return Malformed(&key);
       std::string channel(reinterpret_cast<const char*>(bytes),
                           static_cast<size_t>(channel_length));
-      if (!wanted(channel)) return false;
       bytes += channel_length + 1;
       length -= static_cast<size_t>(channel_length) + 1;
-      // what the whole message would hold: more than reassembly may, and it is never begun
-      if (MessageCost(msg_size, fragments) > limits.max_partial_bytes) return Malformed(sender);
-      const size_t cost = kPartialBytes + fragments / 8;
-      MakeRoom(cost, true, sender);
-      Partial partial;
-      partial.channel = std::move(channel);
-      partial.seqno = seqno;
-      partial.size = msg_size;
-      partial.fragments = fragments;
-      partial.heard.assign(fragments, false);
-      partial.cost = cost;
-      found = partials.emplace(sender, std::move(partial)).first;
-      partial_bytes += cost;
+      if (found != partials.end()) {
+        if (found->second.channel != channel) return Malformed(&key);
+      } else {
+        const bool was_orphan = orphans.erase(key) > 0;
+        if (!wanted(channel)) {
+          Done(key);
+          return false;
+        }
+        // what the whole message would hold: more than reassembly may, and it is never begun
+        if (MessageCost(msg_size, fragments) > limits.max_partial_bytes) return Malformed();
+        const size_t cost = kPartialBytes + fragments / 8;
+        MakeRoom(cost, true, key);
+        Partial partial;
+        partial.channel = std::move(channel);
+        partial.size = msg_size;
+        partial.fragments = fragments;
+        partial.heard.assign(fragments, false);
+        partial.cost = cost;
+        partial.asked = was_orphan;
+        found = partials.emplace(key, std::move(partial)).first;
+        partial_bytes += cost;
+      }
     } else if (found == partials.end()) {
-      return false;  // its fragment 0 was not heard: nothing to add it to
+      // its fragment 0 was not heard: nothing to add it to, but it can be asked for
+      NoteOrphan(key, msg_size, fragments, now_s);
+      return false;
     }
 
-    // the fragment's place: inside the message, once, over no other
+    // the fragment's place: inside the message, over no other; the same place again is a repeat
     Partial& partial = found->second;
     const uint64_t end = uint64_t{offset} + length;
-    if (length == 0 || end > partial.size || partial.heard[number]) {
-      return Malformed(sender);
-    }
+    if (length == 0 || end > partial.size) return Malformed(&key);
     const auto after = partial.pieces.lower_bound(offset);
-    if (after != partial.pieces.end() && after->first < end) return Malformed(sender);
+    if (partial.heard[number]) {
+      if (after != partial.pieces.end() && after->first == offset &&
+          after->second.size() == length) {
+        ++counters.repeats;
+        return false;
+      }
+      return Malformed(&key);
+    }
+    if (after != partial.pieces.end() && after->first < end) return Malformed(&key);
     if (after != partial.pieces.begin() &&
         std::prev(after)->first + std::prev(after)->second.size() > offset) {
-      return Malformed(sender);
+      return Malformed(&key);
     }
     const size_t cost = length + kFragmentBytes;
-    MakeRoom(cost, false, sender);
+    MakeRoom(cost, false, key);
     partial.pieces.emplace_hint(after, offset, std::vector<uint8_t>(bytes, bytes + length));
     partial.heard[number] = true;
     partial.bytes_heard += length;
@@ -282,27 +436,31 @@ struct UdpmReassembler::Impl {
     partial_bytes += cost;
     partial.last_use = ++uses;
     partial.last_heard_s = now_s;
+    partial.asks = 0;
     if (partial.pieces.size() < partial.fragments) return false;
 
     // every fragment heard: complete when they cover the message
-    if (partial.bytes_heard != partial.size) return Malformed(sender);
+    if (partial.bytes_heard != partial.size) return Malformed(&key);
     message->channel = std::move(partial.channel);
     message->data.reset(new uint8_t[partial.size]);
     for (const auto& [at, piece] : partial.pieces) {
       std::memcpy(message->data.get() + at, piece.data(), piece.size());
     }
     message->size = partial.size;
+    if (partial.asked) ++counters.repaired;
     Forget(found);
+    Done(key);
     ++counters.messages;
     return true;
   }
 };
 
 UdpmReassembler::UdpmReassembler(const UdpmLimits& limits,
-                                 std::function<bool(const std::string&)> wanted)
+                                 std::function<bool(const std::string&)> wanted, Repair repair)
     : impl_(std::make_unique<Impl>()) {
   impl_->limits = limits;
   impl_->wanted = std::move(wanted);
+  impl_->repair = std::move(repair);
 }
 
 UdpmReassembler::~UdpmReassembler() = default;
@@ -315,17 +473,38 @@ bool UdpmReassembler::Add(uint64_t sender, const uint8_t* data, size_t size, dou
                           UdpmMessage* message) {
   Impl& impl = *impl_;
   ++impl.counters.datagrams;
-  if (now_s - impl.swept_s >= impl.limits.partial_timeout_s / 4) impl.Expire(now_s);
-  if (size < kShortHeaderBytes || size >= kDatagramBuffer) return impl.Malformed(sender);
+  if (now_s - impl.swept_s >= impl.Interval()) impl.Expire(now_s);
+  if (size < kShortHeaderBytes || size >= kDatagramBuffer) return impl.Malformed();
   const uint32_t magic = GetU32(data);
-  if (magic == kMagicShort) return impl.Short(sender, data, size, message);
+  if (magic == kMagicShort) return impl.Short(data, size, message);
   if (magic == kMagicLong) return impl.Fragment(sender, data, size, now_s, message);
-  return impl.Malformed(sender);
+  return impl.Malformed();
 }
 
 void UdpmReassembler::Expire() { Expire(SteadySeconds()); }
 
 void UdpmReassembler::Expire(double now_s) { impl_->Expire(now_s); }
+
+double UdpmReassembler::NextDue(double now_s) const {
+  const Impl& impl = *impl_;
+  double due = -1;
+  for (const auto& [key, orphan] : impl.orphans) {
+    const double at =
+        std::max(orphan.first_heard_s, orphan.last_asked_s) + impl.limits.repair_after_s;
+    const double left = std::max(0.0, at - now_s);
+    if (due < 0 || left < due) due = left;
+  }
+  for (const auto& [key, partial] : impl.partials) {
+    double at = partial.last_heard_s + impl.limits.partial_timeout_s;
+    if (impl.repair && partial.asks < impl.limits.max_repair_asks) {
+      at = std::min(at, std::max(partial.last_heard_s, partial.last_asked_s) +
+                            impl.limits.repair_after_s);
+    }
+    const double left = std::max(0.0, at - now_s);
+    if (due < 0 || left < due) due = left;
+  }
+  return due;
+}
 
 size_t UdpmReassembler::partial_bytes() const { return impl_->partial_bytes; }
 
@@ -368,6 +547,9 @@ struct UdpmReceiver::Impl {
     counters.messages = read.messages;
     counters.malformed = read.malformed;
     counters.abandoned = read.abandoned;
+    counters.repeats = read.repeats;
+    counters.repair_asks = read.repair_asks;
+    counters.repaired = read.repaired;
   }
 
   bool Wanted(const std::string& channel) {
@@ -389,10 +571,10 @@ struct UdpmReceiver::Impl {
     std::vector<uint8_t> buffer(kDatagramBuffer);
     while (true) {
       pollfd fds[2] = {{socket_fd, POLLIN, 0}, {stop_fd, POLLIN, 0}};
-      // with messages in reassembly, wake up to give up those timed out even when nothing comes
-      const int timeout_ms = reassembler->partials() > 0
-                                 ? std::max(1, static_cast<int>(limits.partial_timeout_s * 500))
-                                 : -1;
+      // with messages in reassembly, wake up to ask for what they lack and to give up those timed
+      // out even when nothing comes
+      const double due_s = reassembler->NextDue(SteadySeconds());
+      const int timeout_ms = due_s < 0 ? -1 : std::max(1, static_cast<int>(due_s * 1000) + 1);
       const int ready = poll(fds, 2, timeout_ms);
       if (ready < 0) continue;
       if (fds[1].revents != 0) return;
@@ -438,7 +620,7 @@ struct UdpmReceiver::Impl {
 };
 
 UdpmReceiver::UdpmReceiver(const UdpmAddress& address, const UdpmLimits& limits, Admit admit,
-                           const std::string& program)
+                           const std::string& program, UdpmReassembler::Repair repair)
     : impl_(std::make_unique<Impl>()) {
   Impl& impl = *impl_;
   impl.limits = limits;
@@ -498,7 +680,8 @@ UdpmReceiver::UdpmReceiver(const UdpmAddress& address, const UdpmLimits& limits,
 
   Impl* shared = impl_.get();
   impl.reassembler = std::make_unique<UdpmReassembler>(
-      limits, [shared](const std::string& channel) { return shared->Wanted(channel); });
+      limits, [shared](const std::string& channel) { return shared->Wanted(channel); },
+      std::move(repair));
   impl.thread = std::thread([shared] { shared->Loop(); });
 }
 
@@ -557,6 +740,235 @@ UdpmReceiver::Taken UdpmReceiver::Take(int timeout_ms, UdpmMessage* message) {
 UdpmCounters UdpmReceiver::counters() const {
   const std::lock_guard<std::mutex> lock(impl_->mutex);
   return impl_->counters;
+}
+
+// ---------------------------------------------------------------------------------------------
+// UdpmSender
+
+struct UdpmSender::Impl {
+  // a fragmented message sent lately, kept for repairs
+  struct Sent {
+    uint32_t seqno = 0;
+    std::string channel;
+    std::vector<uint8_t> bytes;
+    uint16_t fragments = 0;
+    std::vector<double> resent_s;  // by fragment: when last sent again (0: never)
+  };
+
+  int socket_fd = -1;
+  sockaddr_in to{};
+  std::string where;
+  uint16_t port = 0;
+  size_t max_datagram = 0;  // UDP payload bytes
+  size_t max_kept_bytes = 0;
+
+  std::mutex mutex;  // guards what follows
+  uint32_t next_seqno = 0;
+  std::deque<Sent> kept;
+  size_t kept_bytes = 0;
+  int64_t repaired = 0;
+  std::vector<uint8_t> datagram;
+
+  ~Impl() {
+    if (socket_fd >= 0) close(socket_fd);
+  }
+
+  // the message bytes a fragment carries beside the header (fragment 0: the channel too)
+  size_t FragmentCapacity() const { return max_datagram - kLongHeaderBytes; }
+
+  // sends datagram[0, size); with the lock held
+  void SendDatagram(size_t size, const std::string& channel) {
+    for (int attempt = 0;; ++attempt) {
+      const ssize_t sent = sendto(socket_fd, datagram.data(), size, 0,
+                                  reinterpret_cast<const sockaddr*>(&to), sizeof(to));
+      if (sent == static_cast<ssize_t>(size)) return;
+      // the interface's queue is full: wait for it a little, as a blocking socket would
+      if (sent < 0 && (errno == ENOBUFS || errno == EAGAIN || errno == EINTR) && attempt < 100) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        continue;
+      }
+      throw std::runtime_error("cannot send on channel " + channel + " to " + where + ": " +
+                               Errno("sendto"));
+    }
+  }
+
+  // sends fragment `number` of `message`; with the lock held
+  void SendFragment(const Sent& message, uint16_t number) {
+    const size_t channel_bytes = message.channel.size() + 1;
+    const size_t capacity = FragmentCapacity();
+    // the message's bytes are the channel and the data, cut into pieces of `capacity`
+    const size_t start = size_t{number} * capacity;
+    const size_t stop = std::min(start + capacity, channel_bytes + message.bytes.size());
+    const uint32_t offset = static_cast<uint32_t>(number == 0 ? 0 : start - channel_bytes);
+    datagram.resize(kLongHeaderBytes + (stop - start));
+    uint8_t* out = datagram.data();
+    PutU32(out, kMagicLong);
+    PutU32(out + 4, message.seqno);
+    PutU32(out + 8, static_cast<uint32_t>(message.bytes.size()));
+    PutU32(out + 12, offset);
+    out[16] = static_cast<uint8_t>(number >> 8);
+    out[17] = static_cast<uint8_t>(number);
+    out[18] = static_cast<uint8_t>(message.fragments >> 8);
+    out[19] = static_cast<uint8_t>(message.fragments);
+    out += kLongHeaderBytes;
+    if (number == 0) {
+      std::memcpy(out, message.channel.c_str(), channel_bytes);
+      out += channel_bytes;
+    }
+    const size_t data_begin = number == 0 ? 0 : start - channel_bytes;
+    const size_t data_end = stop - channel_bytes;
+    std::memcpy(out, message.bytes.data() + data_begin, data_end - data_begin);
+    SendDatagram(datagram.size(), message.channel);
+  }
+
+  static void PutU32(uint8_t* out, uint32_t value) {
+    out[0] = static_cast<uint8_t>(value >> 24);
+    out[1] = static_cast<uint8_t>(value >> 16);
+    out[2] = static_cast<uint8_t>(value >> 8);
+    out[3] = static_cast<uint8_t>(value);
+  }
+};
+
+namespace {
+
+// the MTU of the interface the route to `to` takes, or 0 when it cannot be told
+int RouteMtu(const sockaddr_in& to) {
+  const int fd = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return 0;
+  int mtu = 0;
+  socklen_t length = sizeof(mtu);
+  if (connect(fd, reinterpret_cast<const sockaddr*>(&to), sizeof(to)) != 0 ||
+      getsockopt(fd, IPPROTO_IP, IP_MTU, &mtu, &length) != 0) {
+    mtu = 0;
+  }
+  close(fd);
+  return mtu;
+}
+
+}  // namespace
+
+UdpmSender::UdpmSender(const UdpmAddress& address, size_t max_kept_bytes)
+    : impl_(std::make_unique<Impl>()) {
+  Impl& impl = *impl_;
+  impl.max_kept_bytes = max_kept_bytes;
+  impl.to.sin_family = AF_INET;
+  impl.to.sin_addr.s_addr = htonl(address.group);
+  impl.to.sin_port = htons(address.port);
+  char group_text[INET_ADDRSTRLEN] = "?";
+  inet_ntop(AF_INET, &impl.to.sin_addr, group_text, sizeof(group_text));
+  impl.where = std::string(group_text) + ":" + std::to_string(address.port);
+  const auto fail = [&impl](const std::string& call) {
+    throw std::runtime_error("cannot send to multicast group " + impl.where + ": " + Errno(call));
+  };
+  impl.socket_fd = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+  if (impl.socket_fd < 0) fail("socket");
+  const unsigned char ttl = static_cast<unsigned char>(address.ttl);
+  if (setsockopt(impl.socket_fd, IPPROTO_IP, IP_MULTICAST_TTL, &ttl, sizeof(ttl)) < 0) {
+    fail("setsockopt(IP_MULTICAST_TTL)");
+  }
+  const unsigned char loop = 1;
+  if (setsockopt(impl.socket_fd, IPPROTO_IP, IP_MULTICAST_LOOP, &loop, sizeof(loop)) < 0) {
+    fail("setsockopt(IP_MULTICAST_LOOP)");
+  }
+  // a port of its own now, so that receivers' repair asks can name it
+  sockaddr_in local{};
+  local.sin_family = AF_INET;
+  local.sin_addr.s_addr = htonl(INADDR_ANY);
+  if (bind(impl.socket_fd, reinterpret_cast<const sockaddr*>(&local), sizeof(local)) < 0) {
+    fail("bind");
+  }
+  socklen_t length = sizeof(local);
+  if (getsockname(impl.socket_fd, reinterpret_cast<sockaddr*>(&local), &length) < 0) {
+    fail("getsockname");
+  }
+  impl.port = ntohs(local.sin_port);
+  int mtu = address.mtu;
+  if (mtu == 0) mtu = address.ttl == 0 ? 65535 : RouteMtu(impl.to);
+  if (mtu < 576) mtu = 1500;  // the route's MTU could not be told: Ethernet's
+  // IPv4 and UDP headers (20 + 8 bytes); a UDP payload is 65507 bytes at most
+  impl.max_datagram = std::min<size_t>(static_cast<size_t>(mtu) - 28, 65507);
+}
+
+UdpmSender::~UdpmSender() = default;
+
+void UdpmSender::Send(const std::string& channel, const uint8_t* data, size_t size) {
+  Impl& impl = *impl_;
+  if (channel.empty() || channel.size() > kMaxChannelBytes) {
+    throw std::runtime_error("cannot send on channel '" + channel + "': a channel is 1.." +
+                             std::to_string(kMaxChannelBytes) + " bytes");
+  }
+  const std::lock_guard<std::mutex> lock(impl.mutex);
+  const uint32_t seqno = impl.next_seqno++;
+  const size_t channel_bytes = channel.size() + 1;
+  if (kShortHeaderBytes + channel_bytes + size <= impl.max_datagram) {
+    impl.datagram.resize(kShortHeaderBytes + channel_bytes + size);
+    Impl::PutU32(impl.datagram.data(), kMagicShort);
+    Impl::PutU32(impl.datagram.data() + 4, seqno);
+    std::memcpy(impl.datagram.data() + kShortHeaderBytes, channel.c_str(), channel_bytes);
+    if (size > 0) {
+      std::memcpy(impl.datagram.data() + kShortHeaderBytes + channel_bytes, data, size);
+    }
+    impl.SendDatagram(impl.datagram.size(), channel);
+    return;
+  }
+  const size_t capacity = impl.FragmentCapacity();
+  const size_t fragments = (channel_bytes + size + capacity - 1) / capacity;
+  if (fragments > 65535 || size > UINT32_MAX) {
+    throw std::runtime_error("cannot send " + std::to_string(size) + " bytes on channel " +
+                             channel + " to " + impl.where + ": more than 65535 datagrams of " +
+                             std::to_string(impl.max_datagram) + " bytes (raise mtu=)");
+  }
+  Impl::Sent sent;
+  sent.seqno = seqno;
+  sent.channel = channel;
+  sent.bytes.assign(data, data + size);
+  sent.fragments = static_cast<uint16_t>(fragments);
+  sent.resent_s.assign(fragments, 0.0);
+  for (size_t number = 0; number < fragments; ++number) {
+    impl.SendFragment(sent, static_cast<uint16_t>(number));
+  }
+  // kept for repairs, the oldest giving way (the newest is always kept)
+  impl.kept_bytes += sent.bytes.size();
+  impl.kept.push_back(std::move(sent));
+  while (impl.kept.size() > 1 && impl.kept_bytes > impl.max_kept_bytes) {
+    impl.kept_bytes -= impl.kept.front().bytes.size();
+    impl.kept.pop_front();
+  }
+}
+
+int UdpmSender::Repair(const UdpmRepair& repair) {
+  Impl& impl = *impl_;
+  if ((repair.sender & 0xFFFF) != impl.port) return 0;
+  const std::lock_guard<std::mutex> lock(impl.mutex);
+  const auto found = std::find_if(impl.kept.begin(), impl.kept.end(), [&](const Impl::Sent& sent) {
+    return sent.seqno == repair.seqno && sent.bytes.size() == repair.size &&
+           sent.fragments == repair.fragments;
+  });
+  if (found == impl.kept.end()) return 0;
+  const double now_s = SteadySeconds();
+  int count = 0;
+  const size_t bits = std::min<size_t>(repair.missing.size() * 8, kMaxRepairBits);
+  for (size_t i = 0; i < bits; ++i) {
+    if ((repair.missing[i / 8] & (1u << (i % 8))) == 0) continue;
+    const uint64_t number = uint64_t{repair.first} + i;
+    if (number >= found->fragments) break;
+    double& resent = found->resent_s[number];
+    if (resent > 0 && now_s - resent < 0.01) continue;
+    resent = now_s;
+    impl.SendFragment(*found, static_cast<uint16_t>(number));
+    ++count;
+  }
+  impl.repaired += count;
+  return count;
+}
+
+uint16_t UdpmSender::port() const { return impl_->port; }
+
+size_t UdpmSender::max_datagram() const { return impl_->max_datagram; }
+
+int64_t UdpmSender::repaired_fragments() const {
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->repaired;
 }
 
 }  // namespace stackgen

@@ -63,6 +63,9 @@ flags:
                       stored through: waits up to --consumer-timeout for their credits
   --consumer-timeout S  a reliable consumer silent for S seconds is no longer waited for
                       (default: 10)
+  --stall-timeout S   a reliable consumer that still credits but has received none of the
+                      scenes it lacks for S seconds, though they were sent again, ends the
+                      run with an error naming it (the bus loses them; default: 60)
   --no-consumer-ok    a run that ends by itself (--count) exits 0 even when no reliable
                       consumer registered, or one went silent before storing every scene
                       (default: both end with an error, exit 1: a dataset missed them)
@@ -107,6 +110,7 @@ int Run(int argc, char** argv) {
   bool check = false;
   bool no_consumer_ok = false;
   int64_t consumer_timeout = 10;
+  int64_t stall_timeout = 60;
   int ring_size = 64;
   int physics_threads = UsableCores();
   BusOptions bus_options;
@@ -123,6 +127,7 @@ int Run(int argc, char** argv) {
   parser.Switch("--check", &check);
   parser.Switch("--no-consumer-ok", &no_consumer_ok);
   parser.Int("--consumer-timeout", &consumer_timeout, 1, 86400);
+  parser.Int("--stall-timeout", &stall_timeout, 1, 86400);
   parser.Int("--resend-ring", &ring_size, 1, 10000);
   parser.Int("--physics-threads", &physics_threads, 1, 256);
   parser.FaultDrop(&bus_options.drop_receive_fraction);
@@ -165,6 +170,7 @@ int Run(int argc, char** argv) {
   options.resume = resume;
   options.no_consumer_ok = no_consumer_ok;
   options.consumer_timeout_s = static_cast<double>(consumer_timeout);
+  options.stall_timeout_s = static_cast<double>(stall_timeout);
   options.ring_size = ring_size;
   options.physics_threads = physics_threads;
   options.progress = isatty(STDERR_FILENO) != 0;

@@ -196,6 +196,7 @@ GeneratorNode::Impl::Impl(Bus* bus_in, SceneGenerator* generator_in, const Loade
   server_options.generator_id = generator_id;
   server_options.ring_size = options.ring_size;
   server_options.consumer_timeout_s = options.consumer_timeout_s;
+  server_options.stall_timeout_s = options.stall_timeout_s;
   server_options.clock = &clock;
   // a dataset of another run (seed or config) is not continued by this one
   server_options.run = RunName(static_cast<int64_t>(seed), config.path, config_message.pbtxt);
@@ -277,6 +278,8 @@ void GeneratorNode::Impl::Serve(int timeout_ms) {
                              ": continue it with that run's --seed and --config, or give the "
                              "writer another --out");
   }
+  const std::string stalled = server->stalled();
+  if (!stalled.empty()) throw std::runtime_error(stalled + "; stopping rather than waiting for ever");
   const std::string mismatch = bus.KeyMismatch(consumer_channels, kKeyMismatchS);
   // an open bus trusts every sender anyway: its keyed consumers would refuse every scene
   if (!bus.keyed() && !mismatch.empty()) throw std::runtime_error(mismatch);

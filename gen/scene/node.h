@@ -38,6 +38,9 @@ struct GeneratorNodeOptions {
   bool no_consumer_ok = false;
   /// A reliable consumer silent for this long is no longer waited for (seconds).
   double consumer_timeout_s = 10;
+  /// A reliable consumer that credits but receives none of what it lacks for this long ends
+  /// the run with an error (SceneServerOptions::stall_timeout_s; seconds).
+  double stall_timeout_s = 60;
   /// Encoded scenes kept for resending.
   int ring_size = 64;
   /// Piles settled at once, one world per thread, ahead of the one being rendered; the scenes

@@ -451,6 +451,52 @@ TEST_F(DeliveryFixture, TailResendsBackOff) {
   EXPECT_EQ(server_->resent(), before);
 }
 
+// a consumer that credits but receives no copy of what it lacks (a bus that loses them all)
+// stalls the run: after stall_timeout_s of resends without progress stalled() names it, never
+// before; one that receives again is not stalled, nor one that stopped crediting (paused).
+TEST_F(DeliveryFixture, AConsumerThatReceivesNothingStallsTheRun) {
+  SceneServerOptions server_options;
+  server_options.tail_resend_s = 0.05;
+  server_options.min_resend_interval_s = 0;
+  server_options.stall_timeout_s = 5;
+  server_options.consumer_timeout_s = 100;
+  SetUpLink(server_options, Client(4));
+  Exchange();
+  server_->Publish(0, EncodedScene(0, 0));
+  bus_->HandleFor(0);
+  Exchange();
+  EXPECT_EQ(client_->StoredThrough(0), 0);
+  // from here every copy of seq 1 is lost
+  server_->Publish(1, EncodedScene(0, 1));
+  const auto run_for = [this](double seconds) {
+    for (double t = 0; t < seconds; t += 0.05) {
+      drop_ = {{0, 1}};
+      clock_.Advance(0.05);
+      client_->Service();
+      server_->Service(0);
+      drop_ = {{0, 1}};
+      bus_->HandleFor(0);
+    }
+  };
+  run_for(4.5);
+  EXPECT_GT(server_->resent(), 2);
+  EXPECT_EQ(server_->stalled(), "");
+  run_for(1);
+  const std::string stalled = server_->stalled();
+  EXPECT_NE(stalled.find("test-consumer"), std::string::npos) << stalled;
+  EXPECT_NE(stalled.find("from seq 1"), std::string::npos) << stalled;
+  // a copy gets through: progress, no longer stalled
+  server_->Publish(2, EncodedScene(0, 2));
+  bus_->HandleFor(0);
+  Exchange();
+  EXPECT_EQ(server_->stalled(), "");
+  // paused (no credit for over a second): not stalled however long it lasts
+  run_for(6);
+  EXPECT_NE(server_->stalled(), "");
+  clock_.Advance(2);
+  EXPECT_EQ(server_->stalled(), "");
+}
+
 // a generator's server can go before its bus: its subscriptions end with it, so credits and
 // resend requests that still come are handled by no one (no handler into a destroyed server)
 TEST_F(DeliveryFixture, ServerEndsBeforeItsBus) {

@@ -12,11 +12,13 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <deque>
 #include <exception>
 #include <list>
 #include <map>
 #include <mutex>
 #include <optional>
+#include <set>
 
 #include <openssl/rand.h>
 #include <lcm/lcm-cpp.hpp>
@@ -132,6 +134,21 @@ struct Bus::Impl {
   // datagrams within the MTU or send a lost fragment again), so LCM is not opened there
   std::unique_ptr<lcm::LCM> lcm;
   std::unique_ptr<UdpmSender> sender;
+  // the addresses and ports that sent a message this bus verified (or, open, any message), on
+  // the receiver's thread: only they are asked for missing fragments, so a stranger's fragments
+  // cannot make this process send asks (kMaxPeerAddresses at most, the oldest giving way)
+  std::set<uint64_t> peer_addresses;
+  std::deque<uint64_t> peer_order;
+  static constexpr size_t kMaxPeerAddresses = 4096;
+
+  void NotePeer(uint64_t address) {
+    if (!peer_addresses.insert(address).second) return;
+    peer_order.push_back(address);
+    if (peer_order.size() > kMaxPeerAddresses) {
+      peer_addresses.erase(peer_order.front());
+      peer_order.pop_front();
+    }
+  }
   // the liveness check of a keyed udpm:// bus, run by the receiver's thread (declared before
   // the receiver, so that it outlives the thread)
   std::unique_ptr<LivenessCheck> liveness;
@@ -236,6 +253,7 @@ struct Bus::Impl {
   bool Screen(const UdpmMessage& message) {
     const uint8_t* data = message.data.get();
     if (!auth->keyed()) {
+      NotePeer(message.sender);
       if (message.channel == kRepairChannel) {
         Repair(data, message.size);
         return false;
@@ -251,6 +269,7 @@ struct Bus::Impl {
       ReportRefusal(before, why);
       return false;
     }
+    NotePeer(message.sender);
     Trailer trailer;
     ReadTrailer(data, message.size, &trailer);
     if (message.channel == kLivenessChannel) {
@@ -298,8 +317,10 @@ struct Bus::Impl {
     }
   }
 
-  // asks a message's sender for the fragments this bus lacks (on the receiver's thread)
-  void AskRepair(const UdpmRepair& repair) {
+  // asks a message's sender for the fragments this bus lacks (on the receiver's thread), when it
+  // is a peer
+  bool AskRepair(const UdpmRepair& repair) {
+    if (peer_addresses.count(repair.sender) == 0) return false;
     fragment_repair ask{};
     ask.header.seq = -1;
     ask.header.generator_id = -1;
@@ -317,8 +338,9 @@ struct Bus::Impl {
     try {
       sender->Send(kRepairChannel, sealed_bytes.data(), sealed_bytes.size());
     } catch (const std::exception&) {
-      // asked again later, while the message waits
+      return false;  // asked again later, while the message waits
     }
+    return true;
   }
 
   // publishes a liveness message from the receiver's thread (the sender takes a lock)
@@ -426,7 +448,7 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
     impl_->receiver = std::make_unique<UdpmReceiver>(
         address, limits, [impl](const UdpmMessage& message) { return impl->Screen(message); },
         program_invocation_short_name,
-        [impl](const UdpmRepair& repair) { impl->AskRepair(repair); });
+        [impl](const UdpmRepair& repair) { return impl->AskRepair(repair); });
     impl_->receiver->Subscribe(kRepairChannel, 1);
     if (impl_->liveness) {
       impl_->receiver->Subscribe(kLivenessChannel, 1);

@@ -281,8 +281,7 @@ struct UdpmReassembler::Impl {
     partial.last_asked_s = now_s;
     partial.asked = true;
     ++partial.asks;
-    ++counters.repair_asks;
-    repair(ask);
+    if (repair(ask)) ++counters.repair_asks;
   }
 
   // messages that heard no fragment for partial_timeout_s are given up; those quiet for
@@ -307,8 +306,7 @@ struct UdpmReassembler::Impl {
         ask.missing = {1};
         orphan.last_asked_s = now_s;
         ++orphan.asks;
-        ++counters.repair_asks;
-        repair(ask);
+        if (repair(ask)) ++counters.repair_asks;
       }
       ++it;
     }
@@ -333,7 +331,7 @@ struct UdpmReassembler::Impl {
                   : limits.partial_timeout_s / 4;
   }
 
-  bool Short(const uint8_t* data, size_t size, UdpmMessage* message) {
+  bool Short(uint64_t sender, const uint8_t* data, size_t size, UdpmMessage* message) {
     const int64_t length = ChannelLength(data + kShortHeaderBytes, size - kShortHeaderBytes);
     if (length < 0) return Malformed();
     std::string channel(reinterpret_cast<const char*>(data + kShortHeaderBytes),
@@ -341,6 +339,7 @@ struct UdpmReassembler::Impl {
     if (!wanted(channel)) return false;
     const size_t start = kShortHeaderBytes + static_cast<size_t>(length) + 1;
     message->channel = std::move(channel);
+    message->sender = sender;
     message->size = size - start;
     message->data.reset(new uint8_t[std::max<size_t>(1, message->size)]);
     std::memcpy(message->data.get(), data + start, message->size);
@@ -442,6 +441,7 @@ struct UdpmReassembler::Impl {
     // every fragment heard: complete when they cover the message
     if (partial.bytes_heard != partial.size) return Malformed(&key);
     message->channel = std::move(partial.channel);
+    message->sender = sender;
     message->data.reset(new uint8_t[partial.size]);
     for (const auto& [at, piece] : partial.pieces) {
       std::memcpy(message->data.get() + at, piece.data(), piece.size());
@@ -476,7 +476,7 @@ bool UdpmReassembler::Add(uint64_t sender, const uint8_t* data, size_t size, dou
   if (now_s - impl.swept_s >= impl.Interval()) impl.Expire(now_s);
   if (size < kShortHeaderBytes || size >= kDatagramBuffer) return impl.Malformed();
   const uint32_t magic = GetU32(data);
-  if (magic == kMagicShort) return impl.Short(data, size, message);
+  if (magic == kMagicShort) return impl.Short(sender, data, size, message);
   if (magic == kMagicLong) return impl.Fragment(sender, data, size, now_s, message);
   return impl.Malformed();
 }

@@ -152,14 +152,17 @@ struct UdpmMessage {
   std::string channel;
   std::unique_ptr<uint8_t[]> data;
   size_t size = 0;
+  /// Its sender's address and port (address << 16 | port).
+  uint64_t sender = 0;
 };
 
 /// Turns datagrams into messages (see the file comment): the checks and bounds, without a
 /// socket or a thread, so that tests hand it any bytes. Not thread-safe.
 class UdpmReassembler {
  public:
-  /// Called when a message in reassembly asks for the fragments it lacks.
-  using Repair = std::function<void(const UdpmRepair&)>;
+  /// Called when a message in reassembly asks for the fragments it lacks; true when the ask was
+  /// sent (counted in repair_asks), false when not (the sender is not asked: not a peer).
+  using Repair = std::function<bool(const UdpmRepair&)>;
   /// `wanted` says whether a channel is subscribed to (called before anything is allocated).
   /// `repair`, when given, is called for the asks (see the file comment), from Add and Expire.
   UdpmReassembler(const UdpmLimits& limits, std::function<bool(const std::string&)> wanted,

@@ -388,7 +388,10 @@ TEST(UdpmReassemblerTest, AMessageMissingFragmentsAsksForThem) {
   std::vector<UdpmRepair> asks;
   UdpmReassembler reassembler(
       limits, [](const std::string& channel) { return channel == kChannel; },
-      [&asks](const UdpmRepair& ask) { asks.push_back(ask); });
+      [&asks](const UdpmRepair& ask) {
+        asks.push_back(ask);
+        return true;
+      });
   UdpmMessage message;
   for (const uint16_t number : {0, 1, 2, 4, 5, 6, 7, 8, 10, 20}) {
     ASSERT_FALSE(reassembler.Add(77, datagrams[number].data(), datagrams[number].size(), 100.0,
@@ -525,7 +528,10 @@ TEST(UdpmSenderTest, SmallDatagramsAndRepairsGetThroughThirtyPercentLoss) {
   limits.max_repair_asks = 1000;
   UdpmReassembler reassembler(
       limits, [](const std::string& channel) { return channel == kChannel; },
-      [&asks](const UdpmRepair& ask) { asks.push_back(ask); });
+      [&asks](const UdpmRepair& ask) {
+        asks.push_back(ask);
+        return true;
+      });
   std::mt19937_64 loss(42);
   std::vector<std::vector<uint8_t>> received;
   int datagrams = 0, dropped = 0;

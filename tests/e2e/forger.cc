@@ -17,7 +17,15 @@
 //   LCM library sends: real messages (heard on the bus, and the events of --samples LOG), cut
 //   into LC02 and LC03 datagrams, then mutated (bits flipped, header fields rewritten to wrapping
 //   offsets, huge sizes and wrong counts, cut, grown, repeated, reordered, left out, sent from
-//   four sockets at once), spread over --seconds, from a fixed seed.
+//   four sockets at once), spread over --seconds, from a fixed seed;
+// - with --fragment-flood N: N tiny datagrams spread over --seconds that would pin memory in
+//   reassembly: 16 messages at a time from four sockets, on STACKGEN_LIVENESS (every keyed
+//   process hears it) and STACKGEN_SCENE, each claiming 1 MiB in 8,192 fragments, begun by its
+//   fragment 0 and fed one-byte fragments round robin, never completed;
+// - with --claims N: N fragment-0 datagrams spread over --seconds, each claiming a 256 MiB
+//   message on STACKGEN_SCENE (the eviction flood: in reassembly they would push real scenes out);
+// - with --challenge-replay N: the liveness challenges it hears (signed by real processes),
+//   played back N times in all over --seconds, each as it was recorded.
 // Prints what it sent on stdout and exits 0. Not a test: a program the tests start.
 
 #include <unistd.h>
@@ -156,6 +164,39 @@ class DatagramFuzzer {
     return sent_ - before;
   }
 
+  // datagram `index` of the fragment flood: 16 messages at a time, round robin (so that none
+  // goes quiet), 4 from each socket (a sender's limit), 8 on STACKGEN_LIVENESS and 8 on
+  // STACKGEN_SCENE; each claims 1 MiB in 8,192 fragments, its fragment 0 holds the channel and
+  // one byte, the others one byte each, and the last is never sent
+  void Flood(int64_t index) {
+    constexpr uint32_t kSize = 1u << 20;
+    constexpr uint16_t kCount = 8192;
+    const int message = static_cast<int>(index % 16);
+    const uint16_t number = static_cast<uint16_t>((index / 16) % (kCount - 1));
+    const int64_t generation = index / (16 * (kCount - 1));
+    const uint32_t seqno = 2000000 + 16 * static_cast<uint32_t>(generation) + message;
+    const std::string channel =
+        message < 8 ? stackgen::kLivenessChannel : stackgen::kSceneChannel;
+    Datagram datagram = stackgen::testing::LcmFragmentHeader(
+        seqno, kSize, number == 0 ? 0 : number * 128u, number, kCount);
+    if (number == 0) {
+      datagram.insert(datagram.end(), channel.begin(), channel.end());
+      datagram.push_back(0);
+    }
+    datagram.push_back('F');
+    Send(message % static_cast<int>(senders_.size()), datagram);
+  }
+
+  // fragment 0 of a message that claims 256 MiB on `channel`, under a seqno of its own
+  void Claim(const std::string& channel) {
+    Datagram datagram =
+        stackgen::testing::LcmFragmentHeader(seqno_++, 256u << 20, 0, 0, 65535);
+    datagram.insert(datagram.end(), channel.begin(), channel.end());
+    datagram.push_back(0);
+    datagram.resize(datagram.size() + 1000, 'C');
+    Send(static_cast<int>(random_() % senders_.size()), datagram);
+  }
+
  private:
   // LC03 fragments of `size` bytes (the first also holds the channel), whatever the message size
   std::vector<Datagram> Fragments(const std::string& channel, const std::vector<uint8_t>& bytes,
@@ -219,10 +260,15 @@ int Run(int argc, char** argv) {
   parser.Int("--datagrams", &datagrams, 0, 100000000);
   std::string samples_log;
   parser.String("--samples", &samples_log, "an LCM log");
+  int64_t fragment_flood = 0, claims = 0, challenge_replay = 0;
+  parser.Int("--fragment-flood", &fragment_flood, 0, 1000000000);
+  parser.Int("--claims", &claims, 0, 1000000000);
+  parser.Int("--challenge-replay", &challenge_replay, 0, 1000000000);
   parser.ParseOrExit(argc, argv, [] {
     std::printf(
         "usage: stackgen-forger --lcm-url URL [--bus-key-file FILE] [--seconds S] [--fuzz N] "
-        "[--signed-fuzz] [--no-attacks] [--lcm628] [--datagrams N] [--samples LOG]\n");
+        "[--signed-fuzz] [--no-attacks] [--lcm628] [--datagrams N] [--samples LOG] "
+        "[--fragment-flood N] [--claims N] [--challenge-replay N]\n");
   });
   attacks = !no_attacks;
 
@@ -312,8 +358,14 @@ int Run(int argc, char** argv) {
       },
       256, ignore);
 
+  // the liveness challenges heard, as they were sent (trailer and all): a receiver of its own
+  std::vector<std::vector<uint8_t>> challenges;
+  stackgen::UdpmReceiver recorder(stackgen::ParseUdpmUrl(stranger.url()), stackgen::UdpmLimits{},
+                                  nullptr, "stackgen-forger");
+  if (challenge_replay > 0) recorder.Subscribe(stackgen::kLivenessChannel, 64);
+
   const auto start = Clock::now();
-  int64_t fuzzed = 0;
+  int64_t fuzzed = 0, flooded = 0, claimed = 0, replayed = 0;
   int64_t lcm628_pairs = 0;
   const std::vector<std::string> every_channel = {
       stackgen::kSceneChannel,  stackgen::kLabelsChannel, stackgen::kStatusChannel,
@@ -326,7 +378,26 @@ int Run(int argc, char** argv) {
   std::signal(SIGTERM, OnSignal);
   while (!g_stop && (Clock::now() - start < std::chrono::duration<double>(seconds) ||
                      fuzzed < fuzz || (raw.sent() < datagrams && !datagram_samples.empty()))) {
-    stranger.HandleFor(20);
+    stranger.HandleFor(fragment_flood > 0 || claims > 0 || challenge_replay > 0 ? 1 : 20);
+    // the floods, spread over the run: what is due by now
+    const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
+    const double due = std::min(1.0, elapsed / seconds);
+    for (; flooded < static_cast<int64_t>(due * static_cast<double>(fragment_flood)); ++flooded) {
+      raw.Flood(flooded);
+    }
+    for (; claimed < static_cast<int64_t>(due * static_cast<double>(claims)); ++claimed) {
+      raw.Claim(stackgen::kSceneChannel);
+    }
+    for (stackgen::UdpmMessage heard;
+         recorder.Take(0, &heard) == stackgen::UdpmReceiver::Taken::kMessage;) {
+      if (challenges.size() < 64) challenges.emplace_back(heard.data.get(), heard.data.get() + heard.size);
+    }
+    for (; !challenges.empty() &&
+           replayed < static_cast<int64_t>(due * static_cast<double>(challenge_replay));
+         ++replayed) {
+      stranger.PublishEncoded(stackgen::kLivenessChannel,
+                              challenges[static_cast<size_t>(replayed) % challenges.size()]);
+    }
     if (lcm628) {
       for (const std::string& channel : every_channel) raw.Lcm628(channel);
       lcm628_pairs += static_cast<int64_t>(every_channel.size());
@@ -408,11 +479,14 @@ int Run(int argc, char** argv) {
     }
   }
   std::printf(
-      "stackgen-forger: sent %lld messages (%lld forged scenes, %lld fuzzed), %lld raw datagrams "
-      "(%lld pairs of lcm#628); writer %s\n",
+      "stackgen-forger: sent %lld messages (%lld forged scenes, %lld fuzzed, %lld liveness "
+      "messages replayed), %lld raw datagrams (%lld pairs of lcm#628, %lld of the fragment flood, "
+      "%lld claims); writer %s\n",
       static_cast<long long>(sent), static_cast<long long>(forged_scenes),
-      static_cast<long long>(fuzzed), static_cast<long long>(raw.sent()),
-      static_cast<long long>(lcm628_pairs), writer.empty() ? "never heard" : writer.c_str());
+      static_cast<long long>(fuzzed), static_cast<long long>(replayed),
+      static_cast<long long>(raw.sent()), static_cast<long long>(lcm628_pairs),
+      static_cast<long long>(flooded), static_cast<long long>(claimed),
+      writer.empty() ? "never heard" : writer.c_str());
   return 0;
 }
 

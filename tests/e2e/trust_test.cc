@@ -189,21 +189,25 @@ TEST_F(TrustTest, StrangersAreRefusedAndCounted) {
 }
 
 // Thousands of random and mutated messages on every channel, unsigned and signed (those signed
-// on channels that cannot add a scene), leave both processes running with memory near a clean
-// run's, and the dataset intact.
+// on channels that cannot add a scene), with a short version of the floods (tiny fragments of
+// messages never completed, fragment-0 claims of 256 MiB, recorded liveness challenges played
+// back), leave both processes running with memory near a clean run's, and the dataset intact.
 TEST_F(TrustTest, FuzzLeavesBothRunning) {
   const std::string url = testing::FreeMulticastUrl();
   const std::string out = scratch_.path() + "/fuzzed";
   Process coco(Coco(out, url), out + "-coco");
   ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
   Process fuzzer({kForger, "--lcm-url", url, "--seconds", "4", "--no-attacks", "--fuzz", "4000",
-                  "--signed-fuzz", "--bus-key-file", std::getenv("STACKGEN_BUS_KEY_FILE")},
+                  "--signed-fuzz", "--bus-key-file", std::getenv("STACKGEN_BUS_KEY_FILE"),
+                  "--fragment-flood", "40000", "--claims", "4000", "--challenge-replay", "4000"},
                  out + "-fuzzer");
   Process generator(Generator(url, cache_), out + "-gen");
   int64_t peak_gen_kb = 0, peak_coco_kb = 0;
   Watch(generator, coco, &peak_gen_kb, &peak_coco_kb);
   ASSERT_EQ(fuzzer.Wait(60), 0) << fuzzer.Stderr();
   EXPECT_NE(fuzzer.Stdout().find("4000 fuzzed"), std::string::npos) << fuzzer.Stdout();
+  EXPECT_NE(fuzzer.Stdout().find("40000 of the fragment flood, 4000 claims"), std::string::npos)
+      << fuzzer.Stdout();
   ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
   ExpectSameDataset(reference_, out, kScenes);

@@ -377,7 +377,9 @@ int Run(int argc, char** argv) {
   std::signal(SIGINT, OnSignal);
   std::signal(SIGTERM, OnSignal);
   while (!g_stop && (Clock::now() - start < std::chrono::duration<double>(seconds) ||
-                     fuzzed < fuzz || (raw.sent() < datagrams && !datagram_samples.empty()))) {
+                     fuzzed < fuzz || (raw.sent() < datagrams && !datagram_samples.empty()) ||
+                     flooded < fragment_flood || claimed < claims ||
+                     (replayed < challenge_replay && !challenges.empty()))) {
     stranger.HandleFor(fragment_flood > 0 || claims > 0 || challenge_replay > 0 ? 1 : 20);
     // the floods, spread over the run: what is due by now
     const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();

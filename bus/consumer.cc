@@ -168,6 +168,7 @@ status ConsumerStatus(const Bus& bus, const ConsumerReport& report) {
   message.refused_unsigned = refused.unsigned_messages;
   message.refused_forged = refused.forged;
   message.refused_replayed = refused.replayed;
+  message.refused_relayed = refused.relayed;
   return message;
 }
 

@@ -169,6 +169,7 @@ py::dict CountersDict(const StreamCounters& c) {
   d["refused_unsigned"] = c.refused_unsigned;
   d["refused_forged"] = c.refused_forged;
   d["refused_replayed"] = c.refused_replayed;
+  d["refused_relayed"] = c.refused_relayed;
   d["queued"] = c.queued;
   return d;
 }

@@ -278,6 +278,7 @@ struct SceneStream::Impl {
         counters.refused_unsigned = refused.unsigned_messages;
         counters.refused_forged = refused.forged;
         counters.refused_replayed = refused.replayed;
+        counters.refused_relayed = refused.relayed;
       }
       // the client's credits, the status, and generators that use another key, which would
       // never be heard (an open best-effort stream reads signed scenes all the same; a reliable
@@ -318,6 +319,7 @@ struct SceneStream::Impl {
       counters.refused_unsigned = counted.unsigned_messages;
       counters.refused_forged = counted.forged;
       counters.refused_replayed = counted.replayed;
+      counters.refused_relayed = counted.relayed;
       if (reading->first_refusal.empty()) reading->first_refusal = refused;
       return -1;
     }

@@ -99,6 +99,7 @@ struct StreamCounters {
   int64_t refused_unsigned = 0;
   int64_t refused_forged = 0;
   int64_t refused_replayed = 0;
+  int64_t refused_relayed = 0;
   /// Scenes waiting in the queue now.
   int64_t queued = 0;
 };

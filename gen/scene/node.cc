@@ -360,6 +360,7 @@ void GeneratorNode::Impl::PublishPeriodic(bool force) {
   message.refused_unsigned = refused.unsigned_messages;
   message.refused_forged = refused.forged;
   message.refused_replayed = refused.replayed;
+  message.refused_relayed = refused.relayed;
   bus.Publish(kStatusChannel, message);
   last_status = now;
   published_at_last_status = published;

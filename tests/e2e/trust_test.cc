@@ -25,8 +25,10 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <stackgen/status.hpp>
 
 #include "bus/bus.h"
+#include "bus/channels.h"
 #include "tests/support/datasets.h"
 #include "tests/support/process.h"
 
@@ -472,6 +474,16 @@ TEST(TrustKeysTest, ARelayFromAnotherBusStoresNothing) {
   EXPECT_EQ(ImagesStored(out_b), 3);
 
   EXPECT_FALSE(writer_a.Exited()) << writer_a.Stderr();
+  // its status, heard on its own bus, counts them too (refused_relayed)
+  {
+    Bus listener(url_a);
+    int64_t in_status = -1;
+    listener.Subscribe<status>(kStatusChannel, [&in_status](const status& message) {
+      if (message.process == "stackgen-coco") in_status = message.refused_relayed;
+    });
+    for (int i = 0; i < 100 && in_status <= 0; ++i) listener.HandleFor(50);
+    EXPECT_GT(in_status, 0) << "no status of the writer counting relayed messages";
+  }
   writer_a.Signal(SIGINT);
   writer_a.Wait(30);
   EXPECT_TRUE(!std::filesystem::exists(out_a) || ImagesStored(out_a) == 0) << writer_a.Stderr();

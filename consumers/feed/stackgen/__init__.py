@@ -166,7 +166,7 @@ class Stream:
         status: publish the stream's counters on STACKGEN_STATUS every second (live bus).
         bus_key_file: the bus key (see the README, "Trust"): scenes not signed with it are
             refused and counted (counters "refused_unsigned", "refused_forged",
-            "refused_replayed"), and credits are signed; a log is checked with it too. None:
+            "refused_replayed", "refused_relayed"), and credits are signed; a log is checked with it too. None:
             $STACKGEN_BUS_KEY_FILE when set, else this user's key ~/.config/stackgen/bus.key
             (made on first use), as every stackgen program does.
         open_bus: no key at all: nothing signed, every sender trusted (an open bus, or a log

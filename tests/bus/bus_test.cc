@@ -231,9 +231,11 @@ class RawMulticastListener {
   int fd_ = -1;
 };
 
-// What liblcm sends for a short and a fragmented message is byte for byte the wire format the
-// tests write by hand (tests/support/lcm_wire.h), with liblcm's own message counter.
-TEST(BusTest, LiblcmSendsTheWireFormatOfTheTests) {
+// What a Bus sends on one host for a short and a fragmented message is byte for byte the wire
+// format the tests write by hand (tests/support/lcm_wire.h), with a message counter from 0: what
+// liblcm 1.3.1 sent when the Bus sent through it (this test passed then as now), so lcm-spy,
+// lcm-logger and lcm-logplayer read it.
+TEST(BusTest, ABusSendsTheWireFormatOfTheTests) {
   const std::string url = testing::FreeMulticastUrl();
   RawMulticastListener listener(url);
   BusOptions open;  // no trailer, no liveness check: only the two messages go out

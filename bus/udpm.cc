@@ -63,6 +63,28 @@ int64_t ChannelLength(const uint8_t* data, size_t size) {
 
 uint16_t GetU16(const uint8_t* in) { return static_cast<uint16_t>((in[0] << 8) | in[1]); }
 
+// tables of messages keyed by (sender, msg_seqno): the entries of `sender`
+template <typename Table>
+int EntriesOf(const Table& table, uint64_t sender) {
+  int count = 0;
+  for (auto it = table.lower_bound({sender, 0}); it != table.end() && it->first.first == sender;
+       ++it) {
+    ++count;
+  }
+  return count;
+}
+
+// the entry with the smallest `age` among those `eligible` takes (by key); end() if none
+template <typename Table, typename Age, typename Eligible>
+typename Table::iterator Oldest(Table& table, Age age, Eligible eligible) {
+  auto oldest = table.end();
+  for (auto it = table.begin(); it != table.end(); ++it) {
+    if (!eligible(it->first)) continue;
+    if (oldest == table.end() || age(it->second) < age(oldest->second)) oldest = it;
+  }
+  return oldest;
+}
+
 }  // namespace
 
 UdpmAddress ParseUdpmUrl(const std::string& url) {
@@ -186,23 +208,13 @@ struct UdpmReassembler::Impl {
   void NoteOrphan(const Key& key, uint32_t size, uint16_t fragments, double now_s) {
     if (!repair || orphans.count(key) != 0) return;
     // at most max_partials of them, and max_partials_per_sender of one sender: the oldest goes
-    const auto oldest_where = [&](bool same_sender) {
-      auto oldest = orphans.end();
-      for (auto it = orphans.begin(); it != orphans.end(); ++it) {
-        if (same_sender && it->first.first != key.first) continue;
-        if (oldest == orphans.end() || it->second.first_heard_s < oldest->second.first_heard_s) {
-          oldest = it;
-        }
-      }
-      return oldest;
-    };
-    int of_sender = 0;
-    for (auto it = orphans.lower_bound({key.first, 0});
-         it != orphans.end() && it->first.first == key.first; ++it) {
-      ++of_sender;
+    const auto age = [](const Orphan& orphan) { return orphan.first_heard_s; };
+    if (EntriesOf(orphans, key.first) >= limits.max_partials_per_sender) {
+      orphans.erase(Oldest(orphans, age, [&](const Key& other) { return other.first == key.first; }));
     }
-    if (of_sender >= limits.max_partials_per_sender) orphans.erase(oldest_where(true));
-    if (static_cast<int>(orphans.size()) >= limits.max_partials) orphans.erase(oldest_where(false));
+    if (static_cast<int>(orphans.size()) >= limits.max_partials) {
+      orphans.erase(Oldest(orphans, age, [](const Key&) { return true; }));
+    }
     orphans[key] = Orphan{size, fragments, now_s, 0, 0};
   }
 
@@ -224,35 +236,25 @@ struct UdpmReassembler::Impl {
   // room for `bytes` more (and, with `another`, one more message of `keep`'s sender) in
   // reassembly, the least recent other than `keep` giving way
   void MakeRoom(size_t bytes, bool another, const Key& keep) {
-    const auto oldest_where = [&](auto&& eligible) {
-      auto oldest = partials.end();
-      for (auto it = partials.begin(); it != partials.end(); ++it) {
-        if (it->first == keep || !eligible(it->first)) continue;
-        if (oldest == partials.end() || it->second.last_use < oldest->second.last_use) oldest = it;
-      }
-      return oldest;
+    const auto age = [](const Partial& partial) { return partial.last_use; };
+    const auto give_way = [&](auto&& eligible) {
+      const auto oldest = Oldest(partials, age, [&](const Key& key) {
+        return key != keep && eligible(key);
+      });
+      if (oldest == partials.end()) return false;
+      ++counters.abandoned;
+      Forget(oldest);
+      return true;
     };
+    // the sender's own limit first: its least recent message gives way
+    const auto of_sender = [&](const Key& key) { return key.first == keep.first; };
     if (another) {
-      // the sender's own limit first: its least recent message gives way
-      while (true) {
-        int of_sender = 0;
-        for (auto it = partials.lower_bound({keep.first, 0});
-             it != partials.end() && it->first.first == keep.first; ++it) {
-          if (it->first != keep) ++of_sender;
-        }
-        if (of_sender < limits.max_partials_per_sender) break;
-        const auto oldest = oldest_where([&](const Key& key) { return key.first == keep.first; });
-        if (oldest == partials.end()) break;
-        ++counters.abandoned;
-        Forget(oldest);
-      }
+      int others = EntriesOf(partials, keep.first) - (partials.count(keep) != 0 ? 1 : 0);
+      while (others >= limits.max_partials_per_sender && give_way(of_sender)) --others;
     }
     while (partial_bytes + bytes > limits.max_partial_bytes ||
            (another && static_cast<int>(partials.size()) >= limits.max_partials)) {
-      const auto oldest = oldest_where([](const Key&) { return true; });
-      if (oldest == partials.end()) return;
-      ++counters.abandoned;
-      Forget(oldest);
+      if (!give_way([](const Key&) { return true; })) return;
     }
   }
 

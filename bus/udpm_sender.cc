@@ -105,7 +105,6 @@ struct UdpmSender::Impl {
     std::memcpy(out, message.bytes.data() + data_begin, data_end - data_begin);
     SendDatagram(datagram.size(), message.channel);
   }
-
 };
 
 namespace {

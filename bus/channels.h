@@ -1,5 +1,7 @@
 #pragma once
 
+#include <cstdint>
+
 namespace stackgen {
 
 /// Whole scenes: labels plus colour, depth and instance images (stackgen::scene).
@@ -24,5 +26,11 @@ inline constexpr const char* kLivenessChannel = "STACKGEN_LIVENESS";
 /// Asks for the fragments of a message heard only in part (stackgen::fragment_repair;
 /// bus/udpm.h). Sent and heard by the Bus itself.
 inline constexpr const char* kRepairChannel = "STACKGEN_REPAIR";
+
+/// status.run_state of a generator: running, ended (every scene published and stored), stopped
+/// before its end (a signal or an error).
+inline constexpr int8_t kRunRunning = 0;
+inline constexpr int8_t kRunEnded = 1;
+inline constexpr int8_t kRunStopped = 2;
 
 }  // namespace stackgen

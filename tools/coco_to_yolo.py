@@ -173,7 +173,14 @@ def main(argv):
     except BaseException:
         shutil.rmtree(temporary, ignore_errors=True)
         raise
-    print("%s: wrote %s (data.yaml, images/, labels/)" % (PROGRAM, out))
+    print("%s: wrote %s (data.yaml, images/, labels/); classes: %s" % (
+        PROGRAM, out, ", ".join("%d %s" % (k, categories[category_id]) for category_id, k in
+                                sorted(classes.items(), key=lambda item: item[1]))))
+    if val == names[0]:
+        print("%s: warning: one split only: data.yaml's val is the training set itself, so a "
+              "validation score says nothing about new scenes; make a held-out split with "
+              "tools/run --split train=0.9,val=0.1 and pass both folders" % PROGRAM,
+              file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -4,23 +4,42 @@
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 build="$root/build"
 
-# configures (once) and builds the given targets (all when none) into build/.
+# configures (once) and builds the given targets (all when none) into build/, quietly: one
+# line on stderr (what was built, or that nothing needed to be), the compiler's output in
+# build/build.log; on a failure the end of that log and a non-zero status.
 build_targets() {
   if [ ! -f "$build/CMakeCache.txt" ]; then
     mkdir -p "$build"
+    echo "stackgen: configuring build/ (first build; log: build/configure.log)" >&2
     cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release >"$build/configure.log" 2>&1 || {
       cat "$build/configure.log" >&2
       echo "stackgen: cmake configure failed (log above)" >&2
       return 1
     }
   fi
-  local jobs
+  local jobs targets=()
   jobs=$(nproc 2>/dev/null || echo 2)
-  if [ $# -eq 0 ]; then
-    cmake --build "$build" -j"$jobs"
-  else
-    cmake --build "$build" -j"$jobs" --target "$@"
+  [ $# -eq 0 ] || targets=(--target "$@")
+  local started=$SECONDS
+  if ! cmake --build "$build" -j"$jobs" "${targets[@]}" >"$build/build.log" 2>&1; then
+    tail -n 40 "$build/build.log" >&2
+    echo "stackgen: the build failed (the end of build/build.log above)" >&2
+    return 1
   fi
+  local compiled
+  compiled=$(grep -c -E '^\[ *[0-9]+%\] (Building|Linking)' "$build/build.log" || true)
+  if [ "$compiled" -eq 0 ]; then
+    echo "stackgen: build up to date" >&2
+  else
+    echo "stackgen: built in $((SECONDS - started)) s ($compiled steps; log: build/build.log)" >&2
+  fi
+}
+
+# runs "$@" (exec) so that it gets SIGTERM when the shell that started it dies, by SIGKILL too:
+# no generator or writer of a killed tools/run or tools/task lives on (setpriv, util-linux).
+# Use as `die_with_parent PROGRAM ARGS... &`.
+die_with_parent() {
+  exec setpriv --pdeathsig TERM -- "$@"
 }
 
 # makes sure UDP multicast can leave this process: adds a loopback route when there is none and

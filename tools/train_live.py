@@ -17,6 +17,7 @@ WORLD_SIZE, MASTER_ADDR and MASTER_PORT).
 
 import argparse
 import json
+import ctypes
 import math
 import os
 import shutil
@@ -215,6 +216,12 @@ def build_model(args, channels, height, width):
     return model
 
 
+def die_with_parent():
+    """In a child before it runs (Popen's preexec_fn): SIGTERM when train-live dies, by SIGKILL
+    too, so no generator or rank outlives it (prctl PR_SET_PDEATHSIG)."""
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+
+
 def start_generators(args, url, logs):
     """The generators train-live runs itself (none with --replay or --attach): (process, log)."""
     generators = []
@@ -225,7 +232,7 @@ def start_generators(args, url, logs):
              "--generator-id", str(generator_id), "--lcm-url", url] +
             (["--open-bus"] if args.open_bus else
              ["--bus-key-file", args.bus_key_file] if args.bus_key_file else []),
-            stdout=log, stderr=subprocess.STDOUT), log.name))
+            stdout=log, stderr=subprocess.STDOUT, preexec_fn=die_with_parent), log.name))
     return generators
 
 
@@ -296,7 +303,7 @@ def run_ranks(args, argv, url, generators, logs):
         out = open(log, "w") if log else None
         ranks.append((subprocess.Popen([sys.executable, os.path.abspath(__file__)] + child,
                                        env=env, stdout=out, stderr=subprocess.STDOUT if out else
-                                       None), log))
+                                       None, preexec_fn=die_with_parent), log))
     try:
         while True:
             check_generators(generators)
@@ -416,7 +423,9 @@ def open_dataset(args, url, augment, mix_set):
             else args.reuse, reuse_buffer=args.reuse_buffer, grayscale=args.gray,
             augment=augment, min_visib_fract=args.min_visib_fract, seed=args.seed,
             record=args.record, replay=bool(args.replay),
-            timeout=None if args.replay else 120, name="train-live",
+            # no timeout: a rank whose scenes wait behind rank 0's evaluation must not give up;
+            # the stream says what it waits for, and ends when the generators' runs end
+            timeout=None, name="train-live",
             bus_key_file=args.bus_key_file, open_bus=args.open_bus,
             mix=mix_set, mix_fraction=args.mix_fraction)
     except ValueError as error:

@@ -142,7 +142,7 @@ int main(int argc, char** argv) {
            std::to_string(writer.num_ground_truths()) + " ground truths" +
            (flags.shards > 0 ? ", shards of " + std::to_string(flags.shards) + " images" : "") +
            ", models of " + std::to_string(models.size()) + " classes" + missing + ", " +
-           std::to_string(writer.num_lost()) + " lost";
+           std::to_string(writer.num_lost()) + " lost; " + stackgen::ClassesText(writer.classes());
   };
   return stackgen::RunWriter(program, flags.writer);
 }

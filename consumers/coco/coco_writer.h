@@ -166,6 +166,8 @@ class CocoWriter : public DatasetSink {
   /// Instances not written at all: neither annotated nor ignored, or annotated but below
   /// min_visib_fract when it is set.
   int64_t num_dropped() const { return num_dropped_; }
+  /// class_id -> class_name of the scenes stored (the COCO categories).
+  const std::map<int32_t, std::string>& categories() const { return categories_; }
   /// Per generator_id, the seqs missing between the first and the last seq stored.
   std::map<int32_t, int64_t> LostPerGenerator() const override;
 

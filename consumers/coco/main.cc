@@ -115,7 +115,8 @@ int main(int argc, char** argv) {
            std::to_string(writer.num_annotations()) + " annotations, " +
            std::to_string(writer.num_crowd()) + " ignore regions (iscrowd 1), " +
            std::to_string(writer.num_dropped()) + " dropped (" + dropped_reason + "), " +
-           std::to_string(writer.num_lost()) + " lost";
+           std::to_string(writer.num_lost()) + " lost; " +
+           stackgen::ClassesText(writer.categories());
   };
   return stackgen::RunWriter(program, flags.writer);
 }

@@ -497,4 +497,13 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
   }
 }
 
+std::string ClassesText(const std::map<int32_t, std::string>& classes) {
+  if (classes.empty()) return "no classes";
+  std::string text = "classes";
+  for (const auto& [class_id, class_name] : classes) {
+    text += (text.size() > 7 ? ", " : " ") + std::to_string(class_id) + " " + class_name;
+  }
+  return text;
+}
+
 }  // namespace stackgen

@@ -66,4 +66,8 @@ struct WriterProgram {
 /// stored anything leaves no dataset behind.
 int RunWriter(const WriterProgram& program, const WriterFlags& flags);
 
+/// The classes of a dataset for a summary line: "classes 1 corner_connector, 2 dowel_pin" (the
+/// class name a part was given, or its mesh file's; "no classes" when none was stored).
+std::string ClassesText(const std::map<int32_t, std::string>& classes);
+
 }  // namespace stackgen

@@ -190,6 +190,7 @@ py::dict StatusDict(const status& s) {
   d["regenerated"] = s.regenerated;
   d["reliable_consumers"] = s.reliable_consumers;
   d["held_back_s"] = s.held_back_s;
+  d["run_state"] = s.run_state;
   return d;
 }
 

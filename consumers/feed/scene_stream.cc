@@ -42,6 +42,15 @@ constexpr double kKeyMismatchS = 2.0;
 constexpr size_t kRecentKeys = 4096;
 // the most scenes a queue may hold
 constexpr int kMaxQueue = 100000;
+// a live stream ends this long after every generator it takes from said its run ended or
+// stopped (seconds): a best-effort stream's last scenes are still on their way
+constexpr double kEndGraceS = 0.5;
+// a learner waiting this long for a scene is told what the stream waits for, and again at each
+// kSayAgainS (seconds)
+constexpr double kSayWaitingS = 2.0;
+constexpr double kSayAgainS = 30.0;
+// the most generators a stream keeps news of (a stranger could vary ids without end)
+constexpr size_t kMaxGeneratorsHeard = 256;
 
 // thrown inside the log reader to stop reading
 struct StopReading {};
@@ -106,6 +115,17 @@ struct SceneStream::Impl {
   std::exception_ptr error;
   bool ended = false;
   bool closed = false;
+  // live: the generators heard (their scenes or status), and how their runs stand
+  struct Generator {
+    std::string name;
+    int8_t run_state = kRunRunning;
+    int64_t scenes = 0;  // published, as their status says
+    Clock::time_point heard;
+  };
+  std::map<int32_t, Generator> generators;
+  Clock::time_point opened = Clock::now();
+  Clock::time_point last_said;  // a waiting learner was last told what the stream waits for
+  bool said_waiting = false;
 
   // thread-only state
   std::atomic<int> reported{0};
@@ -191,6 +211,7 @@ struct SceneStream::Impl {
       return;
     }
     const SceneKey key{generator_id, seq};
+    Heard(generator_id, nullptr);
     // a copy that fails the checks tells the client nothing (it neither sets where a learner
     // joins a generator nor marks its seq done): the session's bad-copy policy
     if (!Check(message)) {
@@ -230,6 +251,70 @@ struct SceneStream::Impl {
       if (client) taken_keys.insert(key);
     }
     changed.notify_all();
+  }
+
+  // news of a generator this stream takes from: a scene (`news` null) or its status
+  void Heard(int32_t generator_id, const status* news) {
+    const std::lock_guard<std::mutex> lock(mutex);
+    if (generators.count(generator_id) == 0 && generators.size() >= kMaxGeneratorsHeard) return;
+    Generator& generator = generators[generator_id];
+    generator.heard = Clock::now();
+    // (a scene says nothing of the run: a resend may come after the last status; a generator
+    // started again says so in its status)
+    if (news == nullptr) return;
+    generator.name = news->name;
+    generator.run_state = news->run_state;
+    generator.scenes = news->scenes;
+  }
+
+  void OnStatus(const status& message) {
+    if (message.process != "stackgen" || !SceneIdsInRange(message.header.generator_id, 0)) return;
+    const std::vector<int32_t>& ids = options.generator_ids;
+    if (!ids.empty() &&
+        std::find(ids.begin(), ids.end(), message.header.generator_id) == ids.end()) {
+      return;
+    }
+    Heard(message.header.generator_id, &message);
+  }
+
+  // the line that ends a live stream once every generator heard has ended or stopped for
+  // kEndGraceS; "" while one still runs (or none was heard)
+  std::string EndOfGenerators() const {
+    const std::lock_guard<std::mutex> lock(mutex);
+    if (generators.empty()) return "";
+    std::string said;
+    for (const auto& [generator_id, generator] : generators) {
+      if (generator.run_state == kRunRunning ||
+          std::chrono::duration<double>(Clock::now() - generator.heard).count() < kEndGraceS) {
+        return "";
+      }
+      said += (said.empty() ? "" : ", ") + std::string("generator ") +
+              std::to_string(generator_id) +
+              (generator.run_state == kRunEnded ? " ended its run" : " stopped before its end") +
+              " (" + std::to_string(generator.scenes) + " scenes published)";
+    }
+    return said + ": the stream ends after the " + std::to_string(counters.received) +
+           " scenes it received";
+  }
+
+  // what a waiting learner waits for (under `mutex`)
+  std::string WaitingFor() const {
+    const auto now = Clock::now();
+    if (generators.empty()) {
+      return "no generator heard on " + url + " since the stream opened " +
+             std::to_string(static_cast<int>(
+                 std::chrono::duration<double>(now - opened).count() + 0.5)) +
+             " s ago (is one publishing there, with this bus key?)";
+    }
+    std::string said;
+    for (const auto& [generator_id, generator] : generators) {
+      char ago[32];
+      std::snprintf(ago, sizeof(ago), "%.1f",
+                    std::chrono::duration<double>(now - generator.heard).count());
+      said += (said.empty() ? "" : ", ") + std::string("generator ") +
+              std::to_string(generator_id) + " last heard " + ago + " s ago";
+    }
+    return said + "; " + std::to_string(counters.handed) + " scenes handed out so far";
   }
 
   StreamCounters Counters() const {
@@ -288,6 +373,12 @@ struct SceneStream::Impl {
         session->Service(handed, handed);
       } catch (const std::runtime_error& mismatch) {
         throw FeedError(mismatch.what());
+      }
+      // every generator said its run is over: what came is all there is
+      const std::string end = EndOfGenerators();
+      if (!end.empty()) {
+        std::fprintf(stderr, "stackgen-feed: %s\n", end.c_str());
+        break;
       }
     }
     // generators stop waiting for this stream
@@ -539,6 +630,10 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
     // the generators' configs too, for their key alone (Bus::WatchKeys): each generator
     // announces its config before its first scene and then every second
     impl.session->WatchGeneratorKeys();
+    // and their status: the stream ends when their runs have
+    impl.session->bus().Subscribe<status>(
+        kStatusChannel, [raw](const status& message) { raw->OnStatus(message); }, 64,
+        [](const std::string&) {});
   }
   for (int k = 0; k < options.decode_threads; ++k) {
     impl.decoders.emplace_back([raw = impl_.get()] { raw->RunDecoder(); });
@@ -595,12 +690,23 @@ std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
     }
     if (impl.error) std::rethrow_exception(impl.error);
     if (impl.ended || impl.closed) return nullptr;
-    const double waited = std::chrono::duration<double>(Clock::now() - start).count();
+    const auto now = Clock::now();
+    const double waited = std::chrono::duration<double>(now - start).count();
     if (timeout_s >= 0 && waited >= timeout_s) {
       const std::string keys = impl.session ? impl.session->KeyHint() : "";
       throw FeedTimeout("no scene on " + impl.options.channel + " of " + impl.url + " for " +
                         std::to_string(static_cast<int>(timeout_s + 0.5)) + " s: " +
-                        (keys.empty() ? "is a generator publishing there?" : keys));
+                        (keys.empty() ? (impl.session ? impl.WaitingFor() : "") : keys));
+    }
+    // a learner that waits is told for what, at once and then now and again
+    if (impl.session && waited >= kSayWaitingS &&
+        (!impl.said_waiting ||
+         std::chrono::duration<double>(now - impl.last_said).count() >= kSayAgainS)) {
+      const std::string keys = impl.session->KeyHint();
+      std::fprintf(stderr, "stackgen-feed: waiting for scenes on %s: %s\n",
+                   impl.options.channel.c_str(), (keys.empty() ? impl.WaitingFor() : keys).c_str());
+      impl.said_waiting = true;
+      impl.last_said = now;
     }
     double slice = 0.1;
     if (timeout_s >= 0) slice = std::min(slice, timeout_s - waited);

@@ -538,6 +538,14 @@ LoadedConfig ParseConfig(const std::string& text, const std::string& name,
   }
   // no part block: one default part, the built-in connector
   if (loaded.config.part_size() == 0) loaded.config.add_part();
+  // a part without a class_name is named after its mesh file: "parts/bracket_v2.stl" is
+  // "bracket_v2" (the built-in connector's file gives "corner_connector")
+  for (config::PartConfig& part : *loaded.config.mutable_part()) {
+    loaded.class_from_file.push_back(!part.has_class_name());
+    if (!part.has_class_name()) {
+      part.set_class_name(std::filesystem::path(part.mesh()).stem().string());
+    }
+  }
   const FieldNamer namer(name, &tree);
   ApplyCameraPreset(loaded.config.mutable_camera(), namer);
   Validate(loaded.config, namer);

@@ -2,6 +2,7 @@
 
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include <Eigen/Geometry>
 
@@ -22,6 +23,8 @@ struct LoadedConfig {
   std::string path;
   /// Folder that relative paths in the config (meshes) are resolved against.
   std::string base_dir;
+  /// Whether part i's class_name was left out and taken from its mesh's file name.
+  std::vector<bool> class_from_file;
 
   /// `relative` resolved against base_dir (absolute paths are kept).
   std::string Resolve(const std::string& relative) const;

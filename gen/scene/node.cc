@@ -36,6 +36,8 @@ namespace {
 constexpr double kKeyMismatchS = 2.0;
 // the models go out with every kModelPeriod-th status (about every 5 s)
 constexpr int64_t kModelPeriod = 5;
+// a running generator with no reliable consumer registered for this long says so (seconds)
+constexpr double kAloneWarnS = 5.0;
 
 std::string FormatMs(double total_ms, int64_t scenes) {
   char text[32];
@@ -137,6 +139,11 @@ struct GeneratorNode::Impl {
   double held_back_s = 0;
   bool warned_of_twin = false;
   bool keys_said = false;  // consumers of another bus key, until one of this key is heard
+  // no reliable consumer registered since this time (start, or when the last one left), and
+  // whether that was said
+  Clock::TimePoint alone_since;
+  bool alone_said = false;
+  int8_t run_state = kRunRunning;  // in every status: a stream ends when its generators have
   int64_t published_at_last_status = 0;
   int64_t periods = 0;
   Clock::TimePoint start;
@@ -160,6 +167,8 @@ struct GeneratorNode::Impl {
   void Listen(double seconds, const std::function<bool()>& done);
   int64_t FirstSeq();
   void PublishPeriodic(bool force);
+  void WarnIfAlone(Clock::TimePoint now);
+  void PublishEnd(int8_t state);
   void WaitForConsumers(int timeout_ms);
   void SettleAhead(int64_t first_seq);
   void PublishEncoded();
@@ -361,9 +370,45 @@ void GeneratorNode::Impl::PublishPeriodic(bool force) {
   message.refused_forged = refused.forged;
   message.refused_replayed = refused.replayed;
   message.refused_relayed = refused.relayed;
+  message.run_state = run_state;
   bus.Publish(kStatusChannel, message);
   last_status = now;
   published_at_last_status = published;
+  WarnIfAlone(now);
+}
+
+// said while it runs, not only at the end: scenes published with no reliable consumer (a
+// writer, a reliable stream) registered for kAloneWarnS go to listeners alone, or nowhere
+void GeneratorNode::Impl::WarnIfAlone(Clock::TimePoint now) {
+  if (server->reliable_consumers() > 0) {
+    alone_since = now;
+    alone_said = false;
+    return;
+  }
+  if (alone_said || options.no_consumer_ok || Seconds(alone_since, now) < kAloneWarnS) return;
+  if (options.progress) std::fprintf(stderr, "\n");
+  std::fprintf(stderr,
+               "stackgen: warning: no reliable consumer (stackgen-coco, stackgen-bop, a reliable "
+               "Stream) for %.0f s%s: %lld scenes published so far reach listeners only; start "
+               "the writer on %s with this bus key, or pass --no-consumer-ok when listeners are "
+               "meant%s\n",
+               Seconds(alone_since, now), server->registrations() > 0 ? " (the last one left)" : "",
+               static_cast<long long>(published), bus.url().c_str(), KeyHint().c_str());
+  alone_said = true;
+}
+
+// the last status says how the run ended, three times over (a status is one datagram, and a
+// stream ends on it); never throws: it also runs on the way out of an error
+void GeneratorNode::Impl::PublishEnd(int8_t state) {
+  run_state = state;
+  try {
+    for (int k = 0; k < 3; ++k) {
+      if (k > 0) std::this_thread::sleep_for(std::chrono::milliseconds(30));
+      PublishPeriodic(true);
+    }
+  } catch (const std::exception&) {
+    // the bus failed: the error on the way out says more
+  }
 }
 
 // serves consumers for `timeout_ms`, counting the time as held back
@@ -490,11 +535,22 @@ GeneratorNode::~GeneratorNode() {
 }
 
 void GeneratorNode::Run() {
+  try {
+    RunScenes();
+  } catch (...) {
+    // (a run that ended, then found its scenes undelivered, said so already)
+    if (impl_->run_state == kRunRunning) impl_->PublishEnd(kRunStopped);
+    throw;
+  }
+}
+
+void GeneratorNode::RunScenes() {
   Impl& node = *impl_;
   node.Announce();
   const int64_t first_seq = node.FirstSeq();
   node.next_seq = first_seq;
   node.start = node.clock.Now();
+  node.alone_since = node.start;
   node.last_status = node.start - std::chrono::seconds(1);
   node.SettleAhead(first_seq);
 
@@ -513,7 +569,14 @@ void GeneratorNode::Run() {
     RenderedScene rendered;
     try {
       if (!node.current || seq >= node.current->first_seq + views) {
-        node.current = node.ahead.front().get();
+        // while the pile settles (seconds; a drop redrawn: more) the generator stays heard:
+        // its status and config every second, credits and resends served
+        std::future<SettledPile>& settling = node.ahead.front();
+        while (settling.wait_for(std::chrono::milliseconds(50)) != std::future_status::ready) {
+          node.Serve(0);
+          node.PublishPeriodic(false);
+        }
+        node.current = settling.get();
         node.ahead.pop_front();
         node.times.Add(node.current->times);
         node.SettleAhead(first_seq);
@@ -539,6 +602,11 @@ void GeneratorNode::Run() {
   for (auto& pile : node.ahead) pile.wait();
   // after the last scene, until every reliable consumer has stored it (or went silent)
   if (node.next_seq == last_seq + 1) {
+    // a learner's stream joins a generator by hearing its scenes and credits within 0.2 s of
+    // the first: a short run may end before that, so one not heard of yet is given a second
+    if (node.server->reliable_consumers() == 0) {
+      node.Listen(1.0, [&node] { return node.server->reliable_consumers() > 0; });
+    }
     while (!node.server->AllStoredThrough(last_seq) && !node.Stopped()) node.WaitForConsumers(20);
     if (node.options.count == 0) {
       std::printf(
@@ -547,7 +615,7 @@ void GeneratorNode::Run() {
           node.generator_id, static_cast<long long>(last_seq));
     }
   }
-  node.PublishPeriodic(true);
+  node.PublishEnd(!node.Stopped() && node.next_seq == last_seq + 1 ? kRunEnded : kRunStopped);
   if (node.options.progress) std::fprintf(stderr, "\n");
   node.PrintSummary();
   node.CheckDelivered();

@@ -73,9 +73,12 @@ class GeneratorNode {
   /// another bus key while this bus is open (a keyed one says so and goes on), --resume finds
   /// no consumer, or (without no_consumer_ok) no reliable consumer took the scenes or one went
   /// silent (naming consumers of another key, if heard); and what the scene generator throws.
+  /// Warns while it runs when no reliable consumer has been registered for 5 s (unless
+  /// no_consumer_ok). Its last status (three times) says whether the run ended or stopped.
   void Run();
 
  private:
+  void RunScenes();
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };

@@ -274,7 +274,13 @@ void SceneGenerator::Impl::AddPartTypes(const std::vector<PartType>& part_types,
     for (const MeshMaterial& material : mesh.materials)
       textured += material.texture.empty() ? 0 : 1;
     *description << (part.role() == config::PartConfig::PART ? "part " : "distractor ")
-                 << loaded.Resolve(part.mesh()) << ": " << mesh.triangles.size() << " triangles, "
+                 << loaded.Resolve(part.mesh()) << ": ";
+    if (part.role() != config::PartConfig::DISTRACTOR) {
+      const bool from_file = t < loaded.class_from_file.size() && loaded.class_from_file[t];
+      *description << "class " << type.class_id << " \"" << part.class_name() << "\""
+                   << (from_file ? " (the file's name; set class_name to change it)" : "") << ", ";
+    }
+    *description << mesh.triangles.size() << " triangles, "
                  << (mesh.materials.empty() || !part.use_file_materials()
                          ? std::string("configured material")
                          : std::to_string(mesh.materials.size()) + " file material(s), " +
@@ -364,6 +370,16 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   std::ostringstream description;
   impl_->AddPartTypes(types, size_texts, &description);
   impl_->AddBinAndTable(bin_spec);
+  const config::PhysicsConfig& physics = config.config.physics();
+  if (physics.drop_mode() == config::PhysicsConfig::CUT_AND_PASTE) {
+    description << "physics: none (CUT_AND_PASTE: parts placed as drawn)\n";
+  } else {
+    description << "physics: published at rest, every part moving less than "
+                << physics.settle_translation_mm() << " mm and " << physics.settle_rotation_deg()
+                << " degree over " << physics.settle_window_s()
+                << " s (physics.settle_*); a drop not at rest within " << physics.max_sim_time_s()
+                << " s is drawn again\n";
+  }
   impl_->AddEnvironments(&description);
 
   // camera ranges that would lose the bin too often are refused now, not mid-run

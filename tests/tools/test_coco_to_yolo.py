@@ -36,6 +36,12 @@ def test_outlines_cover_the_masks(tmp_path):
     assert result.returncode == 0, result.stderr
     data = (yolo / "data.yaml").read_text()
     assert "train: images/train\nval: images/val\nnames:\n  0: \"corner_connector\"\n" in data
+    assert "warning" not in result.stderr
+    # one folder alone: data.yaml's val is the training set, and the converter says so
+    alone = convert(coco, "--out", tmp_path / "alone")
+    assert alone.returncode == 0, alone.stderr
+    assert "val: images/train\n" in (tmp_path / "alone" / "data.yaml").read_text()
+    assert "warning: one split only" in alone.stderr, alone.stderr
 
     dataset = CocoDataset(str(coco))
     ious, ignored = [], 0

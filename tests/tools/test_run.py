@@ -1,10 +1,13 @@
 """tools/run as a user runs it (real processes, a bus of its own): a run stopped by SIGINT keeps
 what it stored, says how to continue and exits 130; the printed command finishes it with the
-same files as a run straight through; --split makes one dataset per split, disjoint by pile; bad
-arguments get one line before anything is made.
+same files as a run straight through; a run killed by SIGKILL leaves no process behind, and the
+README's resume finishes it the same way; a resume of a whole dataset says so and exits 0;
+--split makes one dataset per split, disjoint by pile; bad arguments get one line before
+anything is made.
 
 CTest runs this file with Debian's /usr/bin/python3 -m pytest and STACKGEN_SOURCE_DIR set."""
 
+import glob
 import json
 import os
 import shlex
@@ -12,7 +15,9 @@ import signal
 import subprocess
 import time
 
-from conftest import SOURCE, TINY
+import pytest
+
+from conftest import SOURCE, TINY, descendants, left_running
 
 RUN = os.path.join(SOURCE, "tools", "run")
 
@@ -35,23 +40,36 @@ def dataset_files(folder):
     return files
 
 
-def test_interrupted_run_resumes_to_the_same_files(tmp_path):
-    args = ["--config", TINY, "--count", "30", "--seed", "3"]
-    whole = tmp_path / "whole"
-    straight = run(*args, "--out", str(whole))
+ARGS = ["--config", TINY, "--count", "30", "--seed", "3"]
+
+
+@pytest.fixture(scope="module")
+def whole(tmp_path_factory):
+    """The files of the run straight through."""
+    out = tmp_path_factory.mktemp("run") / "whole"
+    straight = run(*ARGS, "--out", str(out))
     assert straight.returncode == 0, straight.stderr
     assert "images: 30," in straight.stdout
+    return dataset_files(out)
 
-    cut = tmp_path / "cut"
-    process = subprocess.Popen([RUN, *args, "--out", str(cut)], stdout=subprocess.PIPE,
+
+def start_and_wait_for_images(cut, images_wanted=3):
+    """tools/run started on `cut`, once it has stored a few scenes."""
+    process = subprocess.Popen([RUN, *ARGS, "--out", str(cut)], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline:
         images = cut / "images"
-        if images.is_dir() and len(os.listdir(images)) >= 3:
-            break
+        if images.is_dir() and len(os.listdir(images)) >= images_wanted:
+            return process
         assert process.poll() is None, process.communicate()
         time.sleep(0.02)
+    raise AssertionError("no %d images within 300 s" % images_wanted)
+
+
+def test_interrupted_run_resumes_to_the_same_files(tmp_path, whole):
+    cut = tmp_path / "cut"
+    process = start_and_wait_for_images(cut)
     process.send_signal(signal.SIGINT)
     out, err = process.communicate(timeout=120)
     assert process.returncode == 130, err
@@ -65,7 +83,36 @@ def test_interrupted_run_resumes_to_the_same_files(tmp_path):
                              cwd=SOURCE)
     assert resumed.returncode == 0, resumed.stderr
     assert "%d in all" % 30 in resumed.stdout, resumed.stdout
-    assert dataset_files(cut) == dataset_files(whole)
+    assert dataset_files(cut) == whole
+
+
+def test_killed_run_leaves_nothing_running_and_resumes(tmp_path, whole):
+    # kill -9 of tools/run: its generator, writer and tee go with it (nothing finishes the
+    # dataset behind the user's back, nothing holds its journal)
+    cut = tmp_path / "cut"
+    process = start_and_wait_for_images(cut)
+    children = descendants(process.pid)
+    assert len(children) >= 2, children  # the writer and the generator at least
+    process.kill()
+    process.communicate(timeout=60)
+    assert not left_running(children)
+    stored = len(os.listdir(cut / "images"))
+    assert stored < 30
+    # its temporary folder is left, and goes with the next run
+    assert glob.glob("/tmp/stackgen-run.%d.*" % process.pid)
+
+    # the README's resume: the same command with --resume
+    resumed = run(*ARGS, "--out", str(cut), "--resume")
+    assert resumed.returncode == 0, resumed.stderr
+    assert "%d scenes made now, 30 in all" % (30 - stored) in resumed.stdout, resumed.stdout
+    assert dataset_files(cut) == whole
+    assert not glob.glob("/tmp/stackgen-run.%d.*" % process.pid)
+
+    # a resume of a whole dataset has nothing to make: it says so and exits 0
+    again = run(*ARGS, "--out", str(cut), "--resume")
+    assert again.returncode == 0, again.stderr
+    assert "already holds its 30 scenes: nothing to make" in again.stdout, again.stdout
+    assert dataset_files(cut) == whole
 
 
 def test_split_is_disjoint_by_pile(tmp_path):

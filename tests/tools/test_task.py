@@ -1,7 +1,7 @@
 """tools/task and stackgen-merge as a cluster runs them (real processes, each task on buses of
 its own): the shards of a job merge into the dataset one process makes of the same scenes, byte
 for byte (COCO with webdataset shards, and BOP), however many tasks and generators made them; a
-task killed with SIGKILL and run again leaves the same shard; the index comes from
+task killed with SIGKILL leaves no process behind and, run again, leaves the same shard; the index comes from
 $JOB_COMPLETION_INDEX (Kubernetes) as from --task; the tasks' own webdataset shards stream into
 stackgen.shards.ShardDataset without a merge; merge refuses a missing, repeated, foreign,
 torn or busy shard with one line and writes nothing.
@@ -12,14 +12,13 @@ STACKGEN_BIN_DIR set."""
 import fcntl
 import os
 import shutil
-import signal
 import socket
 import subprocess
 import time
 
 import pytest
 
-from conftest import BIN, SOURCE, TINY
+from conftest import BIN, SOURCE, TINY, descendants, left_running
 
 TASK = os.path.join(SOURCE, "tools", "task")
 MERGE = os.path.join(BIN, "stackgen-merge")
@@ -120,8 +119,7 @@ def test_killed_task_runs_again_to_the_same_shard(tmp_path):
     out = tmp_path / "killed"
     process = subprocess.Popen(
         [TASK, "--out", str(out), "--count", "40", "--tasks", "2", "--task", "0", "--config",
-         TINY, "--generators", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-        start_new_session=True)
+         TINY, "--generators", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     partial = out / ".task-00000.partial" / "part-000" / "images"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
@@ -129,8 +127,13 @@ def test_killed_task_runs_again_to_the_same_shard(tmp_path):
             break
         assert process.poll() is None
         time.sleep(0.02)
-    os.killpg(process.pid, signal.SIGKILL)
+    # the task script alone (a scheduler may kill only the job's first process): its
+    # generator and writer go with it
+    children = descendants(process.pid)
+    assert len(children) >= 2, children
+    process.kill()
     process.wait()
+    assert not left_running(children)
     # killed half way: no shard at all, only the partial folder
     assert not (out / "task-00000").exists()
     assert 2 <= len(os.listdir(partial)) < 20

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <string>
+#include <vector>
 
 namespace stackgen {
 namespace {
@@ -37,6 +38,21 @@ TEST(ConfigTest, DefaultsAndPaths) {
   EXPECT_DOUBLE_EQ(loaded.config.annotation().min_visib_fract(), 0.3);
   EXPECT_EQ(loaded.Resolve("models/a.obj"), "/configs/models/a.obj");
   EXPECT_EQ(loaded.Resolve("/abs/a.obj"), "/abs/a.obj");
+  EXPECT_EQ(loaded.config.part(0).class_name(), "corner_connector");
+}
+
+// a part without a class_name is labelled after its mesh file, not after the built-in part;
+// one that names its class keeps it, and --check can say which was which.
+TEST(ConfigTest, ClassNameDefaultsToTheMeshFilesName) {
+  const LoadedConfig loaded = ParseConfig(
+      "part { mesh: \"parts/bracket_v2.stl\" }\n"
+      "part { mesh: \"pin.obj\" class_name: \"dowel\" }\n",
+      "test.pbtxt", "/configs");
+  EXPECT_EQ(loaded.config.part(0).class_name(), "bracket_v2");
+  EXPECT_EQ(loaded.config.part(1).class_name(), "dowel");
+  EXPECT_EQ(loaded.class_from_file, (std::vector<bool>{true, false}));
+  EXPECT_EQ(ErrorOf("part { mesh: \"a.obj\" class_name: \"\" }"),
+            "test.pbtxt:1: part[0].class_name: must not be empty");
 }
 
 // the rendering settings are checked before anything runs, naming the field

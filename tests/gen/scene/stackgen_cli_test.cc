@@ -252,6 +252,26 @@ TEST(StackgenCliTest, NoReliableConsumerIsAnError) {
   EXPECT_EQ(ok.code, 0) << ok.err;
 }
 
+// a generator that runs on with no reliable consumer says so while it runs (within 10 s), not
+// only at its end, which --count 0 never reaches; it goes on, and stops at a signal with 0.
+TEST(StackgenCliTest, AGeneratorWithNoConsumerWarnsWhileItRuns) {
+  const testing::ScratchDir scratch("stackgen-cli");
+  const std::string dir = scratch.path();
+  Process generator({std::string(STACKGEN_BIN_DIR) + "/stackgen", "--config",
+                     std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/logs/tiny.pbtxt",
+                     "--lcm-url", "memq://", "--cache-dir", dir + "/cache"},
+                    dir + "/alone");
+  // (the config and the shaders take a few seconds before the run starts)
+  ASSERT_TRUE(generator.WaitForError("stackgen: warning: no reliable consumer", 60))
+      << generator.Stderr();
+  EXPECT_FALSE(generator.Exited());
+  const std::string said = generator.Stderr();
+  EXPECT_NE(said.find("reach listeners only; start the writer on memq://"), std::string::npos)
+      << said;
+  generator.Signal(SIGINT);
+  EXPECT_EQ(generator.Wait(60), 0) << generator.Stderr();
+}
+
 // a second generator with the same --generator-id on the same bus refuses to run, naming the id
 // and the first one, while the first (it has published more) goes on with a warning.
 TEST(StackgenCliTest, SameGeneratorIdRefused) {

@@ -113,7 +113,9 @@ struct Bus::Impl {
   std::unique_ptr<MessageAuth> auth;
   std::vector<uint8_t> sealed;
   // the fault-injection engine and what it dropped
-  SplitMix64 fault_engine{0};
+  // one engine per channel, each seeded from (fault_seed, channel): the drops on one channel
+  // do not shift with how many messages another carried (status and config are timed)
+  std::map<std::string, SplitMix64> fault_engines;
   int64_t fault_dropped = 0;
   // a file:// log was read to its end
   bool log_ended = false;
@@ -154,10 +156,16 @@ struct Bus::Impl {
   std::unique_ptr<LivenessCheck> liveness;
   std::unique_ptr<UdpmReceiver> receiver;
 
-  // true with probability `fraction`, from the seeded engine
-  bool Drop(double fraction) {
+  // true with probability `fraction`, from the channel's seeded engine
+  bool Drop(double fraction, const std::string& channel) {
     if (fraction <= 0) return false;
-    const uint64_t z = fault_engine.Next();
+    auto engine = fault_engines.find(channel);
+    if (engine == fault_engines.end()) {
+      uint64_t seed = options.fault_seed;
+      for (const char c : channel) seed = SplitMix64(seed ^ static_cast<uint8_t>(c)).Next();
+      engine = fault_engines.emplace(channel, SplitMix64(seed)).first;
+    }
+    const uint64_t z = engine->second.Next();
     const bool drop = static_cast<double>(z >> 11) * 0x1.0p-53 < fraction;
     if (drop) ++fault_dropped;
     return drop;
@@ -201,7 +209,7 @@ struct Bus::Impl {
   // first half, Verify, already done on the receiving thread when `verified`)
   void Deliver(Subscriber* subscriber, const uint8_t* data, size_t data_size, bool verified) {
     if (pending_error) return;
-    if (Drop(options.drop_receive_fraction)) return;
+    if (Drop(options.drop_receive_fraction, subscriber->channel)) return;
     try {
       // the key check; refused messages go no further
       std::string why;
@@ -407,7 +415,6 @@ Bus::Bus(const std::string& url, const BusOptions& options) : impl_(std::make_un
   }
   impl_->url = url;
   impl_->options = options;
-  impl_->fault_engine = SplitMix64(options.fault_seed);
   CheckMulticastRoute(url);
   // the key before the bus: a key file that cannot be used is one line, and nothing is opened
   const bool is_log = url.rfind("file://", 0) == 0;
@@ -525,7 +532,7 @@ double Bus::auth_seconds() const { return impl_->auth->seconds(); }
 const DecodeLimits& Bus::decode_limits() const { return impl_->options.decode_limits; }
 
 void Bus::PublishBytes(const std::string& channel, const uint8_t* data, size_t size) {
-  if (impl_->Drop(impl_->options.drop_publish_fraction)) return;
+  if (impl_->Drop(impl_->options.drop_publish_fraction, channel)) return;
   if (impl_->auth->keyed()) {
     impl_->auth->Seal(channel, data, size, &impl_->sealed);
     data = impl_->sealed.data();

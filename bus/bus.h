@@ -29,8 +29,9 @@ class DecodeError : public std::runtime_error {
 };
 
 /// Fault injection, for tests and demos: the bus drops a fraction of the messages it receives
-/// (before any handler sees them) and of those it publishes, drawn from its own engine seeded with
-/// `fault_seed`, so a run is repeatable.
+/// (before any handler sees them) and of those it publishes, drawn per channel from an engine
+/// seeded with (`fault_seed`, channel), so a run is repeatable and the drops on one channel do
+/// not depend on how many messages the others carried.
 struct BusOptions {
   /// Fraction of received messages dropped, 0..1 (default 0: none).
   double drop_receive_fraction = 0;

@@ -106,12 +106,14 @@ void LivenessCheck::Unanswered(uint64_t sender, const std::string& channel, int6
   if (found == challenged_.end()) return;
   if (now_us - found->second.first_us < static_cast<int64_t>(kUnansweredS * 1e6)) return;
   auth_->CountUnanswered();
-  if (!warned_) {
+  if (!warned_ && now_us - found->second.first_us >= static_cast<int64_t>(kWarnUnansweredS * 1e6)) {
     warned_ = true;
-    warn_("refusing the messages on " + channel + " of a sender that does not answer the " +
-          "liveness check of the bus key (sender " + KeyIdText(sender) +
-          "): a recording played back onto the bus? A consumer takes a recording with --replay; "
-          "further ones are only counted (status: refused_replayed)");
+    warn_("refusing the messages on " + channel + " of a sender that has not answered the " +
+          "liveness check of the bus key for " + std::to_string(static_cast<int>(kWarnUnansweredS)) +
+          " s (sender " + KeyIdText(sender) +
+          "): a recording played back onto the bus (or a link that loses most datagrams)? A "
+          "consumer takes a recording with --replay; further ones are only counted (status: "
+          "refused_replayed)");
   }
 }
 

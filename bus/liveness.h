@@ -42,6 +42,9 @@ class LivenessCheck {
   /// A sender that keeps sending without answering for this long is taken for a recording: its
   /// messages are counted as replayed, with one warning (seconds).
   static constexpr double kUnansweredS = 2.0;
+  /// ... and said (once) when it has not answered for this long: on a link that loses most
+  /// datagrams a live sender's answer can take longer than kUnansweredS (seconds).
+  static constexpr double kWarnUnansweredS = 10.0;
   /// Senders challenged and not answered yet, remembered at most.
   static constexpr size_t kMaxChallenged = 1024;
   /// Challenges answered, remembered (by sender and counter) so that a repeat of one (a replay)

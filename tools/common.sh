@@ -1,13 +1,32 @@
-# Shared by tools/run and tools/test: the repository root, the build, the multicast check.
+# Shared by tools/run, tools/task, tools/test, ...: the repository root, the build, the
+# multicast check. Also installed by the .deb, in /usr/share/stackgen/tools with the user's
+# scripts (/usr/bin/stackgen-run and the like link to them): there the programs are the
+# package's, nothing is built and apt brought what they need.
 # shellcheck shell=bash
 
-root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-build="$root/build"
+# (through the links: /usr/bin/stackgen-run -> /usr/share/stackgen/tools/run)
+root=$(cd "$(dirname "$(readlink -f "${BASH_SOURCE[0]}")")/.." && pwd)
+if [ -f "$root/CMakeLists.txt" ]; then
+  installed=0
+  build="$root/build"
+  bin=${STACKGEN_BIN_DIR:-$build/bin}
+else
+  installed=1
+  build="$root/build"  # (absent: Python finds the package where the .deb put it)
+  bin=${STACKGEN_BIN_DIR:-$(cd "$root/../../bin" && pwd)}
+fi
+export STACKGEN_BIN_DIR="$bin"
+
+# installs what is missing (tools/install-deps, apt-get); nothing in an installed copy
+install_deps() {
+  [ "$installed" -eq 1 ] || "$root/tools/install-deps" "$@"
+}
 
 # configures (once) and builds the given targets (all when none) into build/, quietly: one
 # line on stderr (what was built, or that nothing needed to be), the compiler's output in
 # build/build.log; on a failure the end of that log and a non-zero status.
 build_targets() {
+  [ "$installed" -eq 0 ] || return 0
   if [ ! -f "$build/CMakeCache.txt" ]; then
     mkdir -p "$build"
     echo "stackgen: configuring build/ (first build; log: build/configure.log)" >&2

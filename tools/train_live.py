@@ -105,7 +105,9 @@ def parse_args(argv):
                         help="keep every sample's scene in this LCM log (must not exist)")
     source.add_argument("--replay", metavar="LOG",
                         help="train on a log made with --record instead of generators")
-    source.add_argument("--stackgen", default=os.path.join(ROOT, "build", "bin", "stackgen"),
+    # (tools/train-live sets STACKGEN_BIN_DIR: build/bin, or /usr/bin for the .deb's)
+    source.add_argument("--stackgen", default=os.path.join(os.environ.get(
+                            "STACKGEN_BIN_DIR", os.path.join(ROOT, "build", "bin")), "stackgen"),
                         help=argparse.SUPPRESS)
     training = parser.add_argument_group("training")
     training.add_argument("--iterations", type=positive_int, default=100,

@@ -233,6 +233,9 @@ class WriterSession {
     bus.Subscribe<config_text>(
         kConfigChannel, [this](const config_text& config) { OnConfig(config); }, 16,
         [](const std::string&) {});
+    bus.Subscribe<status>(
+        kStatusChannel, [this](const status& message) { OnStatus(message); }, 64,
+        [](const std::string&) {});
     if (program_.subscribe) program_.subscribe(bus, *writer_);
     session_->SubscribeScenes(
         kSceneChannel, [this](const scene& message) { OnScene(message); }, kQueueCapacity,
@@ -241,8 +244,11 @@ class WriterSession {
             std::fprintf(stderr, "%s: skipped a message: %s\n", name_text_, text.c_str());
           }
         });
-    std::printf("%s: listening on %s channel %s, writing %s\n", name_text_, bus.url().c_str(),
-                kSceneChannel, flags_.out.c_str());
+    std::printf("%s: listening on %s channel %s, writing %s (%s)\n", name_text_,
+                bus.url().c_str(), kSceneChannel, flags_.out.c_str(),
+                bus.keyed() ? ("bus key " + bus.key_file() + ", key id " + KeyIdText(bus.key_id()))
+                                  .c_str()
+                            : "open bus: no key");
     std::fflush(stdout);
   }
 
@@ -331,6 +337,32 @@ class WriterSession {
     }
   }
 
+  // a generator that stopped before its end (a signal, an error such as a stall) leaves this
+  // writer short: said once per stop, with what it now waits for, not a silent wait
+  void OnStatus(const status& message) {
+    if (message.process != "stackgen" || message.header.generator_id < 0 ||
+        message.header.generator_id > kMaxGeneratorId) {
+      return;
+    }
+    const int32_t generator_id = message.header.generator_id;
+    if (message.run_state != kRunStopped) {
+      if (message.run_state == kRunRunning) stopped_said_.erase(generator_id);
+      return;
+    }
+    if (Enough() || stopped_said_.size() >= 1024 || !stopped_said_.insert(generator_id).second) {
+      return;
+    }
+    if (show_progress_) std::fprintf(stderr, "\n");
+    std::fprintf(stderr,
+                 "%s: generator %d (%s) stopped before its end; %lld%s scenes stored: waiting for "
+                 "a generator to continue the run (stackgen --resume with its --seed and "
+                 "--config); Ctrl-C stops with a valid dataset, and %s --resume continues it\n",
+                 name_text_, generator_id, message.name.c_str(),
+                 static_cast<long long>(writer_->num_images()),
+                 flags_.count > 0 ? (" of " + std::to_string(flags_.count)).c_str() : "",
+                 name_text_);
+  }
+
   void OnScene(const scene& scene) {
     generator_heard_at_ = std::chrono::steady_clock::now();
     // once --count scenes are stored, later ones in the same batch are left out
@@ -391,7 +423,7 @@ class WriterSession {
     if (silent_s < 1) {
       warned_silent_ = false;
     } else if (!warned_silent_ && flags_.warn_silent_s > 0 && silent_s >= flags_.warn_silent_s &&
-               session_->live() && session_->KeyHint().empty()) {
+               session_->live() && session_->KeyHint().empty() && stopped_said_.empty()) {
       // (generators of another key were heard, and said: the session's warning)
       warned_silent_ = true;
       const Bus& bus = session_->bus();
@@ -471,6 +503,7 @@ class WriterSession {
   bool created_folder_ = false;
   std::map<int32_t, std::string> heard_runs_;
   std::set<int32_t> foreign_runs_;
+  std::set<int32_t> stopped_said_;  // generators said to have stopped before their end
   std::chrono::steady_clock::time_point generator_heard_at_;
   bool warned_silent_ = false;
   std::chrono::steady_clock::time_point start_;

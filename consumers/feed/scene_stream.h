@@ -120,7 +120,10 @@ class SceneStream {
   SceneStream& operator=(const SceneStream&) = delete;
 
   /// The next scene, waiting up to `timeout_s` seconds (< 0: as long as it takes); nullptr once
-  /// the stream has ended (count scenes handed out, the end of a log, Close). `interrupted` is
+  /// the stream has ended (count scenes handed out, the end of a log, Close, or on a live bus
+  /// every generator heard has said in its status that its run ended or stopped, 0.5 s ago;
+  /// the stream then prints a line saying so). A wait of 2 s prints what the stream waits for
+  /// (no generator heard yet, or when each was last heard), again every 30 s. `interrupted` is
   /// called about every 100 ms while waiting and stops the wait when it returns true (nullptr
   /// then). Throws FeedTimeout when the time ran out, FeedError when the stream failed (the bus,
   /// a log event that is not a scene of this build, a log without scenes), and FeedError when

@@ -192,6 +192,7 @@ GeneratorNode::Impl::Impl(Bus* bus_in, SceneGenerator* generator_in, const Loade
         return "stackgen/" + std::to_string(generator_id_in) + "@" + host + ":" +
                std::to_string(getpid());
       }()),
+      alone_since(clock.Now()),
       physics_worker(std::max(1, options_in.physics_threads)) {
   config_message.path = config.path;
   config_message.pbtxt = EffectiveConfigText(config.config);
@@ -380,6 +381,7 @@ void GeneratorNode::Impl::PublishPeriodic(bool force) {
 // said while it runs, not only at the end: scenes published with no reliable consumer (a
 // writer, a reliable stream) registered for kAloneWarnS go to listeners alone, or nowhere
 void GeneratorNode::Impl::WarnIfAlone(Clock::TimePoint now) {
+  if (run_state != kRunRunning) return;  // (the last status, on the way out)
   if (server->reliable_consumers() > 0) {
     alone_since = now;
     alone_said = false;

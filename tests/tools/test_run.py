@@ -1,7 +1,8 @@
 """tools/run as a user runs it (real processes, a bus of its own): a run stopped by SIGINT keeps
 what it stored, says how to continue and exits 130; the printed command finishes it with the
 same files as a run straight through; a run killed by SIGKILL leaves no process behind, and the
-README's resume finishes it the same way; a resume of a whole dataset says so and exits 0;
+README's resume finishes it the same way (one with another --seed is refused, with no hint to
+do the same again); a resume of a whole dataset says so and exits 0;
 --split makes one dataset per split, disjoint by pile; bad arguments get one line before
 anything is made.
 
@@ -100,6 +101,12 @@ def test_killed_run_leaves_nothing_running_and_resumes(tmp_path, whole):
     assert stored < 30
     # its temporary folder is left, and goes with the next run
     assert glob.glob("/tmp/stackgen-run.%d.*" % process.pid)
+
+    # a resume with another seed is refused, and not told to do the same again
+    wrong = run(*[("4" if arg == "3" else arg) for arg in ARGS], "--out", str(cut), "--resume")
+    assert wrong.returncode == 1, wrong.stderr
+    assert "holds scenes of another run" in wrong.stderr and "continue with" not in wrong.stderr
+    assert len(os.listdir(cut / "images")) == stored
 
     # the README's resume: the same command with --resume
     resumed = run(*ARGS, "--out", str(cut), "--resume")

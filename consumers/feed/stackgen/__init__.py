@@ -147,8 +147,12 @@ class Stream:
             the caller falls behind.
         window: reliable: scenes a generator may run ahead of what was handed out (1..10000).
         generator_ids: take scenes of these generators only (default: all).
-        timeout: seconds to wait for a scene before StreamTimeout is raised; None: wait forever.
-        count: end after this many scenes (0: no end; a log ends at its end).
+        timeout: seconds to wait for a scene before StreamTimeout is raised (naming the
+            generators heard); None: wait as long as it takes. A waiting stream says what it
+            waits for on stderr after 2 s and every 30 s.
+        count: end after this many scenes (0: no end; a log ends at its end). A live stream
+            also ends once every generator it takes from has ended its run or stopped (their
+            last status says so), with a line on stderr: iterating ends, `next` returns None.
         shard: (index, count): take only the seqs with seq % count == index, so several streams
             (DataLoader workers) split one bus or log between them without sharing a scene.
         queue: scenes kept waiting for the caller (best effort drops older ones; a log waits).

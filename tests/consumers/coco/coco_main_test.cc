@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 #include <stackgen/header.hpp>
 #include <stackgen/resend_request.hpp>
+#include <stackgen/status.hpp>
 
 #include "bus/bus.h"
 #include "bus/channels.h"
@@ -244,6 +245,39 @@ TEST(CocoMainTest, SaysSoWhenNoGeneratorIsHeard) {
   EXPECT_NE(err.find("still waiting"), std::string::npos) << err;
   coco.Signal(SIGINT);
   EXPECT_EQ(coco.Wait(30), 0) << coco.Stderr();
+}
+
+// A writer whose generator says it stopped before its end (its last status: a signal, a stall)
+// says so at once, with what it now waits for, rather than waiting without a word; the same
+// status again is not said twice.
+TEST(CocoMainTest, SaysSoWhenItsGeneratorStopsBeforeItsEnd) {
+  const testing::ScopedTempDir scratch("coco-main");
+  const std::string dir = scratch.path();
+  const std::string url = testing::FreeMulticastUrl();
+  Process coco({kProgram, "--out", dir + "/coco", "--count", "5", "--lcm-url", url},
+               dir + "/run");
+  ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
+  Bus bus(url);
+  ASSERT_TRUE(testing::WaitForLivePeer(bus, 10)) << "stackgen-coco never answered";
+  stackgen::status stopped{};
+  stopped.header.seq = -1;
+  stopped.header.generator_id = 0;
+  stopped.next_seq = 2;
+  stopped.process = "stackgen";
+  stopped.name = "stackgen/0@test:1";
+  stopped.run_state = kRunStopped;
+  for (int k = 0; k < 3; ++k) bus.Publish(kStatusChannel, stopped);
+  ASSERT_TRUE(coco.WaitForError("generator 0 (stackgen/0@test:1) stopped before its end", 10))
+      << coco.Stderr();
+  const std::string err = coco.Stderr();
+  EXPECT_NE(err.find("0 of 5 scenes stored: waiting for a generator to continue the run "
+                     "(stackgen --resume"),
+            std::string::npos)
+      << err;
+  coco.Signal(SIGINT);
+  EXPECT_EQ(coco.Wait(30), 0) << coco.Stderr();
+  const std::string all = coco.Stderr();
+  EXPECT_EQ(all.find("stopped before its end"), all.rfind("stopped before its end")) << all;
 }
 
 // SIGINT and SIGTERM finish a valid dataset of what arrived; --min-visib-fract drops annotated

@@ -6,6 +6,7 @@ with `dpkg-deb -x` (installing it for real needs root and changes the machine)."
 import glob
 import json
 import os
+import re
 import subprocess
 
 from conftest import BIN, SOURCE, TINY_LOG, free_url, generator_argv
@@ -76,31 +77,46 @@ def test_pip_install_into_a_fresh_venv_streams(tmp_path, processes):
     assert lines[2] == "[0, 1, 2]"
 
 
-# the .deb holds the programs, the configs and the package, with the libraries they link as
-# dependencies; unpacked, its generator finds its default config (and that config its part),
-# its writer stores the scenes, and Debian's python3 imports its package
-def test_debian_package_unpacked_runs(tmp_path, processes):
+# every program and script the README's user sections use, as the .deb names them
+PACKAGED = ["stackgen", "stackgen-coco", "stackgen-bop", "stackgen-view", "stackgen-stats",
+            "stackgen-overlay", "stackgen-rest-check", "stackgen-record", "stackgen-merge",
+            "stackgen-run", "stackgen-task", "stackgen-coco-to-yolo", "stackgen-train-live"]
+
+
+# the .deb holds the programs and the user's scripts, the configs, the package, a copyright
+# file and a changelog, with the libraries they link as dependencies, and lintian finds no
+# error in it; unpacked, its stackgen-run (tools/run) makes a dataset with the package's own
+# programs and default config (and that config its part), and Debian's python3 imports its
+# package
+def test_debian_package_unpacked_runs(tmp_path):
     run(["cpack", "-B", tmp_path / "package"], cwd=BUILD)
     debs = glob.glob(str(tmp_path / "package" / "stackgen_*_amd64.deb"))
     assert len(debs) == 1
     depends = run(["dpkg-deb", "-f", debs[0], "Depends"]).stdout
     for package in ("liblcm1", "libbullet3.24", "libassimp5", "python3-numpy", "libegl-mesa0"):
         assert package in depends, depends
+    listed = run(["dpkg-deb", "-c", debs[0]]).stdout
+    for program in PACKAGED:
+        assert re.search(r" \./usr/bin/%s( -> |$)" % re.escape(program), listed, re.M), program
+    for doc in ("copyright", "changelog.gz"):
+        assert "./usr/share/doc/stackgen/%s\n" % doc in listed, doc
+    # (lintian prints E: for an error, W: for a warning, I: for information)
+    checked = subprocess.run(["lintian", "--no-tag-display-limit", debs[0]],
+                             capture_output=True, text=True, timeout=600)
+    errors = [line for line in checked.stdout.splitlines() if line.startswith("E: ")]
+    assert not errors and "E: " not in checked.stderr, checked.stdout + checked.stderr
+
     root = tmp_path / "root"
     run(["dpkg-deb", "-x", debs[0], root])
     usr = root / "usr"
-
     default_config = usr / "share" / "stackgen" / "config" / "default.pbtxt"
     assert "(default: %s)" % default_config in run([usr / "bin" / "stackgen", "--help"]).stdout
-    url = free_url()
-    coco = processes([usr / "bin" / "stackgen-coco", "--out", tmp_path / "coco", "--count", 2,
-                      "--lcm-url", url], "coco")
-    assert coco.wait_for_output("listening", 10), coco.stderr()
-    generator = processes([usr / "bin" / "stackgen", "--count", 2, "--lcm-url", url,
-                           "--cache-dir", tmp_path / "cache"], "stackgen")
-    assert generator.wait(120) == 0, generator.stderr()
-    assert coco.wait(60) == 0, coco.stderr()
-    assert "config %s" % default_config in generator.stdout() + generator.stderr()
+    made = run([usr / "bin" / "stackgen-run", "--count", 2, "--out", tmp_path / "coco"],
+               cwd=tmp_path, env=environment(XDG_CACHE_HOME=str(tmp_path / "cache")))
+    # nothing built: the package's programs, and its default config
+    assert "stackgen: build" not in made.stderr, made.stderr
+    assert "config %s" % default_config in made.stdout + made.stderr, made.stdout
+    assert "images: 2, annotations: " in made.stdout, made.stdout
     with open(tmp_path / "coco" / "annotations.json") as file:
         dataset = json.load(file)
     assert len(dataset["images"]) == 2 and len(dataset["annotations"]) > 0

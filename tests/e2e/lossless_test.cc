@@ -143,9 +143,12 @@ class LosslessTest : public ::testing::Test {
 
 // with 10 % of the messages each process receives dropped (scenes at the writer; credits and
 // resend requests at the generator), the dataset is complete and identical to the reference.
-// The generator keeps only 1 scene for resending, so most resent scenes are made again from
-// their seed: regenerated scenes are byte-identical too. Both processes' last status on
-// STACKGEN_STATUS counts what happened.
+// The generator keeps only 1 scene for resending, so a scene lost before the next one was
+// published is resent from the ring (the generator resends a tail the writer has not received
+// while the next pile settles), one asked for later is made again from its seed: which of the
+// two happens depends on timing, and both give the same bytes (a scene made again is the
+// pipeline's: SceneGeneratorTest.PilesSettledOnAnotherThreadGiveTheSameScenes). Both
+// processes' last status on STACKGEN_STATUS counts what happened.
 TEST_F(LosslessTest, InjectedLossGivesTheSameDataset) {
   const std::string url = testing::FreeMulticastUrl();
   const std::string out = scratch_.path() + "/lossy";
@@ -156,7 +159,6 @@ TEST_F(LosslessTest, InjectedLossGivesTheSameDataset) {
                     out + "-gen");
   ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
-  EXPECT_EQ(generator.Stdout().find(" 0 regenerated"), std::string::npos) << generator.Stdout();
 
   // both published their counters on STACKGEN_STATUS; the last ones tell the story
   status writer{}, generator_status{};
@@ -164,7 +166,6 @@ TEST_F(LosslessTest, InjectedLossGivesTheSameDataset) {
   EXPECT_EQ(writer.scenes, kScenes);
   EXPECT_GE(writer.received, kScenes);
   EXPECT_EQ(writer.lost, 0);
-  EXPECT_GT(writer.reasked, 0);
   EXPECT_GT(writer.fault_dropped, 0);
   EXPECT_EQ(writer.header.generator_id, -1);
   ASSERT_TRUE(listener.WaitFor("stackgen", kScenes, &generator_status));

@@ -1,6 +1,6 @@
 #pragma once
 
-// Authenticated messages (design.md, "Trust"). Every process of a deployment shares a bus key,
+// Authenticated messages (docs/design.md, "Trust"). Every process of a deployment shares a bus key,
 // on by default: a key file given by --bus-key-file or $STACKGEN_BUS_KEY_FILE, else this user's
 // key at $XDG_CONFIG_HOME/stackgen/bus.key (~/.config/stackgen/bus.key), made with mode 600 on
 // first use. Running without one (an open bus, every sender trusted) takes an explicit choice:

@@ -1,6 +1,6 @@
 #pragma once
 
-// The time the bus's timers read (design.md, "Processes, nodes and time"): programs use the
+// The time the bus's timers read (docs/design.md, "Processes, nodes and time"): programs use the
 // process's steady clock, tests drive a ManualClock and sleep nowhere. Only elapsed time is ever
 // read from a clock (timeouts, periods, back-off), never the time of day.
 

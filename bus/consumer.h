@@ -1,7 +1,7 @@
 #pragma once
 
 // What every consumer of scenes (the dataset writers, the Python stream, stackgen-view) does the
-// same way, in one place: the consumer session of design.md ("Processes, nodes and time"), which
+// same way, in one place: the consumer session of docs/design.md ("Processes, nodes and time"), which
 // owns the bus, the delivery client, the bad-copy policy, the repeat check, the bus key check and
 // the status each consumer publishes on STACKGEN_STATUS. The consumers keep only their own job:
 // checking a scene for what they need and storing, queueing or drawing it.

@@ -1,7 +1,8 @@
 #pragma once
 
-// Delivery without loss (design.md): the small protocol the bus layers on typed messages so that
-// dataset writers lose no scene while a live viewer never slows the generator.
+// Delivery without loss (docs/design.md, "Delivery without loss"): the small protocol the bus
+// layers on typed messages so that dataset writers lose no scene while a live viewer never slows
+// the generator.
 //
 // - A reliable consumer (SceneClient) registers by sending credits on STACKGEN_CREDIT: per
 //   generator, the last seq below which it has durably stored every scene, the highest seq it

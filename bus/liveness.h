@@ -1,6 +1,6 @@
 #pragma once
 
-// The liveness check of the bus key (auth.h, design.md "Trust"): replays are bound to the run,
+// The liveness check of the bus key (auth.h, docs/design.md, "Trust"): replays are bound to the run,
 // not to a time window. A keyed process on a live bus takes a sender's messages only once that
 // sender has answered a challenge drawn now, and only what it signed after its answer:
 //

@@ -2,8 +2,8 @@
 
 // SplitMix64 (Steele, Lea, Flood 2014), in one place for the generator's seed derivation and
 // sensor noise and the bus's fault injection: a fast 64-bit generator whose output function is
-// also a strong 64-bit hash. Header only; changing it changes every scene (design.md,
-// Determinism).
+// also a strong 64-bit hash. Header only; changing it changes every scene
+// (docs/design.md, "Determinism").
 
 #include <cstdint>
 

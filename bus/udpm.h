@@ -1,6 +1,6 @@
 #pragma once
 
-// LCM's UDP multicast transport, received by stackgen itself (design.md, "Trust": no datagram
+// LCM's UDP multicast transport, received by stackgen itself (docs/design.md, "Trust": no datagram
 // can crash a process or grow its memory past a bound, whatever the LCM library does).
 //
 // Why not liblcm's receiver: liblcm 1.3.1 reassembles a fragmented message before any check of

@@ -1,6 +1,6 @@
 #pragma once
 
-// The generator node (design.md, "Processes, nodes and time"): one generator's whole bus life.
+// The generator node (docs/design.md, "Processes, nodes and time"): one generator's whole bus life.
 // It owns the delivery server (credits, resends, windows), the three-stage pipeline (the next
 // pile settles on one thread while this one renders, and scene k is encoded on a third while
 // k + 1 renders), the periodic config, model and status messages, and twin detection (another

@@ -1,4 +1,4 @@
-// No datagram can crash a process (design.md, "Trust"): stackgen, stackgen-coco, stackgen-bop and
+// No datagram can crash a process (docs/design.md, "Trust"): stackgen, stackgen-coco, stackgen-bop and
 // a Python stackgen.Stream share a keyed bus while stackgen-forger (tests/e2e/forger.cc) sends
 // raw datagrams in LCM's wire format that no LCM library sends: the two datagrams that make
 // liblcm 1.3.1 write 4 GB past a buffer (lcm-proj/lcm#628), on every channel, and 50,000

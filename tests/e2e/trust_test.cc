@@ -1,4 +1,4 @@
-// Trust (design.md): a generator and a writer that share a bus key, attacked by strangers on the
+// Trust (docs/design.md, "Trust"): a generator and a writer that share a bus key, attacked by strangers on the
 // same multicast group: stackgen-forger (tests/e2e/forger.cc) with no key and with another key
 // forges scenes, impersonates the writer, offers a window of 0, floods resend requests and fuzzes
 // every channel; lcm-logplayer replays a recording of the run into it. Every such message is

@@ -185,7 +185,10 @@ namespace {
 class WriterSession {
  public:
   WriterSession(const WriterProgram& program, const WriterFlags& flags)
-      : program_(program), flags_(flags), name_text_(program.name.c_str()) {}
+      : program_(program),
+        flags_(flags),
+        name_text_(program.name.c_str()),
+        clock_(program.clock != nullptr ? *program.clock : SteadyClock()) {}
 
   // the bus first: a bad URL or log is refused before anything is created on disk (on a log
   // file it only reads, live it is a reliable consumer; it listens once subscribed); then the
@@ -216,6 +219,7 @@ class WriterSession {
     options.client.first_seq = flags_.first_seq;
     options.key_mismatch_s = kKeyMismatchS;
     options.strict_keys = true;
+    options.clock = &clock_;
     session_ = std::make_unique<ConsumerSession>(std::move(bus), options);
     if (SceneClient* client = session_->client()) {
       for (const auto& [generator_id, seqs] : writer_->StoredSeqs()) {
@@ -228,7 +232,7 @@ class WriterSession {
   }
 
   void Subscribe() {
-    generator_heard_at_ = std::chrono::steady_clock::now();
+    generator_heard_at_ = clock_.Now();
     Bus& bus = session_->bus();
     bus.Subscribe<config_text>(
         kConfigChannel, [this](const config_text& config) { OnConfig(config); }, 16,
@@ -255,7 +259,7 @@ class WriterSession {
   // handles scenes until enough are stored, a signal arrives or the log ends
   void Loop() {
     Bus& bus = session_->bus();
-    start_ = std::chrono::steady_clock::now();
+    start_ = clock_.Now();
     stored_at_start_ = writer_->num_images();
     last_progress_ = start_;
     while (!stop_requested && !Enough() && !bus.log_ended()) {
@@ -263,7 +267,7 @@ class WriterSession {
       bus.HandleFor(writer_->num_staged() > 0 ? 0 : 50);
       Commit();
       session_->Service(writer_->num_images(), session_->delivery().stored);
-      const auto now = std::chrono::steady_clock::now();
+      const auto now = clock_.Now();
       WarnIfSilent(now);
       ShowProgress(now);
     }
@@ -319,7 +323,7 @@ class WriterSession {
   void OnConfig(const config_text& config) {
     const int32_t generator_id = config.header.generator_id;
     if (generator_id < 0 || generator_id > kMaxGeneratorId || config.header.seed < 0) return;
-    generator_heard_at_ = std::chrono::steady_clock::now();
+    generator_heard_at_ = clock_.Now();
     const std::string run = RunName(config.header.seed, config.path, config.pbtxt);
     const auto stored = writer_->Runs().find(generator_id);
     if (stored == writer_->Runs().end()) {
@@ -364,7 +368,7 @@ class WriterSession {
   }
 
   void OnScene(const scene& scene) {
-    generator_heard_at_ = std::chrono::steady_clock::now();
+    generator_heard_at_ = clock_.Now();
     // once --count scenes are stored, later ones in the same batch are left out
     if (Enough()) return;
     const int32_t generator_id = scene.header.generator_id;
@@ -418,7 +422,7 @@ class WriterSession {
 
   // when no generator was heard (its config every second, or a scene) for --warn-silent
   // seconds, says so once
-  void WarnIfSilent(std::chrono::steady_clock::time_point now) {
+  void WarnIfSilent(Clock::TimePoint now) {
     const double silent_s = std::chrono::duration<double>(now - generator_heard_at_).count();
     if (silent_s < 1) {
       warned_silent_ = false;
@@ -440,7 +444,7 @@ class WriterSession {
   }
 
   // a progress line on a terminal, twice a second
-  void ShowProgress(std::chrono::steady_clock::time_point now) {
+  void ShowProgress(Clock::TimePoint now) {
     if (!show_progress_ || now - last_progress_ < std::chrono::milliseconds(500)) return;
     last_progress_ = now;
     const double seconds = std::chrono::duration<double>(now - start_).count();
@@ -496,6 +500,7 @@ class WriterSession {
   const WriterProgram& program_;
   const WriterFlags& flags_;
   const char* const name_text_;
+  Clock& clock_;  // the waits, warnings, progress and the session's status period
   const bool show_progress_ = isatty(STDERR_FILENO) != 0;
   // the writer outlives the session (the error path still finishes the dataset)
   std::unique_ptr<DatasetSink> writer_;
@@ -504,10 +509,10 @@ class WriterSession {
   std::map<int32_t, std::string> heard_runs_;
   std::set<int32_t> foreign_runs_;
   std::set<int32_t> stopped_said_;  // generators said to have stopped before their end
-  std::chrono::steady_clock::time_point generator_heard_at_;
+  Clock::TimePoint generator_heard_at_;
   bool warned_silent_ = false;
-  std::chrono::steady_clock::time_point start_;
-  std::chrono::steady_clock::time_point last_progress_;
+  Clock::TimePoint start_;
+  Clock::TimePoint last_progress_;
   int64_t stored_at_start_ = 0;
 };
 

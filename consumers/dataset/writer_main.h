@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "bus/bus.h"
+#include "bus/clock.h"
 #include "bus/flags.h"
 #include "consumers/dataset/dataset_sink.h"
 
@@ -56,6 +57,9 @@ struct WriterProgram {
   std::function<void(Bus&, DatasetSink&)> subscribe;
   /// The last line printed on success, after Finish: what the dataset holds.
   std::function<std::string(const DatasetSink&)> summary;
+  /// The clock of the writer's waits, warnings, progress and status (bus/clock.h); null:
+  /// SteadyClock(). Must outlive RunWriter.
+  Clock* clock = nullptr;
 };
 
 /// Runs a writer program to its end: stores the scenes on STACKGEN_SCENE until flags.count are

@@ -22,6 +22,7 @@
 #include "bus/bounded_decode.h"
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "bus/clock.h"
 #include "bus/consumer.h"
 #include "bus/delivery.h"
 #include "bus/log.h"
@@ -30,7 +31,6 @@
 namespace stackgen::feed {
 namespace {
 
-using Clock = std::chrono::steady_clock;
 using SceneKey = std::pair<int32_t, int64_t>;  // generator_id, seq
 
 // problems reported one by one on stderr; later ones are only counted
@@ -120,11 +120,13 @@ struct SceneStream::Impl {
     std::string name;
     int8_t run_state = kRunRunning;
     int64_t scenes = 0;  // published, as their status says
-    Clock::time_point heard;
+    Clock::TimePoint heard;
   };
   std::map<int32_t, Generator> generators;
-  Clock::time_point opened = Clock::now();
-  Clock::time_point last_said;  // a waiting learner was last told what the stream waits for
+  // the time the stream reads (bus/clock.h: options.clock, else the steady clock)
+  Clock* clock = &SteadyClock();
+  Clock::TimePoint opened;
+  Clock::TimePoint last_said;  // a waiting learner was last told what the stream waits for
   bool said_waiting = false;
 
   // thread-only state
@@ -258,7 +260,7 @@ struct SceneStream::Impl {
     const std::lock_guard<std::mutex> lock(mutex);
     if (generators.count(generator_id) == 0 && generators.size() >= kMaxGeneratorsHeard) return;
     Generator& generator = generators[generator_id];
-    generator.heard = Clock::now();
+    generator.heard = clock->Now();
     // (a scene says nothing of the run: a resend may come after the last status; a generator
     // started again says so in its status)
     if (news == nullptr) return;
@@ -285,7 +287,7 @@ struct SceneStream::Impl {
     std::string said;
     for (const auto& [generator_id, generator] : generators) {
       if (generator.run_state == kRunRunning ||
-          std::chrono::duration<double>(Clock::now() - generator.heard).count() < kEndGraceS) {
+          std::chrono::duration<double>(clock->Now() - generator.heard).count() < kEndGraceS) {
         return "";
       }
       said += (said.empty() ? "" : ", ") + std::string("generator ") +
@@ -299,7 +301,7 @@ struct SceneStream::Impl {
 
   // what a waiting learner waits for (under `mutex`)
   std::string WaitingFor() const {
-    const auto now = Clock::now();
+    const auto now = clock->Now();
     if (generators.empty()) {
       return "no generator heard on " + url + " since the stream opened " +
              std::to_string(static_cast<int>(
@@ -566,6 +568,8 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
   Impl& impl = *impl_;
   impl.options = options;
   impl.pid = getpid();
+  if (options.clock != nullptr) impl.clock = options.clock;
+  impl.opened = impl.clock->Now();
   CheckOptions(options);
   impl.url = ResolveLcmUrl(options.url);
   impl.name = options.name.empty() ? DefaultName(options) : options.name;
@@ -608,6 +612,7 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
     session_options.key_mismatch_s = kKeyMismatchS;
     session_options.status_period_s = options.publish_status ? 1 : 0;
     session_options.recent_scenes = kRecentKeys;
+    session_options.clock = impl.clock;
     try {
       impl.session = std::make_unique<ConsumerSession>(
           std::make_unique<Bus>(impl.url,
@@ -660,7 +665,7 @@ std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
         ": a stream cannot be shared between processes (DataLoader workers); open one in each "
         "(stackgen.torch.StreamDataset does)");
   }
-  const auto start = Clock::now();
+  const auto start = impl.clock->Now();
   std::unique_lock<std::mutex> lock(impl.mutex);
   while (true) {
     if (impl.closed) return nullptr;
@@ -690,7 +695,7 @@ std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
     }
     if (impl.error) std::rethrow_exception(impl.error);
     if (impl.ended || impl.closed) return nullptr;
-    const auto now = Clock::now();
+    const auto now = impl.clock->Now();
     const double waited = std::chrono::duration<double>(now - start).count();
     if (timeout_s >= 0 && waited >= timeout_s) {
       const std::string keys = impl.session ? impl.session->KeyHint() : "";

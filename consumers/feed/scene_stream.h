@@ -18,6 +18,7 @@
 #include <string>
 #include <vector>
 
+#include "bus/clock.h"
 #include "consumers/feed/scene_data.h"
 
 namespace stackgen::feed {
@@ -75,6 +76,9 @@ struct SceneStreamOptions {
   double fault_drop = 0;
   /// Live bus: publish the stream's counters on STACKGEN_STATUS every second.
   bool publish_status = true;
+  /// The time the stream reads for its waits, messages and the generators' end (bus/clock.h);
+  /// null: SteadyClock(). Must outlive the stream. (A wait itself sleeps in slices of 0.1 s.)
+  Clock* clock = nullptr;
 };
 
 /// Counters of a stream since it opened.

@@ -701,7 +701,9 @@ std::shared_ptr<FeedScene> SceneStream::Next(double timeout_s,
       const std::string keys = impl.session ? impl.session->KeyHint() : "";
       throw FeedTimeout("no scene on " + impl.options.channel + " of " + impl.url + " for " +
                         std::to_string(static_cast<int>(timeout_s + 0.5)) + " s: " +
-                        (keys.empty() ? (impl.session ? impl.WaitingFor() : "") : keys));
+                        (!keys.empty()          ? keys
+                         : impl.session != nullptr ? impl.WaitingFor()
+                                                   : std::string("is a generator publishing there?")));
     }
     // a learner that waits is told for what, at once and then now and again
     if (impl.session && waited >= kSayWaitingS &&

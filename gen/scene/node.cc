@@ -143,7 +143,7 @@ struct GeneratorNode::Impl {
   // whether that was said
   Clock::TimePoint alone_since;
   bool alone_said = false;
-  int8_t run_state = kRunRunning;  // in every status: a stream ends when its generators have
+  int8_t run_state = kRunRunning;  // in every status: streams end once their generators' have
   int64_t published_at_last_status = 0;
   int64_t periods = 0;
   Clock::TimePoint start;

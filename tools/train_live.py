@@ -17,7 +17,6 @@ WORLD_SIZE, MASTER_ADDR and MASTER_PORT).
 
 import argparse
 import json
-import ctypes
 import math
 import os
 import shutil
@@ -218,10 +217,10 @@ def build_model(args, channels, height, width):
     return model
 
 
-def die_with_parent():
-    """In a child before it runs (Popen's preexec_fn): SIGTERM when train-live dies, by SIGKILL
-    too, so no generator or rank outlives it (prctl PR_SET_PDEATHSIG)."""
-    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG = 1
+# a child's command line, so that it gets SIGTERM when train-live dies, by SIGKILL too: no
+# generator or rank outlives it (setpriv from util-linux sets PR_SET_PDEATHSIG, then runs the
+# command in its place; not Popen's preexec_fn, which may deadlock in a process with threads)
+DIE_WITH_PARENT = ["setpriv", "--pdeathsig", "TERM", "--"]
 
 
 def start_generators(args, url, logs):
@@ -229,12 +228,13 @@ def start_generators(args, url, logs):
     generators = []
     for generator_id in range(0 if args.replay or args.attach else args.generators):
         log = open(os.path.join(logs, "stackgen%d.log" % generator_id), "w")
-        generators.append((subprocess.Popen(
-            [args.stackgen, "--config", args.config, "--seed", str(args.scene_seed),
-             "--generator-id", str(generator_id), "--lcm-url", url] +
-            (["--open-bus"] if args.open_bus else
-             ["--bus-key-file", args.bus_key_file] if args.bus_key_file else []),
-            stdout=log, stderr=subprocess.STDOUT, preexec_fn=die_with_parent), log.name))
+        command = DIE_WITH_PARENT + [
+            args.stackgen, "--config", args.config, "--seed", str(args.scene_seed),
+            "--generator-id", str(generator_id), "--lcm-url", url] + (
+                ["--open-bus"] if args.open_bus else
+                ["--bus-key-file", args.bus_key_file] if args.bus_key_file else [])
+        generators.append((subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT),
+                           log.name))
     return generators
 
 
@@ -303,9 +303,10 @@ def run_ranks(args, argv, url, generators, logs):
                    MASTER_PORT=str(port))
         log = None if rank == 0 else os.path.join(logs, "rank%d.log" % rank)
         out = open(log, "w") if log else None
-        ranks.append((subprocess.Popen([sys.executable, os.path.abspath(__file__)] + child,
+        ranks.append((subprocess.Popen(DIE_WITH_PARENT + [sys.executable,
+                                                          os.path.abspath(__file__)] + child,
                                        env=env, stdout=out, stderr=subprocess.STDOUT if out else
-                                       None, preexec_fn=die_with_parent), log))
+                                       None), log))
     try:
         while True:
             check_generators(generators)

@@ -162,7 +162,7 @@ struct Bus::Impl {
     auto engine = fault_engines.find(channel);
     if (engine == fault_engines.end()) {
       uint64_t seed = options.fault_seed;
-      for (const char c : channel) seed = SplitMix64(seed ^ static_cast<uint8_t>(c)).Next();
+      for (const char c : channel) seed = SplitMixHash(seed ^ static_cast<uint8_t>(c));
       engine = fault_engines.emplace(channel, SplitMix64(seed)).first;
     }
     const uint64_t z = engine->second.Next();

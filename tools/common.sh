@@ -6,13 +6,12 @@
 
 # (through the links: /usr/bin/stackgen-run -> /usr/share/stackgen/tools/run)
 root=$(cd "$(dirname "$(readlink -f "${BASH_SOURCE[0]}")")/.." && pwd)
+build="$root/build"  # (installed: absent; Python finds the package where the .deb put it)
 if [ -f "$root/CMakeLists.txt" ]; then
   installed=0
-  build="$root/build"
   bin=${STACKGEN_BIN_DIR:-$build/bin}
 else
   installed=1
-  build="$root/build"  # (absent: Python finds the package where the .deb put it)
   bin=${STACKGEN_BIN_DIR:-$(cd "$root/../../bin" && pwd)}
 fi
 export STACKGEN_BIN_DIR="$bin"

@@ -250,9 +250,7 @@ class WriterSession {
         });
     std::printf("%s: listening on %s channel %s, writing %s (%s)\n", name_text_,
                 bus.url().c_str(), kSceneChannel, flags_.out.c_str(),
-                bus.keyed() ? ("bus key " + bus.key_file() + ", key id " + KeyIdText(bus.key_id()))
-                                  .c_str()
-                            : "open bus: no key");
+                bus.keyed() ? KeyText().c_str() : "open bus: no key");
     std::fflush(stdout);
   }
 
@@ -308,6 +306,12 @@ class WriterSession {
   }
 
  private:
+  // "bus key FILE (key id ID)": what a keyed writer checks with, in its lines
+  std::string KeyText() const {
+    const Bus& bus = session_->bus();
+    return "bus key " + bus.key_file() + " (key id " + KeyIdText(bus.key_id()) + ")";
+  }
+
   bool Enough() const {
     return flags_.count > 0 && writer_->num_images() + writer_->num_staged() >= flags_.count;
   }
@@ -436,9 +440,7 @@ class WriterSession {
                    "%s: no generator heard for %d s on %s (no scene, no config): is stackgen "
                    "running with this --lcm-url (the same port) and %s? still waiting\n",
                    name_text_, static_cast<int>(silent_s), bus.url().c_str(),
-                   bus.keyed() ? ("the bus key " + bus.key_file() + " (key id " +
-                                  KeyIdText(bus.key_id()) + ")")
-                                     .c_str()
+                   bus.keyed() ? ("the " + KeyText()).c_str()
                                : "--open-bus (this writer checks no key)");
     }
   }
@@ -537,9 +539,9 @@ int RunWriter(const WriterProgram& program, const WriterFlags& flags) {
 
 std::string ClassesText(const std::map<int32_t, std::string>& classes) {
   if (classes.empty()) return "no classes";
-  std::string text = "classes";
+  std::string text;
   for (const auto& [class_id, class_name] : classes) {
-    text += (text.size() > 7 ? ", " : " ") + std::to_string(class_id) + " " + class_name;
+    text += (text.empty() ? "classes " : ", ") + std::to_string(class_id) + " " + class_name;
   }
   return text;
 }

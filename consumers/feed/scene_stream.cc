@@ -132,12 +132,14 @@ struct SceneStream::Impl {
   // thread-only state
   std::atomic<int> reported{0};
 
-  bool Wanted(int32_t generator_id, int64_t seq) const {
+  // a generator this stream takes scenes from (options.generator_ids, or all)
+  bool WantedGenerator(int32_t generator_id) const {
     const std::vector<int32_t>& ids = options.generator_ids;
-    if (!ids.empty() && std::find(ids.begin(), ids.end(), generator_id) == ids.end()) {
-      return false;
-    }
-    return seq % options.shard_count == options.shard_index;
+    return ids.empty() || std::find(ids.begin(), ids.end(), generator_id) != ids.end();
+  }
+
+  bool Wanted(int32_t generator_id, int64_t seq) const {
+    return WantedGenerator(generator_id) && seq % options.shard_count == options.shard_index;
   }
 
   void Report(const std::string& text) {
@@ -270,10 +272,8 @@ struct SceneStream::Impl {
   }
 
   void OnStatus(const status& message) {
-    if (message.process != "stackgen" || !SceneIdsInRange(message.header.generator_id, 0)) return;
-    const std::vector<int32_t>& ids = options.generator_ids;
-    if (!ids.empty() &&
-        std::find(ids.begin(), ids.end(), message.header.generator_id) == ids.end()) {
+    if (message.process != "stackgen" || !SceneIdsInRange(message.header.generator_id, 0) ||
+        !WantedGenerator(message.header.generator_id)) {
       return;
     }
     Heard(message.header.generator_id, &message);

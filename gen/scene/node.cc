@@ -160,6 +160,7 @@ struct GeneratorNode::Impl {
 
   bool Stopped() const { return options.stop != nullptr && *options.stop; }
   status Status(int64_t next) const;
+  status Counted(double since) const;
   void OnStatus(const status& other);
   void Announce();
   void Serve(int timeout_ms);
@@ -351,6 +352,14 @@ void GeneratorNode::Impl::PublishPeriodic(bool force) {
       bus.Publish(kModelChannel, message);
     }
   }
+  bus.Publish(kStatusChannel, Counted(since));
+  last_status = now;
+  published_at_last_status = published;
+  WarnIfAlone(now);
+}
+
+// this generator's status with its counters now, `since` seconds after the status before
+status GeneratorNode::Impl::Counted(double since) const {
   status message = Status(next_seq);
   message.scenes = published;
   message.scenes_rejected = times.redraws;
@@ -372,10 +381,7 @@ void GeneratorNode::Impl::PublishPeriodic(bool force) {
   message.refused_replayed = refused.replayed;
   message.refused_relayed = refused.relayed;
   message.run_state = run_state;
-  bus.Publish(kStatusChannel, message);
-  last_status = now;
-  published_at_last_status = published;
-  WarnIfAlone(now);
+  return message;
 }
 
 // said while it runs, not only at the end: scenes published with no reliable consumer (a
@@ -400,13 +406,15 @@ void GeneratorNode::Impl::WarnIfAlone(Clock::TimePoint now) {
 }
 
 // the last status says how the run ended, three times over (a status is one datagram, and a
-// stream ends on it); never throws: it also runs on the way out of an error
+// stream ends on it); the status alone, not the config and models again. Never throws: it also
+// runs on the way out of an error
 void GeneratorNode::Impl::PublishEnd(int8_t state) {
   run_state = state;
   try {
+    const status last = Counted(Seconds(last_status, clock.Now()));
     for (int k = 0; k < 3; ++k) {
       if (k > 0) std::this_thread::sleep_for(std::chrono::milliseconds(30));
-      PublishPeriodic(true);
+      bus.Publish(kStatusChannel, last);
     }
   } catch (const std::exception&) {
     // the bus failed: the error on the way out says more

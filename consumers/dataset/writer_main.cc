@@ -248,7 +248,7 @@ class WriterSession {
             std::fprintf(stderr, "%s: skipped a message: %s\n", name_text_, text.c_str());
           }
         });
-    std::printf("%s: listening on %s channel %s, writing %s (%s)\n", name_text_,
+    std::printf("%s: listening on %s channel %s, writing %s; %s\n", name_text_,
                 bus.url().c_str(), kSceneChannel, flags_.out.c_str(),
                 bus.keyed() ? KeyText().c_str() : "open bus: no key");
     std::fflush(stdout);

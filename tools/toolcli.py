@@ -1,4 +1,4 @@
-"""Command-line pieces shared by the Python tools (tools/train_live.py, tools/eval_detector.py):
+"""Command-line pieces shared by the Python tools (tools/train_live.py, research/eval_detector.py):
 a bad command line is one line naming the program and exit 2, a failure one line and exit 1,
 and whole-number arguments checked by argparse. Run as scripts, the tools find this file beside
 them."""

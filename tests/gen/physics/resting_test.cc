@@ -16,7 +16,7 @@
 #include "gen/physics/pile.h"
 #include "tests/support/meshes.h"
 #include "tests/support/physics.h"
-#include "tools/stats/statistics.h"
+#include "research/stats/statistics.h"
 
 namespace stackgen {
 namespace {

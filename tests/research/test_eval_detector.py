@@ -1,0 +1,112 @@
+"""research/eval_detector.py: bad command lines are refused in one line, and tiny runs (two steps on
+a two-image COCO folder, the Mask R-CNN modes and the quick mode) train, score and write JSON."""
+
+import json
+import os
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+
+ROOT = os.environ.get("STACKGEN_SOURCE_DIR",
+                      os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(
+                          os.path.abspath(__file__))))))
+PROGRAM = os.path.join(ROOT, "research", "eval_detector.py")
+
+
+def run(*args):
+    return subprocess.run([sys.executable, PROGRAM, *args], capture_output=True, text=True,
+                          timeout=600)
+
+
+def make_coco(folder):
+    """Two 480 x 640 images, each with two bright squares on grey, one of them an ignore region."""
+    os.makedirs(os.path.join(folder, "images"))
+    images, annotations = [], []
+    for i in range(2):
+        image = np.full((480, 640, 3), 90, np.uint8)
+        for k, (x, y) in enumerate([(100 + 40 * i, 120), (380, 260 - 30 * i)]):
+            image[y:y + 90, x:x + 90] = 220
+            mask = np.zeros((480, 640), np.uint8)
+            mask[y:y + 90, x:x + 90] = 1
+            flat = mask.flatten(order="F")
+            edges = np.concatenate(([0], np.flatnonzero(np.diff(flat)) + 1, [flat.size]))
+            annotations.append({"id": 10 * i + k + 1, "image_id": i + 1, "category_id": 1,
+                                "iscrowd": k, "bbox": [x, y, 90, 90], "area": 8100,
+                                "segmentation": {"counts": np.diff(edges).tolist(),
+                                                 "size": [480, 640]}})
+        cv2.imwrite(os.path.join(folder, "images", "%d.png" % i), image)
+        images.append({"id": i + 1, "file_name": "%d.png" % i, "width": 640, "height": 480})
+    with open(os.path.join(folder, "annotations.json"), "w") as file:
+        json.dump({"images": images, "annotations": annotations,
+                   "categories": [{"id": 1, "name": "square"}]}, file)
+
+
+def test_bad_command_lines_say_what_and_exit_2(tmp_path):
+    missing = run("--config", str(tmp_path / "missing.pbtxt"))
+    assert missing.returncode == 2
+    assert "missing.pbtxt" in missing.stderr and len(missing.stderr.strip().splitlines()) == 1
+    config = os.path.join(ROOT, "config", "default.pbtxt")
+    not_coco = run("--config", config, "--test", str(tmp_path))
+    assert not_coco.returncode == 2 and "annotations.json" in not_coco.stderr
+    alone = run("--config", config, "--no-held-out")
+    assert alone.returncode == 2 and "--no-held-out" in alone.stderr
+
+
+def test_a_tiny_run_trains_scores_and_writes_json(tmp_path):
+    folder = str(tmp_path / "squares")
+    make_coco(folder)
+    out = str(tmp_path / "results.json")
+    result = run("--config", os.path.join(ROOT, "config", "default.pbtxt"), "--train-dir", folder,
+                 "--test", folder, "--no-held-out", "--steps", "2", "--scale", "0.25",
+                 "--threads", "2", "--out", out)
+    assert result.returncode == 0, result.stderr
+    assert "MIoU" in result.stdout
+    with open(out) as file:
+        written = json.load(file)
+    (scores,) = written["results"]
+    assert scores["images"] == 2
+    # one real square per image: found or missed, the ignore regions never count
+    assert scores["tp"] + scores["fn"] == 2
+    assert written["steps"] == 2 and written["mode"] == "cpu"
+
+
+def test_quick_mode_flags_are_checked():
+    config = os.path.join(ROOT, "config", "default.pbtxt")
+    cpu_seeds = run("--config", config, "--seeds", "0 1")
+    assert cpu_seeds.returncode == 2 and "--seeds is for --mode quick" in cpu_seeds.stderr
+    twice = run("--config", config, "--mode", "quick", "--seeds", "1 1")
+    assert twice.returncode == 2 and "distinct" in twice.stderr
+    cpu_errors = run("--config", config, "--errors", "/tmp/nowhere")
+    assert cpu_errors.returncode == 2 and "--mode quick" in cpu_errors.stderr
+    cpu_levels = run("--config", config, "--unet-levels", "5")
+    assert cpu_levels.returncode == 2 and "--mode quick" in cpu_levels.stderr
+    too_deep = run("--config", config, "--mode", "quick", "--unet-levels", "7")
+    assert too_deep.returncode == 2 and "2..6" in too_deep.stderr
+
+
+def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
+    folder = str(tmp_path / "squares")
+    make_coco(folder)
+    out, errors = str(tmp_path / "results.json"), str(tmp_path / "errors")
+    result = run("--mode", "quick", "--config", os.path.join(ROOT, "config", "default.pbtxt"),
+                 "--train-dir", folder, "--test", folder, "--no-held-out", "--seeds", "3",
+                 "--steps", "2", "--threads", "2", "--errors", errors, "--worst", "1",
+                 "--unet-levels", "5", "--out", out)
+    assert result.returncode == 0, result.stderr
+    assert "foreground IoU" in result.stdout and "spread" in result.stdout
+    with open(out) as file:
+        written = json.load(file)
+    assert written["mode"] == "quick" and written["seeds"] == [3] and written["steps"] == 2
+    assert written["unet_levels"] == 5
+    (scores,) = written["results"]
+    assert scores["seed"] == 3 and scores["images"] == 2
+    assert 0 <= scores["foreground_iou"] <= 1
+    assert scores["tp"] + scores["fn"] == 2  # the ignore squares count neither way
+    (summary,) = written["summaries"]
+    assert summary["foreground_iou"]["mean"] == scores["foreground_iou"]
+    assert summary["foreground_iou"]["spread"] == 0  # one seed
+    assert set(summary["pixels"]) >= {"false_negative", "false_positive"}
+    (picture,) = os.listdir(errors)
+    assert picture.endswith(".jpg") and cv2.imread(os.path.join(errors, picture)) is not None

@@ -27,7 +27,7 @@
 
 #include "bus/channels.h"
 #include "bus/liveness.h"
-#include "bus/splitmix.h"
+#include "contract/splitmix.h"
 #include "bus/udpm.h"
 
 namespace stackgen {

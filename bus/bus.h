@@ -8,7 +8,7 @@
 #include <vector>
 
 #include "bus/auth.h"
-#include "bus/bounded_decode.h"
+#include "contract/bounded_decode.h"
 #include "bus/clock.h"
 #include "bus/udpm.h"
 

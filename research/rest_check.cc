@@ -14,7 +14,7 @@
 
 #include <Eigen/Geometry>
 
-#include "bus/flags.h"
+#include "cli/flags.h"
 #include "gen/config/config.h"
 #include "gen/physics/hull_faces.h"
 #include "gen/physics/pile.h"

@@ -32,8 +32,8 @@
 
 #include <nlohmann/json.hpp>
 
-#include "bus/delivery.h"
-#include "bus/flags.h"
+#include "session/delivery.h"
+#include "cli/flags.h"
 #include "consumers/bop/bop_writer.h"
 #include "consumers/coco/coco_writer.h"
 #include "consumers/dataset/files.h"

@@ -13,7 +13,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "bus/flags.h"
+#include "cli/flags.h"
 #include "gen/annotate/rle.h"
 
 namespace {

@@ -18,7 +18,7 @@
 #include <string>
 
 #include "bus/auth.h"
-#include "bus/flags.h"
+#include "cli/flags.h"
 #include "bus/log.h"
 #include "bus/udpm.h"
 

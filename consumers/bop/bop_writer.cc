@@ -12,8 +12,8 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
-#include "bus/rle.h"
-#include "bus/scene_contract.h"
+#include "contract/rle.h"
+#include "contract/scene_contract.h"
 #include "consumers/bop/model_files.h"
 #include "consumers/bop/toolkit_json.h"
 #include "consumers/dataset/files.h"

@@ -110,7 +110,7 @@ class BopWriter : public DatasetSink {
   BopWriter(const BopWriter&) = delete;
   BopWriter& operator=(const BopWriter&) = delete;
 
-  /// Checks `scene` (bus/scene_contract.h CheckScene, its colour and depth decoded whole, a
+  /// Checks `scene` (contract/scene_contract.h CheckScene, its colour and depth decoded whole, a
   /// depth image present, class names one per class_id, at most 999999 instances) and stores it
   /// (see the class comment). Returns false, writing nothing, for a scene stored or staged
   /// already with the same seed; throws InvalidSceneError naming the field for a bad scene or a

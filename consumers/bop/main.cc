@@ -9,7 +9,7 @@
 #include <stackgen/model.hpp>
 
 #include "bus/channels.h"
-#include "bus/flags.h"
+#include "cli/flags.h"
 #include "consumers/bop/bop_writer.h"
 #include "consumers/dataset/writer_main.h"
 

@@ -20,9 +20,9 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
-#include "bus/bounded_decode.h"
-#include "bus/rle.h"
-#include "bus/scene_contract.h"
+#include "contract/bounded_decode.h"
+#include "contract/rle.h"
+#include "contract/scene_contract.h"
 #include "consumers/coco/coco_records.h"
 #include "consumers/dataset/files.h"
 #include "consumers/dataset/images.h"
@@ -35,7 +35,7 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 // id layout: image id = generator_id * 1e8 + seq + 1, annotation id = image id * 1000 +
-// instance_id; kMaxGeneratorId and kMaxSeq of bus/scene_contract.h keep both unique and below
+// instance_id; kMaxGeneratorId and kMaxSeq of contract/scene_contract.h keep both unique and below
 // 2^53, so a tool that reads JSON numbers as doubles (JavaScript, jq) tells every id apart
 constexpr int64_t kSeqsPerGenerator = 100000000;
 static_assert(kMaxSeq < kSeqsPerGenerator - 1, "a seq's image id would reach the next generator");
@@ -410,7 +410,7 @@ int64_t CocoWriter::AnnotationId(int64_t image_id, int32_t instance_id) {
 }
 
 void CocoWriter::Validate(const stackgen::scene& scene) const {
-  // the contract every consumer checks (bus/scene_contract.h)
+  // the contract every consumer checks (contract/scene_contract.h)
   std::string why;
   if (!CheckScene(scene, &why)) FailScene(scene, why);
 

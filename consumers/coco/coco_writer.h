@@ -179,7 +179,7 @@ class CocoWriter : public DatasetSink {
   /// Every stored seq, ascending, per generator_id.
   std::map<int32_t, std::vector<int64_t>> StoredSeqs() const override;
 
-  /// The run (a RunName, bus/delivery.h) each generator's scenes come from: read from the
+  /// The run (a RunName, session/delivery.h) each generator's scenes come from: read from the
   /// journal on resume (its last scene that names one), or set by SetRun.
   const std::map<int32_t, std::string>& Runs() const override { return runs_; }
   /// Scenes of `generator_id` added from now on are journalled as coming from `run` (the journal

@@ -6,7 +6,7 @@
 #include <string>
 
 #include "bus/channels.h"
-#include "bus/flags.h"
+#include "cli/flags.h"
 #include "consumers/coco/coco_writer.h"
 #include "consumers/dataset/writer_main.h"
 

@@ -2,7 +2,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "bus/scene_contract.h"
+#include "contract/scene_contract.h"
 
 namespace stackgen {
 

@@ -40,7 +40,7 @@ class DatasetSink {
   virtual void Finish() = 0;
   /// What Finish writes, for messages: "annotations.json".
   virtual std::string finished_files() const = 0;
-  /// The run (bus/delivery.h RunName) each generator's scenes come from.
+  /// The run (session/delivery.h RunName) each generator's scenes come from.
   virtual const std::map<int32_t, std::string>& Runs() const = 0;
   /// Scenes of `generator_id` added from now on are journalled as coming from `run`.
   virtual void SetRun(int32_t generator_id, const std::string& run) = 0;
@@ -65,7 +65,7 @@ std::string SceneName(const scene& scene);
 /// Throws InvalidSceneError("scene G/S: `text`").
 [[noreturn]] void FailScene(const scene& scene, const std::string& text);
 /// Throws InvalidSceneError when the scene's generator_id or seq is outside the id layout
-/// (bus/scene_contract.h).
+/// (contract/scene_contract.h).
 void CheckSceneIds(const scene& scene);
 /// Whether `scene` repeats the scene stored or staged with its ids, whose seed was `seen_seed`
 /// (none stored or staged: std::nullopt): true means store nothing. Throws InvalidSceneError when

@@ -10,7 +10,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "bus/bounded_decode.h"
+#include "contract/bounded_decode.h"
 
 namespace stackgen {
 namespace {

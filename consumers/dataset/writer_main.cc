@@ -17,9 +17,9 @@
 
 #include "bus/auth.h"
 #include "bus/channels.h"
-#include "bus/consumer.h"
-#include "bus/delivery.h"
-#include "bus/scene_contract.h"
+#include "session/consumer.h"
+#include "session/delivery.h"
+#include "contract/scene_contract.h"
 
 namespace stackgen {
 namespace {

@@ -14,7 +14,7 @@
 
 #include "bus/bus.h"
 #include "bus/clock.h"
-#include "bus/flags.h"
+#include "cli/flags.h"
 #include "consumers/dataset/dataset_sink.h"
 
 namespace stackgen {

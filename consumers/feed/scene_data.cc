@@ -3,8 +3,8 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "bus/rle.h"
-#include "bus/scene_contract.h"
+#include "contract/rle.h"
+#include "contract/scene_contract.h"
 #include "consumers/dataset/images.h"
 
 namespace stackgen::feed {

@@ -17,7 +17,7 @@
 #include <opencv2/core.hpp>
 #include <stackgen/scene.hpp>
 
-#include "bus/rle.h"
+#include "contract/rle.h"
 
 namespace stackgen::feed {
 
@@ -34,7 +34,7 @@ class FeedError : public std::runtime_error {
 cv::Mat DecodeImage(const image& message, const std::string& field);
 
 /// Checks that a decoded scene message is one a learner can use: the contract every consumer
-/// checks (stackgen::CheckScene, bus/scene_contract.h) and an instance map. Returns false with a
+/// checks (stackgen::CheckScene, contract/scene_contract.h) and an instance map. Returns false with a
 /// one-line reason naming the field in `*why`.
 bool CheckFeedScene(const scene& message, std::string* why);
 

@@ -30,19 +30,32 @@
 #include <stackgen/scene.hpp>
 #include <stackgen/status.hpp>
 
-#include "bus/bounded_decode.h"
+#include "contract/bounded_decode.h"
 #include "bus/bus.h"
 #include "bus/channels.h"
-#include "bus/consumer.h"
-#include "bus/flags.h"
-#include "bus/scene_contract.h"
-#include "gen/annotate/rle.h"
+#include "session/consumer.h"
+#include "cli/flags.h"
+#include "contract/scene_contract.h"
+#include "contract/rle.h"
 #include "consumers/bop/bop_dataset.h"
 #include "consumers/view/contact_sheet.h"
 
 namespace {
 
 using namespace stackgen::sheet;
+
+// The mask (CV_8UC1, 255 inside) of a compressed COCO RLE string over height x width pixels
+// (contract/rle.h's decoder; throws as it does, naming what is wrong).
+cv::Mat RleMask(const std::string& counts, int height, int width) {
+  if (height < 0 || width < 0) {
+    throw std::runtime_error("negative mask size " + std::to_string(height) + " x " +
+                             std::to_string(width));
+  }
+  cv::Mat mask = cv::Mat::zeros(height, width, CV_8UC1);
+  stackgen::DecodeRleInto(counts, height, width, mask.data);
+  mask *= 255;
+  return mask;
+}
 namespace fs = std::filesystem;
 using nlohmann::json;
 
@@ -215,8 +228,9 @@ cv::Mat SegmentationMask(const json& segmentation, int height, int width,
                                  std::to_string(height) + ", " + std::to_string(width) + "]");
       }
       const json& counts = segmentation.at("counts");
-      if (counts.is_string()) return stackgen::DecodeRle(counts.get<std::string>(), height, width);
-      return stackgen::RunsToMask(counts.get<std::vector<uint32_t>>(), height, width);
+      if (counts.is_string()) return RleMask(counts.get<std::string>(), height, width);
+      // (uncompressed counts: the same runs, compressed)
+      return RleMask(stackgen::RunsToString(counts.get<std::vector<uint32_t>>()), height, width);
     }
     if (segmentation.is_array()) {
       cv::Mat mask = cv::Mat::zeros(height, width, CV_8UC1);
@@ -456,7 +470,7 @@ std::vector<Tile> ReadBopTiles(const Flags& flags) {
 // the scene as a SceneView; throws std::runtime_error naming the field if it disagrees with
 // itself (sizes, encoding, masks)
 SceneView ViewOfMessage(const stackgen::scene& message) {
-  // the contract every consumer checks (bus/scene_contract.h): sizes, encodings and file
+  // the contract every consumer checks (contract/scene_contract.h): sizes, encodings and file
   // headers, instances, masks and their pixel counts
   std::string why;
   if (!stackgen::CheckScene(message, &why)) throw std::runtime_error(why);
@@ -499,7 +513,7 @@ SceneView ViewOfMessage(const stackgen::scene& message) {
     const std::string field = "instances[" + std::to_string(k) + "]";
     InstanceView view;
     try {
-      view.mask = stackgen::DecodeRle(instance.mask_visib_rle, height, width);
+      view.mask = RleMask(instance.mask_visib_rle, height, width);
     } catch (const std::exception& error) {
       throw std::runtime_error(field + ".mask_visib_rle: " + error.what());
     }

@@ -7,14 +7,14 @@
 
 #include <opencv2/core.hpp>
 
-#include "bus/rle.h"
+#include "contract/rle.h"
 
 namespace stackgen {
 
 // COCO run-length encoding of binary masks as OpenCV matrices, exactly as cocoapi
 // common/maskApi.c: the mask is read column by column (Fortran order), runs alternate zeros and
 // ones and start with the count of zeros (0 when the first pixel is set). The compressed string
-// form (RunsToString, StringToRuns) is bus/rle.h's, which consumers share.
+// form (RunsToString, StringToRuns) is contract/rle.h's, which consumers share.
 
 /// Runs of `mask` (CV_8UC1, nonzero = inside), column-major, starting with zeros. An empty (0x0)
 /// mask gives {0}, as rleEncode. Throws std::runtime_error if `mask` is not CV_8UC1.

@@ -8,7 +8,7 @@
 
 #include <opencv2/imgproc.hpp>
 
-#include "bus/splitmix.h"
+#include "contract/splitmix.h"
 #include "gen/randomize/uniform.h"
 
 namespace stackgen {

@@ -18,7 +18,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "bus/splitmix.h"
+#include "contract/splitmix.h"
 
 namespace stackgen {
 namespace {

@@ -14,8 +14,8 @@
 
 #include "bus/auth.h"
 #include "bus/bus.h"
-#include "bus/flags.h"
-#include "bus/scene_contract.h"
+#include "cli/flags.h"
+#include "contract/scene_contract.h"
 #include "gen/config/config.h"
 #include "gen/scene/node.h"
 #include "gen/scene/scene_generator.h"

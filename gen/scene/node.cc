@@ -23,8 +23,8 @@
 
 #include "bus/auth.h"
 #include "bus/channels.h"
-#include "bus/delivery.h"
-#include "bus/scene_contract.h"
+#include "session/delivery.h"
+#include "contract/scene_contract.h"
 #include "bus/udpm.h"
 #include "gen/config/config.h"
 
@@ -565,7 +565,7 @@ void GeneratorNode::RunScenes() {
   node.SettleAhead(first_seq);
 
   node.PublishPeriodic(true);
-  // without --count, until a signal or the last seq of the id layout (bus/scene_contract.h)
+  // without --count, until a signal or the last seq of the id layout (contract/scene_contract.h)
   const int64_t last_seq =
       node.options.count > 0 ? node.options.first_seq + node.options.count - 1 : kMaxSeq;
   const int views = node.generator.views_per_pile();

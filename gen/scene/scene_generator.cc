@@ -11,7 +11,7 @@
 #include <sstream>
 #include <vector>
 
-#include "bus/splitmix.h"
+#include "contract/splitmix.h"
 #include "gen/annotate/labels.h"
 #include "gen/annotate/pose.h"
 #include "gen/physics/pile.h"

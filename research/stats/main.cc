@@ -13,7 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "bus/flags.h"
+#include "cli/flags.h"
 #include "gen/annotate/pose.h"
 #include "consumers/bop/bop_dataset.h"
 #include "research/stats/dataset.h"

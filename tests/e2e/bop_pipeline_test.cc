@@ -20,7 +20,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "bus/rle.h"
+#include "contract/rle.h"
 #include "gen/config/config.h"
 #include "gen/mesh/mesh.h"
 #include "gen/scene/scene_generator.h"

@@ -51,7 +51,7 @@
 
 #include "bus/bus.h"
 #include "bus/channels.h"
-#include "bus/flags.h"
+#include "cli/flags.h"
 #include "bus/log.h"
 #include "tests/support/lcm_wire.h"
 

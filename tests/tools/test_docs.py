@@ -9,7 +9,7 @@ import re
 
 from conftest import SOURCE
 
-FOLDERS = ("bus", "gen", "consumers", "tools", "tests", "types")
+FOLDERS = ("types", "contract", "bus", "session", "cli", "gen", "consumers", "tools", "tests")
 SUFFIXES = (".h", ".cc", ".py", ".proto", ".lcm", ".txt", ".sh", ".md")
 CITATION = re.compile(r'docs/design\.md,?\s*(?://|#)?\s*\(?"([^"]+)"')
 

@@ -33,7 +33,7 @@ from stackgen.coco import open_labelled_folder
 __all__ = ["StreamDataset", "collate", "without_ignore_regions", "ReuseMeter", "Augment",
            "evaluate"]
 
-# the most shards (ranks x workers) the seqs split into (bus/delivery.h kMaxShards)
+# the most shards (ranks x workers) the seqs split into (session/delivery.h kMaxShards)
 MAX_WORKERS = 256
 
 

@@ -26,7 +26,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "bus/scene_contract.h"
+#include "contract/scene_contract.h"
 #include "tests/consumers/coco/coco_test_scenes.h"
 #include "tests/support/process.h"
 

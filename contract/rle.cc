@@ -1,4 +1,4 @@
-#include "bus/rle.h"
+#include "contract/rle.h"
 
 #include <algorithm>
 #include <limits>

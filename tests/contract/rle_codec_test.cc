@@ -1,7 +1,7 @@
-// The COCO RLE codec of bus/rle.h: the string form (RunsToString, StringToRuns) and the
+// The COCO RLE codec of contract/rle.h: the string form (RunsToString, StringToRuns) and the
 // decoders every consumer uses, against the generator's OpenCV encoder (gen/annotate/rle.h).
 
-#include "bus/rle.h"
+#include "contract/rle.h"
 
 #include <cstdint>
 #include <random>

@@ -1,4 +1,4 @@
-#include "bus/delivery.h"
+#include "session/delivery.h"
 
 #include <algorithm>
 #include <chrono>
@@ -13,7 +13,7 @@
 #include <stackgen/resend_request.hpp>
 
 #include "bus/channels.h"
-#include "bus/scene_contract.h"
+#include "contract/scene_contract.h"
 
 namespace stackgen {
 namespace {

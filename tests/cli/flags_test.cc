@@ -1,6 +1,6 @@
 // FlagParser: the command line of every stackgen process, its value forms and its errors.
 
-#include "bus/flags.h"
+#include "cli/flags.h"
 
 #include <gtest/gtest.h>
 

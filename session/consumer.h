@@ -22,7 +22,7 @@
 
 #include "bus/bus.h"
 #include "bus/clock.h"
-#include "bus/delivery.h"
+#include "session/delivery.h"
 
 namespace stackgen {
 

@@ -1,4 +1,4 @@
-#include "bus/scene_contract.h"
+#include "contract/scene_contract.h"
 
 #include <cmath>
 #include <cstdio>
@@ -7,8 +7,8 @@
 #include <stdexcept>
 #include <vector>
 
-#include "bus/bounded_decode.h"
-#include "bus/rle.h"
+#include "contract/bounded_decode.h"
+#include "contract/rle.h"
 
 namespace stackgen {
 namespace {

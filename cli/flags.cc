@@ -1,4 +1,4 @@
-#include "bus/flags.h"
+#include "cli/flags.h"
 
 #include <cctype>
 #include <cerrno>

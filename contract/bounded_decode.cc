@@ -1,4 +1,4 @@
-#include "bus/bounded_decode.h"
+#include "contract/bounded_decode.h"
 
 #include <climits>
 #include <cstdio>

@@ -1,4 +1,4 @@
-#include "bus/scene_contract.h"
+#include "contract/scene_contract.h"
 
 #include <functional>
 #include <string>

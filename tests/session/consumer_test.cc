@@ -1,4 +1,4 @@
-#include "bus/consumer.h"
+#include "session/consumer.h"
 
 #include <atomic>
 #include <csignal>

@@ -1,4 +1,4 @@
-#include "bus/bounded_decode.h"
+#include "contract/bounded_decode.h"
 
 #include <sys/resource.h>
 #include <sys/wait.h>
@@ -40,7 +40,7 @@
 namespace stackgen {
 namespace {
 
-// the types that have their own DecodeBounded specialisation (bus/bounded_decode.h)
+// the types that have their own DecodeBounded specialisation (contract/bounded_decode.h)
 const std::set<std::string> kSpecialised = {"scene", "labels", "image", "resend_request", "model"};
 
 constexpr int kWidth = 32;
@@ -751,7 +751,7 @@ TEST(BoundedDecodeTest, TypesWithArraysHaveSpecialisations) {
     if (has_array(name)) {
       EXPECT_TRUE(kSpecialised.count(name))
           << "stackgen." << name << " has a variable-length array but no DecodeBounded "
-          << "specialisation in bus/bounded_decode.h";
+          << "specialisation in contract/bounded_decode.h";
     }
   }
 }

@@ -1,4 +1,4 @@
-#include "bus/delivery.h"
+#include "session/delivery.h"
 
 #include <map>
 #include <set>
@@ -13,7 +13,7 @@
 #include "bus/bus.h"
 #include "bus/channels.h"
 #include "bus/clock.h"
-#include "bus/flags.h"
+#include "cli/flags.h"
 
 namespace stackgen {
 namespace {

@@ -469,27 +469,27 @@ Bus::~Bus() = default;
 
 const std::string& Bus::url() const { return impl_->url; }
 
-int64_t Bus::fault_dropped() const { return impl_->fault_dropped; }
+int64_t BusState::fault_dropped() const { return bus_.impl_->fault_dropped; }
 
-bool Bus::log_ended() const { return impl_->log_ended; }
+bool BusState::log_ended() const { return bus_.impl_->log_ended; }
 
-bool Bus::keyed() const { return impl_->auth->keyed(); }
+bool BusState::keyed() const { return bus_.impl_->auth->keyed(); }
 
-const std::string& Bus::key_file() const { return impl_->auth->key_file(); }
+const std::string& BusState::key_file() const { return bus_.impl_->auth->key_file(); }
 
-uint64_t Bus::key_id() const { return impl_->auth->key_id(); }
+uint64_t BusState::key_id() const { return bus_.impl_->auth->key_id(); }
 
-std::string Bus::KeyMismatch(const std::vector<std::string>& channels, double seconds) const {
+std::string BusState::KeyMismatch(const std::vector<std::string>& channels, double seconds) const {
   // what was heard on those channels together, since the first mismatch among them
   KeyEvidence all;
   std::optional<Clock::TimePoint> first;
   std::string names;
   {
-    const std::lock_guard<std::mutex> lock(impl_->key_use_mutex);
+    const std::lock_guard<std::mutex> lock(bus_.impl_->key_use_mutex);
     for (const std::string& channel : channels) {
       names += (names.empty() ? "" : ", ") + channel;
-      const auto found = impl_->key_use.find(channel);
-      if (found == impl_->key_use.end()) continue;
+      const auto found = bus_.impl_->key_use.find(channel);
+      if (found == bus_.impl_->key_use.end()) continue;
       all.Add(found->second.evidence);
       if (found->second.evidence.mismatched > 0 &&
           (!first || found->second.first_mismatch < *first)) {
@@ -497,37 +497,37 @@ std::string Bus::KeyMismatch(const std::vector<std::string>& channels, double se
       }
     }
   }
-  if (!first || std::chrono::duration<double>(impl_->Now() - *first).count() < seconds) {
+  if (!first || std::chrono::duration<double>(bus_.impl_->Now() - *first).count() < seconds) {
     return "";
   }
-  return all.Mismatch(*impl_->auth, "the messages on " + names + " of " + impl_->url);
+  return all.Mismatch(*bus_.impl_->auth, "the messages on " + names + " of " + bus_.impl_->url);
 }
 
-void Bus::WatchKeys(const std::vector<std::string>& channels) {
+void BusState::WatchKeys(const std::vector<std::string>& channels) {
   for (const std::string& channel : channels) {
-    if (impl_->Find(channel) == nullptr) {
-      SubscribeBytes(
+    if (bus_.impl_->Find(channel) == nullptr) {
+      bus_.SubscribeBytes(
           channel, [](const uint8_t*, size_t) {}, 1);
     }
   }
 }
 
-int Bus::handlers(const std::string& channel) const {
-  const Impl::Subscriber* subscriber = impl_->Find(channel);
+int BusState::handlers(const std::string& channel) const {
+  const Bus::Impl::Subscriber* subscriber = bus_.impl_->Find(channel);
   if (subscriber == nullptr) return 0;
   return static_cast<int>(std::count_if(subscriber->handlers.begin(), subscriber->handlers.end(),
                                         [](const auto& slot) { return slot->handler != nullptr; }));
 }
 
-UdpmCounters Bus::receive_counters() const {
-  return impl_->receiver ? impl_->receiver->counters() : UdpmCounters{};
+UdpmCounters BusState::receive_counters() const {
+  return bus_.impl_->receiver ? bus_.impl_->receiver->counters() : UdpmCounters{};
 }
 
-AuthCounters Bus::auth_counters() const { return impl_->auth->counters(); }
+AuthCounters BusState::auth_counters() const { return bus_.impl_->auth->counters(); }
 
-int64_t Bus::live_peers() const { return impl_->auth->answered(); }
+int64_t BusState::live_peers() const { return bus_.impl_->auth->answered(); }
 
-double Bus::auth_seconds() const { return impl_->auth->seconds(); }
+double BusState::auth_seconds() const { return bus_.impl_->auth->seconds(); }
 
 const DecodeLimits& Bus::decode_limits() const { return impl_->options.decode_limits; }
 

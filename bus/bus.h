@@ -110,6 +110,58 @@ class Subscription {
   bool end_when_dropped_ = false;
 };
 
+class Bus;
+
+/// What a bus knows beyond publishing and handling, apart from Bus's narrow face: its key, what
+/// it heard of other processes' keys, and its counters. Each Bus has one (Bus::state()), which
+/// lives as long as the bus. Not thread-safe, like the bus.
+class BusState {
+ public:
+  BusState(const BusState&) = delete;
+  BusState& operator=(const BusState&) = delete;
+
+  /// Messages dropped on purpose so far (BusOptions), received and published.
+  int64_t fault_dropped() const;
+
+  /// True once a file:// bus has handed out the last event of its log.
+  bool log_ended() const;
+
+  /// True when the bus signs and checks messages with a key; the key file and its id (auth.h).
+  bool keyed() const;
+  const std::string& key_file() const;
+  uint64_t key_id() const;
+  /// One line when what was heard on `channels` shows that the processes sending there use
+  /// another bus key than this one (or none, or this bus is open and they sign): messages of
+  /// another key (or unsigned, or signed) for at least `seconds` since the first of them, and
+  /// not one this bus could take; "" otherwise. None of it is verified: a keyed program says
+  /// the line and goes on, or gives it as the reason when it ends for its own (a timeout, a log
+  /// that ended); an open one, which verifies nothing, stops with it.
+  std::string KeyMismatch(const std::vector<std::string>& channels, double seconds) const;
+  /// Hears `channels` for KeyMismatch: each one not subscribed to yet is subscribed with a queue
+  /// of one whose messages are dropped unread. KeyMismatch judges only what was heard, so a
+  /// consumer that reads scenes but not configs watches both: a generator announces its config
+  /// before its first scene (which may take seconds), and a stranger's unsigned scenes heard
+  /// meanwhile are not all the evidence.
+  void WatchKeys(const std::vector<std::string>& channels);
+  /// The handlers subscribed to `channel` now (those whose Subscription ended not counted).
+  int handlers(const std::string& channel) const;
+  /// What receiving a udpm:// bus did with the datagrams it read (udpm.h; all zero on memq://
+  /// and file://): malformed ones dropped, messages given up or dropped for a full queue.
+  UdpmCounters receive_counters() const;
+  /// Messages received and refused by the key check (all zero without a key).
+  AuthCounters auth_counters() const;
+  /// Other processes that have answered this bus's liveness check so far (auth.h): each has
+  /// been challenged back by then, and takes this bus's messages from its answer on.
+  int64_t live_peers() const;
+  /// Seconds spent signing and checking messages with the key so far (0 without one).
+  double auth_seconds() const;
+
+ private:
+  friend class Bus;
+  explicit BusState(Bus& bus) : bus_(bus) {}
+  Bus& bus_;
+};
+
 /// Typed publish/subscribe over LCM. Message types are lcm-gen C++ classes from types/.
 /// LCM itself is hidden in bus.cc. Not thread-safe: publish and handle from one thread.
 class Bus {
@@ -179,41 +231,9 @@ class Bus {
   /// LCM's C code and rethrown here.
   int HandleFor(int timeout_ms);
 
-  /// Messages dropped on purpose so far (BusOptions), received and published.
-  int64_t fault_dropped() const;
-
-  /// True once a file:// bus has handed out the last event of its log.
-  bool log_ended() const;
-
-  /// True when the bus signs and checks messages with a key; the key file and its id (auth.h).
-  bool keyed() const;
-  const std::string& key_file() const;
-  uint64_t key_id() const;
-  /// One line when what was heard on `channels` shows that the processes sending there use
-  /// another bus key than this one (or none, or this bus is open and they sign): messages of
-  /// another key (or unsigned, or signed) for at least `seconds` since the first of them, and
-  /// not one this bus could take; "" otherwise. None of it is verified: a keyed program says
-  /// the line and goes on, or gives it as the reason when it ends for its own (a timeout, a log
-  /// that ended); an open one, which verifies nothing, stops with it.
-  std::string KeyMismatch(const std::vector<std::string>& channels, double seconds) const;
-  /// Hears `channels` for KeyMismatch: each one not subscribed to yet is subscribed with a queue
-  /// of one whose messages are dropped unread. KeyMismatch judges only what was heard, so a
-  /// consumer that reads scenes but not configs watches both: a generator announces its config
-  /// before its first scene (which may take seconds), and a stranger's unsigned scenes heard
-  /// meanwhile are not all the evidence.
-  void WatchKeys(const std::vector<std::string>& channels);
-  /// The handlers subscribed to `channel` now (those whose Subscription ended not counted).
-  int handlers(const std::string& channel) const;
-  /// What receiving a udpm:// bus did with the datagrams it read (udpm.h; all zero on memq://
-  /// and file://): malformed ones dropped, messages given up or dropped for a full queue.
-  UdpmCounters receive_counters() const;
-  /// Messages received and refused by the key check (all zero without a key).
-  AuthCounters auth_counters() const;
-  /// Other processes that have answered this bus's liveness check so far (auth.h): each has
-  /// been challenged back by then, and takes this bus's messages from its answer on.
-  int64_t live_peers() const;
-  /// Seconds spent signing and checking messages with the key so far (0 without one).
-  double auth_seconds() const;
+  /// The bus's key and what it heard of other keys, its counters (BusState).
+  BusState& state() { return state_; }
+  const BusState& state() const { return state_; }
 
  private:
   using BytesHandler = std::function<void(const uint8_t* data, size_t size)>;
@@ -221,8 +241,10 @@ class Bus {
   void PublishBytes(const std::string& channel, const uint8_t* data, size_t size);
   Subscription SubscribeBytes(const std::string& channel, BytesHandler handler, int queue_capacity);
 
+  friend class BusState;
   struct Impl;
   std::unique_ptr<Impl> impl_;
+  BusState state_{*this};
 };
 
 }  // namespace stackgen

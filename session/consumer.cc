@@ -44,7 +44,7 @@ Subscription ConsumerSession::SubscribeScenes(
       });
 }
 
-void ConsumerSession::WatchGeneratorKeys() { bus_->WatchKeys(options_.generator_channels); }
+void ConsumerSession::WatchGeneratorKeys() { bus_->state().WatchKeys(options_.generator_channels); }
 
 bool ConsumerSession::Fresh(int32_t generator_id, int64_t seq) {
   const std::pair<int32_t, int64_t> key{generator_id, seq};
@@ -83,9 +83,29 @@ void ConsumerSession::Skipped(int32_t generator_id, int64_t seq) {
   if (client_) client_->Skipped(generator_id, seq);
 }
 
+void ConsumerSession::Passed(int32_t generator_id, int64_t seq) {
+  if (client_) client_->Received(generator_id, seq);
+}
+
+void ConsumerSession::Restore(int32_t generator_id, const std::vector<int64_t>& seqs) {
+  if (client_) client_->Restore(generator_id, seqs);
+}
+
+void ConsumerSession::SetRun(int32_t generator_id, const std::string& run) {
+  if (client_) client_->SetRun(generator_id, run);
+}
+
+void ConsumerSession::Credit() {
+  if (client_) client_->Service();
+}
+
+int64_t ConsumerSession::StoredThrough(int32_t generator_id) const {
+  return client_ ? client_->StoredThrough(generator_id) : -1;
+}
+
 std::string ConsumerSession::KeyHint() const {
-  if (!client_ && !bus_->keyed() && !options_.strict_keys) return "";
-  return bus_->KeyMismatch(options_.generator_channels, 0);
+  if (!client_ && !bus_->state().keyed() && !options_.strict_keys) return "";
+  return bus_->state().KeyMismatch(options_.generator_channels, 0);
 }
 
 void ConsumerSession::CheckKeys() const {
@@ -94,13 +114,13 @@ void ConsumerSession::CheckKeys() const {
 }
 
 void ConsumerSession::Service(int64_t held, int64_t taken) {
-  if (client_) client_->Service();
-  if (live_ && (client_ || bus_->keyed() || options_.strict_keys)) {
+  Credit();
+  if (live_ && (client_ || bus_->state().keyed() || options_.strict_keys)) {
     // said, never a reason to stop: none of it is verified. An open consumer, which verifies
     // nothing, stops (its keyed generators refuse its credits, or it their scenes)
     const std::string mismatch =
-        bus_->KeyMismatch(options_.generator_channels, options_.key_mismatch_s);
-    if (!bus_->keyed() && !mismatch.empty()) throw std::runtime_error(mismatch);
+        bus_->state().KeyMismatch(options_.generator_channels, options_.key_mismatch_s);
+    if (!bus_->state().keyed() && !mismatch.empty()) throw std::runtime_error(mismatch);
     if (!keys_said_ && !mismatch.empty()) {
       std::fprintf(stderr, "%s: warning: %s; still waiting\n", options_.process.c_str(),
                    mismatch.c_str());
@@ -163,8 +183,8 @@ status ConsumerStatus(const Bus& bus, const ConsumerReport& report) {
   message.lost = report.delivery.lost;
   message.reasked = report.delivery.reasked;
   message.bad_messages = report.bad_messages;
-  message.fault_dropped = bus.fault_dropped();
-  const AuthCounters refused = bus.auth_counters();
+  message.fault_dropped = bus.state().fault_dropped();
+  const AuthCounters refused = bus.state().auth_counters();
   message.refused_unsigned = refused.unsigned_messages;
   message.refused_forged = refused.forged;
   message.refused_replayed = refused.replayed;

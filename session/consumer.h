@@ -119,8 +119,9 @@ class ConsumerSession {
 
   Bus& bus() { return *bus_; }
   const Bus& bus() const { return *bus_; }
-  /// The delivery client; null for a best-effort session.
-  SceneClient* client() { return client_.get(); }
+  /// Whether the session credits scenes (a reliable consumer on a live bus: it has a delivery
+  /// client); best effort otherwise.
+  bool reliable() const { return client_ != nullptr; }
   /// Whether the bus is live (not a log being read).
   bool live() const { return live_; }
   const ConsumerSessionOptions& options() const { return options_; }
@@ -147,6 +148,21 @@ class ConsumerSession {
   /// The scene Fresh said was new is stored (handed out, drawn) or will never be.
   void Stored(int32_t generator_id, int64_t seq);
   void Skipped(int32_t generator_id, int64_t seq);
+  /// A good copy of a scene the consumer does not take (another shard's): it still shows a
+  /// reliable client how far the generator has got. Nothing best effort.
+  void Passed(int32_t generator_id, int64_t seq);
+  /// Seqs of `generator_id` stored by an earlier run of this consumer (--resume), and the run
+  /// (RunName) whose scenes of it the consumer holds, which its credits carry (a generator of
+  /// another run refuses to continue it): for a reliable session (SceneClient::Restore,
+  /// SetRun); nothing best effort.
+  void Restore(int32_t generator_id, const std::vector<int64_t>& seqs);
+  void SetRun(int32_t generator_id, const std::string& run);
+  /// Sends the credits and resend requests that are due now (what Service does first), without
+  /// the key check or the status: after storing, between turns. Nothing best effort.
+  void Credit();
+  /// The highest seq s of `generator_id` such that 0..s are all stored or skipped; -1 if none,
+  /// and always best effort.
+  int64_t StoredThrough(int32_t generator_id) const;
   /// A repeat the consumer found itself (a best-effort writer's dataset held it already).
   void CountRepeat() { ++repeats_; }
   /// A copy refused for what it is not (another run's scene): counted, nothing more.

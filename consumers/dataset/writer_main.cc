@@ -221,14 +221,12 @@ class WriterSession {
     options.strict_keys = true;
     options.clock = &clock_;
     session_ = std::make_unique<ConsumerSession>(std::move(bus), options);
-    if (SceneClient* client = session_->client()) {
-      for (const auto& [generator_id, seqs] : writer_->StoredSeqs()) {
-        client->Restore(generator_id, seqs);
-      }
-      // the runs the dataset holds go out with the credits: a generator of another run
-      // (--seed or config) refuses to continue it
-      for (const auto& [generator_id, run] : writer_->Runs()) client->SetRun(generator_id, run);
+    for (const auto& [generator_id, seqs] : writer_->StoredSeqs()) {
+      session_->Restore(generator_id, seqs);
     }
+    // the runs the dataset holds go out with the credits: a generator of another run (--seed
+    // or config) refuses to continue it
+    for (const auto& [generator_id, run] : writer_->Runs()) session_->SetRun(generator_id, run);
   }
 
   void Subscribe() {
@@ -250,7 +248,7 @@ class WriterSession {
         });
     std::printf("%s: listening on %s channel %s, writing %s; %s\n", name_text_,
                 bus.url().c_str(), kSceneChannel, flags_.out.c_str(),
-                bus.keyed() ? KeyText().c_str() : "open bus: no key");
+                bus.state().keyed() ? KeyText().c_str() : "open bus: no key");
     std::fflush(stdout);
   }
 
@@ -260,7 +258,7 @@ class WriterSession {
     start_ = clock_.Now();
     stored_at_start_ = writer_->num_images();
     last_progress_ = start_;
-    while (!stop_requested && !Enough() && !bus.log_ended()) {
+    while (!stop_requested && !Enough() && !bus.state().log_ended()) {
       // with scenes staged, only those already waiting: the group ends when none is left
       bus.HandleFor(writer_->num_staged() > 0 ? 0 : 50);
       Commit();
@@ -271,7 +269,7 @@ class WriterSession {
     }
     if (show_progress_) std::fprintf(stderr, "\n");
     // a log whose scenes were all refused for their key is an error, not an empty dataset
-    if (bus.log_ended() && writer_->num_images() == stored_at_start_) session_->CheckKeys();
+    if (bus.state().log_ended() && writer_->num_images() == stored_at_start_) session_->CheckKeys();
   }
 
   // generators stop waiting for us; a valid dataset of what arrived; the summary
@@ -308,8 +306,8 @@ class WriterSession {
  private:
   // "bus key FILE (key id ID)": what a keyed writer checks with, in its lines
   std::string KeyText() const {
-    const Bus& bus = session_->bus();
-    return "bus key " + bus.key_file() + " (key id " + KeyIdText(bus.key_id()) + ")";
+    const BusState& state = session_->bus().state();
+    return "bus key " + state.key_file() + " (key id " + KeyIdText(state.key_id()) + ")";
   }
 
   bool Enough() const {
@@ -388,12 +386,12 @@ class WriterSession {
       const auto heard = heard_runs_.find(generator_id);
       if (heard != heard_runs_.end()) {
         writer_->SetRun(generator_id, heard->second);
-        if (session_->client()) session_->client()->SetRun(generator_id, heard->second);
+        session_->SetRun(generator_id, heard->second);
       }
     }
     // the writer first: it checks the scene whole (its images decoded) and refuses a repeat;
     // a copy that fails the checks goes to the session's bad-copy policy
-    SceneClient* const client = session_->client();
+    const bool reliable = session_->reliable();
     bool added = false;
     try {
       added = writer_->Add(scene);
@@ -402,12 +400,12 @@ class WriterSession {
         std::fprintf(stderr, "%s: refused a scene: %s\n", name_text_, error.what());
       }
       session_->Refuse(generator_id, seq);
-      if (client) client->Service();
+      session_->Credit();
       return;
     }
     // the client tracks seqs (and counts repeats); a scene the writer holds already that the
     // client has not seen (stored before it started) needs no asking again
-    const bool fresh = !client || session_->Fresh(generator_id, seq);
+    const bool fresh = !reliable || session_->Fresh(generator_id, seq);
     if (added) {
       // credited once durable: at once without group commits (Add made it durable), else with
       // its group
@@ -416,12 +414,12 @@ class WriterSession {
       } else if (writer_->num_staged() >= flags_.group_commit) {
         Commit();
       }
-    } else if (!client) {
+    } else if (!reliable) {
       session_->CountRepeat();
     } else if (fresh) {
       session_->Skipped(generator_id, seq);
     }
-    if (client) client->Service();
+    session_->Credit();
   }
 
   // when no generator was heard (its config every second, or a scene) for --warn-silent
@@ -440,7 +438,7 @@ class WriterSession {
                    "%s: no generator heard for %d s on %s (no scene, no config): is stackgen "
                    "running with this --lcm-url (the same port) and %s? still waiting\n",
                    name_text_, static_cast<int>(silent_s), bus.url().c_str(),
-                   bus.keyed() ? ("the " + KeyText()).c_str()
+                   bus.state().keyed() ? ("the " + KeyText()).c_str()
                                : "--open-bus (this writer checks no key)");
     }
   }
@@ -473,16 +471,16 @@ class WriterSession {
                    static_cast<long long>(session_->refused()));
     }
     if (bus.url().rfind("udpm://", 0) == 0) {
-      std::printf("%s: %s\n", name_text_, ReceiveSummary(bus.receive_counters()).c_str());
+      std::printf("%s: %s\n", name_text_, ReceiveSummary(bus.state().receive_counters()).c_str());
     }
-    if (bus.keyed()) {
+    if (bus.state().keyed()) {
       const int64_t stored = writer_->num_images();
       std::printf("%s: bus key: %.3f ms per scene stored signing and checking messages; %s\n",
                   name_text_,
-                  stored > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(stored) : 0.0,
-                  RefusedSummary(bus.auth_counters()).c_str());
+                  stored > 0 ? bus.state().auth_seconds() * 1e3 / static_cast<double>(stored) : 0.0,
+                  RefusedSummary(bus.state().auth_counters()).c_str());
     }
-    if (session_->client()) {
+    if (session_->reliable()) {
       const DeliveryCounters counters = session_->delivery();
       std::printf(
           "%s: delivery: %lld scenes received, %lld stored, %lld received twice, %lld asked "
@@ -490,7 +488,7 @@ class WriterSession {
           name_text_, static_cast<long long>(counters.received),
           static_cast<long long>(counters.stored), static_cast<long long>(counters.duplicates),
           static_cast<long long>(counters.reasked), static_cast<long long>(counters.lost),
-          static_cast<long long>(bus.fault_dropped()));
+          static_cast<long long>(bus.state().fault_dropped()));
     } else if (session_->repeats() > 0) {
       std::printf("%s: %lld scenes received twice, stored once\n", name_text_,
                   static_cast<long long>(session_->repeats()));

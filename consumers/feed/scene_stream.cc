@@ -198,7 +198,7 @@ struct SceneStream::Impl {
   void OnLiveScene(const scene& message) {
     const int32_t generator_id = message.header.generator_id;
     const int64_t seq = message.header.seq;
-    SceneClient* const client = session->client();
+    const bool reliable = session->reliable();
     if (!SceneIdsInRange(generator_id, seq)) {
       CountBad();
       session->CountRefused();
@@ -211,7 +211,7 @@ struct SceneStream::Impl {
       // another shard's scene still shows the client how far the generator has got, when it
       // is a scene (that shard counts and reports a bad one)
       std::string why;
-      if (client && CheckFeedScene(message, &why)) client->Received(generator_id, seq);
+      if (reliable && CheckFeedScene(message, &why)) session->Passed(generator_id, seq);
       return;
     }
     const SceneKey key{generator_id, seq};
@@ -244,7 +244,7 @@ struct SceneStream::Impl {
     {
       const std::lock_guard<std::mutex> lock(mutex);
       // best effort keeps the newest scenes: the learner never holds a generator back
-      if (!client && static_cast<int>(queue.size()) >= options.queue) {
+      if (!reliable && static_cast<int>(queue.size()) >= options.queue) {
         // (and its images need no decoding any more)
         const auto waiting = std::find(to_decode.begin(), to_decode.end(), queue.front());
         if (waiting != to_decode.end()) to_decode.erase(waiting);
@@ -252,7 +252,7 @@ struct SceneStream::Impl {
         ++counters.dropped_behind;
       }
       queue.push_back(std::move(prepared));
-      if (client) taken_keys.insert(key);
+      if (reliable) taken_keys.insert(key);
     }
     changed.notify_all();
   }
@@ -332,7 +332,6 @@ struct SceneStream::Impl {
   // the thread on a live bus: handle messages, credit what was handed out, publish status
   void RunLive() {
     Bus& bus = session->bus();
-    SceneClient* const client = session->client();
     const auto credit_handed = [&] {
       std::vector<SceneKey> handed;
       {
@@ -344,11 +343,11 @@ struct SceneStream::Impl {
         const std::lock_guard<std::mutex> lock(mutex);
         skipped.swap(skipped_pending);
       }
-      if (!client) return;
-      for (const auto& [generator_id, seq] : handed) client->Stored(generator_id, seq);
-      for (const auto& [generator_id, seq] : skipped) client->Skipped(generator_id, seq);
-      client->Service();
-      const DeliveryCounters delivery = client->counters();
+      if (!session->reliable()) return;
+      for (const auto& [generator_id, seq] : handed) session->Stored(generator_id, seq);
+      for (const auto& [generator_id, seq] : skipped) session->Skipped(generator_id, seq);
+      session->Credit();
+      const DeliveryCounters delivery = session->delivery();
       const std::lock_guard<std::mutex> lock(mutex);
       for (const SceneKey& key : handed) taken_keys.erase(key);
       for (const SceneKey& key : skipped) taken_keys.erase(key);
@@ -360,8 +359,8 @@ struct SceneStream::Impl {
       credit_handed();
       {
         const std::lock_guard<std::mutex> lock(mutex);
-        counters.fault_dropped = bus.fault_dropped();
-        const AuthCounters refused = bus.auth_counters();
+        counters.fault_dropped = bus.state().fault_dropped();
+        const AuthCounters refused = bus.state().auth_counters();
         counters.refused_unsigned = refused.unsigned_messages;
         counters.refused_forged = refused.forged;
         counters.refused_replayed = refused.replayed;
@@ -622,7 +621,7 @@ SceneStream::SceneStream(const SceneStreamOptions& options) : impl_(std::make_un
     } catch (const std::exception& error) {
       throw FeedError(error.what());
     }
-    impl.reliable = impl.session->client() != nullptr;
+    impl.reliable = impl.session->reliable();
     Impl* raw = impl_.get();
     impl.session->SubscribeScenes(
         options.channel, [raw](const scene& message) { raw->OnLiveScene(message); },

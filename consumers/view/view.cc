@@ -544,7 +544,7 @@ void ReportEnd(const stackgen::ConsumerSession& session, const Flags& flags, siz
                  static_cast<long long>(repeated));
   }
   if (tiles == 0) {
-    const std::string mismatch = bus.KeyMismatch(GeneratorChannels(), 0);
+    const std::string mismatch = bus.state().KeyMismatch(GeneratorChannels(), 0);
     if (!mismatch.empty()) throw std::runtime_error(mismatch);
     throw std::runtime_error("--lcm-url " + bus.url() + ": no valid scene on " +
                              stackgen::kSceneChannel + " within " +
@@ -612,7 +612,7 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
                             std::chrono::duration<double>(flags.timeout_s));
   const auto held = [&] { return static_cast<int64_t>(tiles.size()); };
   while (!stop_requested && static_cast<int>(tiles.size()) < flags.count &&
-         std::chrono::steady_clock::now() < deadline && !bus.log_ended()) {
+         std::chrono::steady_clock::now() < deadline && !bus.state().log_ended()) {
     session.bus().HandleFor(100);
     session.Service(held(), held());
   }

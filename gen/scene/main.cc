@@ -152,8 +152,9 @@ int Run(int argc, char** argv) {
   std::printf(
       "stackgen: generator %d, seed %llu, config %s, bus %s (%s)\n%s\n", generator_id,
       static_cast<unsigned long long>(seed), config.path.c_str(), bus.url().c_str(),
-      bus.keyed()
-          ? ("signed with " + bus.key_file() + ", key id " + KeyIdText(bus.key_id())).c_str()
+      bus.state().keyed() ? ("signed with " + bus.state().key_file() + ", key id " +
+                             KeyIdText(bus.state().key_id()))
+                                .c_str()
           : "open: no bus key",
       generator.Description().c_str());
   std::fflush(stdout);

@@ -47,11 +47,11 @@ std::string FormatMs(double total_ms, int64_t scenes) {
 
 // what the bus key cost, or that there was none: the end of the summary line
 std::string AuthSummary(const Bus& bus, int64_t scenes) {
-  if (!bus.keyed()) return "bus open (no key)";
+  if (!bus.state().keyed()) return "bus open (no key)";
   char text[96];
   std::snprintf(text, sizeof(text), "bus key: %.3f ms per scene signing and checking, ",
-                scenes > 0 ? bus.auth_seconds() * 1e3 / static_cast<double>(scenes) : 0.0);
-  return text + RefusedSummary(bus.auth_counters());
+                scenes > 0 ? bus.state().auth_seconds() * 1e3 / static_cast<double>(scenes) : 0.0);
+  return text + RefusedSummary(bus.state().auth_counters());
 }
 
 double Seconds(Clock::TimePoint from, Clock::TimePoint to) {
@@ -291,14 +291,14 @@ void GeneratorNode::Impl::Serve(int timeout_ms) {
   }
   const std::string stalled = server->stalled();
   if (!stalled.empty()) throw std::runtime_error(stalled + "; stopping rather than waiting for ever");
-  const std::string mismatch = bus.KeyMismatch(consumer_channels, kKeyMismatchS);
+  const std::string mismatch = bus.state().KeyMismatch(consumer_channels, kKeyMismatchS);
   // an open bus trusts every sender anyway: its keyed consumers would refuse every scene
-  if (!bus.keyed() && !mismatch.empty()) throw std::runtime_error(mismatch);
+  if (!bus.state().keyed() && !mismatch.empty()) throw std::runtime_error(mismatch);
   if (!keys_said && !mismatch.empty()) {
     if (options.progress) std::fprintf(stderr, "\n");
     std::fprintf(stderr, "stackgen: warning: %s; going on\n", mismatch.c_str());
     keys_said = true;
-  } else if (keys_said && bus.KeyMismatch(consumer_channels, 0).empty()) {
+  } else if (keys_said && bus.state().KeyMismatch(consumer_channels, 0).empty()) {
     keys_said = false;  // a consumer of this key came
   }
 }
@@ -306,7 +306,7 @@ void GeneratorNode::Impl::Serve(int timeout_ms) {
 // " (LINE)" when consumers of another bus key were heard and none of this one, else "": the
 // reason a wait for consumers may have ended
 std::string GeneratorNode::Impl::KeyHint() const {
-  const std::string mismatch = bus.KeyMismatch(consumer_channels, 0);
+  const std::string mismatch = bus.state().KeyMismatch(consumer_channels, 0);
   return mismatch.empty() ? "" : " (" + mismatch + ")";
 }
 
@@ -374,8 +374,8 @@ status GeneratorNode::Impl::Counted(double since) const {
   message.reliable_consumers = server->reliable_consumers();
   message.held_back_s = held_back_s;
   message.bad_messages = server->bad_messages();
-  message.fault_dropped = bus.fault_dropped();
-  const AuthCounters refused = bus.auth_counters();
+  message.fault_dropped = bus.state().fault_dropped();
+  const AuthCounters refused = bus.state().auth_counters();
   message.refused_unsigned = refused.unsigned_messages;
   message.refused_forged = refused.forged;
   message.refused_replayed = refused.replayed;
@@ -509,7 +509,7 @@ void GeneratorNode::Impl::PrintSummary() const {
       times.redraws_unsettled, times.redraws_outside, times.redraws_penetrating, held_back_s,
       static_cast<long long>(server->resent()), static_cast<long long>(server->regenerated()),
       AuthSummary(bus, published).c_str());
-  std::printf("stackgen: %s\n", ReceiveSummary(bus.receive_counters()).c_str());
+  std::printf("stackgen: %s\n", ReceiveSummary(bus.state().receive_counters()).c_str());
 }
 
 // a run that ended by itself delivered to someone, unless told that listeners are enough

@@ -326,7 +326,7 @@ TEST(BusAuthTest, OnlyTheKeyHolderIsHeard) {
   BusOptions keyed;
   keyed.key_file = KeyFile(dir, "a.key", kKey);
   Bus bus("memq://", keyed);
-  EXPECT_TRUE(bus.keyed());
+  EXPECT_TRUE(bus.state().keyed());
   std::vector<std::string> heard;
   bus.Subscribe<status>("STATUS", [&](const status& message) { heard.push_back(message.name); });
   status message{};
@@ -349,19 +349,19 @@ TEST(BusAuthTest, OnlyTheKeyHolderIsHeard) {
   Bus replay("file://" + log_path + "?speed=0", keyed);
   int replayed = 0;
   replay.Subscribe<status>("STATUS", [&](const status&) { ++replayed; });
-  while (!replay.log_ended()) replay.HandleFor(100);
+  while (!replay.state().log_ended()) replay.HandleFor(100);
   EXPECT_EQ(replayed, 1);
-  EXPECT_EQ(replay.auth_counters().forged, 1);
-  EXPECT_EQ(replay.auth_counters().unsigned_messages, 1);
+  EXPECT_EQ(replay.state().auth_counters().forged, 1);
+  EXPECT_EQ(replay.state().auth_counters().unsigned_messages, 1);
 
   // a process with an open bus reads all three (trailers cut off, nothing checked)
   BusOptions none;
   none.open_bus = true;
   Bus unkeyed("file://" + log_path + "?speed=0", none);
-  EXPECT_FALSE(unkeyed.keyed());
+  EXPECT_FALSE(unkeyed.state().keyed());
   int read = 0;
   unkeyed.Subscribe<status>("STATUS", [&](const status&) { ++read; });
-  while (!unkeyed.log_ended()) unkeyed.HandleFor(100);
+  while (!unkeyed.state().log_ended()) unkeyed.HandleFor(100);
   EXPECT_EQ(read, 3);
 }
 

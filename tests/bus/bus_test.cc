@@ -74,11 +74,11 @@ TEST(BusTest, SubscriptionsThatEndWhenDropped) {
                                   calls.push_back(label);
                                 })
              .EndWhenDropped();
-  EXPECT_EQ(bus->handlers(kStatusChannel), 2);
+  EXPECT_EQ(bus->state().handlers(kStatusChannel), 2);
   publish_and_handle();
   EXPECT_EQ(calls, (std::vector<std::string>{"kept", "once"}));
   EXPECT_FALSE(self.active());
-  EXPECT_EQ(bus->handlers(kStatusChannel), 1);
+  EXPECT_EQ(bus->state().handlers(kStatusChannel), 1);
   publish_and_handle();
   EXPECT_EQ(calls, std::vector<std::string>{"kept"});
 
@@ -182,7 +182,7 @@ TEST(BusTest, OpenBusesNeedNoAnswer) {
   open.open_bus = true;
   Bus receiver(url, open);
   Bus sender(url, open);
-  EXPECT_FALSE(sender.keyed());
+  EXPECT_FALSE(sender.state().keyed());
   std::vector<int64_t> seqs;
   receiver.Subscribe<status>(kStatusChannel,
                              [&](const status& m) { seqs.push_back(m.header.seq); });
@@ -277,7 +277,7 @@ TEST(BusTest, TwoDatagramsOfLcm628DoNotCrashAReceiver) {
     receiver.HandleFor(100);
   }
   EXPECT_EQ(seqs, std::vector<int64_t>{42});
-  EXPECT_EQ(receiver.receive_counters().malformed, 1);
+  EXPECT_EQ(receiver.state().receive_counters().malformed, 1);
 }
 
 // A keyed consumer that reads scenes but watches the config channel too (Bus::WatchKeys) hears
@@ -296,8 +296,8 @@ TEST(BusTest, WatchedChannelsShowTheGeneratorsKeyBeforeItsFirstScene) {
   for (Bus* consumer : {&watching, &blind}) {
     consumer->Subscribe<status>(kSceneChannel, [](const status&) {});
   }
-  watching.WatchKeys(generator_channels);
-  ASSERT_TRUE(watching.keyed());
+  watching.state().WatchKeys(generator_channels);
+  ASSERT_TRUE(watching.state().keyed());
   BusOptions open;
   open.open_bus = true;
   Bus stranger(url, open);
@@ -307,18 +307,20 @@ TEST(BusTest, WatchedChannelsShowTheGeneratorsKeyBeforeItsFirstScene) {
     stranger.Publish(kSceneChannel, MakeStatus(round));
     watching.HandleFor(20);
     blind.HandleFor(20);
-    if (round >= 10 && watching.auth_counters().unsigned_messages >= 5 &&
-        blind.auth_counters().unsigned_messages >= 5) {
+    if (round >= 10 && watching.state().auth_counters().unsigned_messages >= 5 &&
+        blind.state().auth_counters().unsigned_messages >= 5) {
       break;
     }
   }
-  EXPECT_GE(blind.auth_counters().unsigned_messages, 5);
-  EXPECT_NE(blind.KeyMismatch(generator_channels, 0).find("are not signed"), std::string::npos);
-  EXPECT_EQ(blind.KeyMismatch(generator_channels, 2), "");
+  EXPECT_GE(blind.state().auth_counters().unsigned_messages, 5);
+  EXPECT_NE(blind.state().KeyMismatch(generator_channels, 0).find("are not signed"),
+            std::string::npos);
+  EXPECT_EQ(blind.state().KeyMismatch(generator_channels, 2), "");
   clock.Advance(2);
-  EXPECT_NE(blind.KeyMismatch(generator_channels, 2).find("are not signed"), std::string::npos);
-  EXPECT_GE(watching.auth_counters().unsigned_messages, 5);
-  EXPECT_EQ(watching.KeyMismatch(generator_channels, 0), "");
+  EXPECT_NE(blind.state().KeyMismatch(generator_channels, 2).find("are not signed"),
+            std::string::npos);
+  EXPECT_GE(watching.state().auth_counters().unsigned_messages, 5);
+  EXPECT_EQ(watching.state().KeyMismatch(generator_channels, 0), "");
 }
 
 }  // namespace

@@ -65,7 +65,7 @@ TEST(ConsumerStatusTest, HoldsTheReportAndTheBusCounters) {
   EXPECT_EQ(message.lost, 2);
   EXPECT_EQ(message.reasked, 3);
   EXPECT_EQ(message.bad_messages, 4);
-  EXPECT_EQ(message.fault_dropped, bus.fault_dropped());
+  EXPECT_EQ(message.fault_dropped, bus.state().fault_dropped());
   EXPECT_EQ(message.refused_unsigned, 0);
 }
 
@@ -100,7 +100,7 @@ TEST(ConsumerSessionTest, BestEffortCountsWhatItHeardAndPublishesStatusEachPerio
   options.recent_scenes = 2;
   options.clock = &clock;
   ConsumerSession session(OpenMemq(), options);
-  EXPECT_EQ(session.client(), nullptr);
+  EXPECT_FALSE(session.reliable());
   EXPECT_TRUE(session.live());
   std::vector<status> statuses;
   session.bus().Subscribe<status>(kStatusChannel,
@@ -160,18 +160,17 @@ TEST(ConsumerSessionTest, ReliableGivesUpASeqAtItsThirdBadCopyUnlessHeld) {
   options.status_period_s = 0;
   options.clock = &clock;
   ConsumerSession session(OpenMemq(), options);
-  SceneClient* client = session.client();
-  ASSERT_NE(client, nullptr);
+  ASSERT_TRUE(session.reliable());
   session.Refuse(0, 0);
   session.Refuse(0, 0);
-  EXPECT_EQ(client->StoredThrough(0), -1);
+  EXPECT_EQ(session.StoredThrough(0), -1);
   session.Refuse(0, 0);
-  EXPECT_EQ(client->StoredThrough(0), 0);  // given up
+  EXPECT_EQ(session.StoredThrough(0), 0);  // given up
   EXPECT_TRUE(session.Fresh(0, 1));
   for (int k = 0; k < 3; ++k) session.Refuse(0, 1);
-  EXPECT_EQ(client->StoredThrough(0), 0);
+  EXPECT_EQ(session.StoredThrough(0), 0);
   session.Stored(0, 1);
-  EXPECT_EQ(client->StoredThrough(0), 1);
+  EXPECT_EQ(session.StoredThrough(0), 1);
   EXPECT_FALSE(session.Fresh(0, 1));
   EXPECT_EQ(session.repeats(), 1);
   EXPECT_EQ(session.refused(), 6);

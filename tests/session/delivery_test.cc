@@ -502,11 +502,11 @@ TEST_F(DeliveryFixture, AConsumerThatReceivesNothingStallsTheRun) {
 TEST_F(DeliveryFixture, ServerEndsBeforeItsBus) {
   SetUpLink(SceneServerOptions{}, Client(2));
   Exchange();
-  EXPECT_EQ(bus_->handlers(kCreditChannel), 1);
-  EXPECT_EQ(bus_->handlers(kResendChannel), 1);
+  EXPECT_EQ(bus_->state().handlers(kCreditChannel), 1);
+  EXPECT_EQ(bus_->state().handlers(kResendChannel), 1);
   server_.reset();
-  EXPECT_EQ(bus_->handlers(kCreditChannel), 0);
-  EXPECT_EQ(bus_->handlers(kResendChannel), 0);
+  EXPECT_EQ(bus_->state().handlers(kCreditChannel), 0);
+  EXPECT_EQ(bus_->state().handlers(kResendChannel), 0);
   client_->Service();
   resend_request request{};
   request.header.generator_id = 0;
@@ -592,7 +592,7 @@ TEST_F(DeliveryFixture, EveryoneStoredOnceDespiteLoss) {
   EXPECT_EQ(client_->StoredThrough(0), kScenes - 1);
   EXPECT_EQ(stored_.size(), static_cast<size_t>(kScenes));
   for (const auto& [key, times] : stored_) EXPECT_EQ(times, 1) << "seq " << key.second;
-  EXPECT_GT(bus_->fault_dropped(), 0);
+  EXPECT_GT(bus_->state().fault_dropped(), 0);
   EXPECT_GT(server_->resent() + server_->regenerated(), 0);
   EXPECT_EQ(client_->counters().lost, 0);
 }
@@ -798,7 +798,7 @@ TEST(FaultDropTest, FractionAndSeed) {
       bus.Publish(kCreditChannel, message);
       bus.HandleFor(0);
     }
-    EXPECT_EQ(bus.fault_dropped(), 2000 - static_cast<int64_t>(kept.size()));
+    EXPECT_EQ(bus.state().fault_dropped(), 2000 - static_cast<int64_t>(kept.size()));
     return kept;
   };
   const std::vector<int64_t> a = dropped(1), b = dropped(1), c = dropped(2);

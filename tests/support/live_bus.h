@@ -15,7 +15,7 @@ namespace stackgen::testing {
 /// arrive. False after `timeout_s` without one.
 inline bool WaitForLivePeer(Bus& bus, double timeout_s) {
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
-  while (bus.live_peers() == 0) {
+  while (bus.state().live_peers() == 0) {
     if (std::chrono::steady_clock::now() > deadline) return false;
     bus.HandleFor(20);
   }

@@ -27,8 +27,8 @@
 
 #include "bus/channels.h"
 #include "bus/liveness.h"
-#include "contract/splitmix.h"
 #include "bus/udpm.h"
+#include "contract/splitmix.h"
 
 namespace stackgen {
 namespace {

@@ -8,9 +8,9 @@
 #include <vector>
 
 #include "bus/auth.h"
-#include "contract/bounded_decode.h"
 #include "bus/clock.h"
 #include "bus/udpm.h"
+#include "contract/bounded_decode.h"
 
 namespace stackgen {
 

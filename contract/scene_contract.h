@@ -2,9 +2,9 @@
 
 // The contract of a scene message that every consumer (and the generator) shares, so that no
 // consumer keeps a copy of its own (docs/design.md, "Layout": consumers never include gen/, so
-// it lives in bus/, which both may use): the id limits, the mask counts and CheckScene, which a consumer runs once
-// on every scene that comes off the bus. The checks of the encoded image headers are in
-// bounded_decode.h (CheckEncodedImageDims), the run-length codec in rle.h.
+// it lives in bus/, which both may use): the id limits, the mask counts and CheckScene, which a
+// consumer runs once on every scene that comes off the bus. The checks of the encoded image headers
+// are in bounded_decode.h (CheckEncodedImageDims), the run-length codec in rle.h.
 
 #include <cstdint>
 #include <string>

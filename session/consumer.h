@@ -1,9 +1,9 @@
 #pragma once
 
 // What every consumer of scenes (the dataset writers, the Python stream, stackgen-view) does the
-// same way, in one place: the consumer session of docs/design.md ("Processes, nodes and time"), which
-// owns the bus, the delivery client, the bad-copy policy, the repeat check, the bus key check and
-// the status each consumer publishes on STACKGEN_STATUS. The consumers keep only their own job:
+// same way, in one place: the consumer session of docs/design.md ("Processes, nodes and time"),
+// which owns the bus, the delivery client, the bad-copy policy, the repeat check, the bus key check
+// and the status each consumer publishes on STACKGEN_STATUS. The consumers keep only their own job:
 // checking a scene for what they need and storing, queueing or drawing it.
 
 #include <cstddef>
@@ -90,8 +90,8 @@ struct ConsumerSessionOptions {
   /// another bus key (or none) once that has been so for this long (seconds), and goes on
   /// waiting: nothing it cannot verify stops it (a stranger can send anything). An open
   /// consumer, which verifies nothing, stops then with that line (an exception from Service),
-  /// and a log that ends so stops any (CheckKeys). It looks at a reliable or keyed consumer, or any with
-  /// `strict_keys` (a dataset writer: an open one cannot take what keyed generators publish
+  /// and a log that ends so stops any (CheckKeys). It looks at a reliable or keyed consumer, or any
+  /// with `strict_keys` (a dataset writer: an open one cannot take what keyed generators publish
   /// either; an open best-effort stream or viewer reads signed scenes all the same).
   double key_mismatch_s = 2.0;
   bool strict_keys = false;

@@ -32,11 +32,11 @@
 
 #include <nlohmann/json.hpp>
 
-#include "session/delivery.h"
 #include "cli/flags.h"
 #include "consumers/bop/bop_writer.h"
 #include "consumers/coco/coco_writer.h"
 #include "consumers/dataset/files.h"
+#include "session/delivery.h"
 
 namespace stackgen {
 namespace {

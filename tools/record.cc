@@ -18,9 +18,9 @@
 #include <string>
 
 #include "bus/auth.h"
-#include "cli/flags.h"
 #include "bus/log.h"
 #include "bus/udpm.h"
+#include "cli/flags.h"
 
 namespace stackgen {
 namespace {

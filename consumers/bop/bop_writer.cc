@@ -12,13 +12,13 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
-#include "contract/rle.h"
-#include "contract/scene_contract.h"
 #include "consumers/bop/model_files.h"
 #include "consumers/bop/toolkit_json.h"
 #include "consumers/dataset/files.h"
 #include "consumers/dataset/images.h"
 #include "consumers/dataset/shards.h"
+#include "contract/rle.h"
+#include "contract/scene_contract.h"
 
 namespace stackgen {
 namespace {

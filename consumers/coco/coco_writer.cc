@@ -20,13 +20,13 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
-#include "contract/bounded_decode.h"
-#include "contract/rle.h"
-#include "contract/scene_contract.h"
 #include "consumers/coco/coco_records.h"
 #include "consumers/dataset/files.h"
 #include "consumers/dataset/images.h"
 #include "consumers/dataset/shards.h"
+#include "contract/bounded_decode.h"
+#include "contract/rle.h"
+#include "contract/scene_contract.h"
 
 namespace stackgen {
 namespace {

@@ -17,9 +17,9 @@
 
 #include "bus/auth.h"
 #include "bus/channels.h"
+#include "contract/scene_contract.h"
 #include "session/consumer.h"
 #include "session/delivery.h"
-#include "contract/scene_contract.h"
 
 namespace stackgen {
 namespace {
@@ -246,8 +246,8 @@ class WriterSession {
             std::fprintf(stderr, "%s: skipped a message: %s\n", name_text_, text.c_str());
           }
         });
-    std::printf("%s: listening on %s channel %s, writing %s; %s\n", name_text_,
-                bus.url().c_str(), kSceneChannel, flags_.out.c_str(),
+    std::printf("%s: listening on %s channel %s, writing %s; %s\n", name_text_, bus.url().c_str(),
+                kSceneChannel, flags_.out.c_str(),
                 bus.state().keyed() ? KeyText().c_str() : "open bus: no key");
     std::fflush(stdout);
   }
@@ -439,7 +439,7 @@ class WriterSession {
                    "running with this --lcm-url (the same port) and %s? still waiting\n",
                    name_text_, static_cast<int>(silent_s), bus.url().c_str(),
                    bus.state().keyed() ? ("the " + KeyText()).c_str()
-                               : "--open-bus (this writer checks no key)");
+                                       : "--open-bus (this writer checks no key)");
     }
   }
 

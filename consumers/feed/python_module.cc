@@ -1,6 +1,6 @@
 // stackgen._native: the C++ half of the Python package `stackgen` (pybind11). It binds the scene
-// stream (session/delivery.h's credits and resend, bounded decoding, checks and image decoding all run
-// in C++, outside the GIL), the scene with its arrays, RLE mask decoding, a log appender and a
+// stream (session/delivery.h's credits and resend, bounded decoding, checks and image decoding all
+// run in C++, outside the GIL), the scene with its arrays, RLE mask decoding, a log appender and a
 // status monitor. The Python modules of the package (consumers/feed/stackgen/) wrap it.
 
 #include <Python.h>

@@ -3,9 +3,9 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "consumers/dataset/images.h"
 #include "contract/rle.h"
 #include "contract/scene_contract.h"
-#include "consumers/dataset/images.h"
 
 namespace stackgen::feed {
 namespace {

@@ -34,8 +34,8 @@ class FeedError : public std::runtime_error {
 cv::Mat DecodeImage(const image& message, const std::string& field);
 
 /// Checks that a decoded scene message is one a learner can use: the contract every consumer
-/// checks (stackgen::CheckScene, contract/scene_contract.h) and an instance map. Returns false with a
-/// one-line reason naming the field in `*why`.
+/// checks (stackgen::CheckScene, contract/scene_contract.h) and an instance map. Returns false with
+/// a one-line reason naming the field in `*why`.
 bool CheckFeedScene(const scene& message, std::string* why);
 
 /// One scene handed to a learner: the message, and its images decoded once, when first asked

@@ -19,14 +19,14 @@
 #include <stackgen/scene.hpp>
 #include <stackgen/status.hpp>
 
-#include "contract/bounded_decode.h"
 #include "bus/bus.h"
 #include "bus/channels.h"
 #include "bus/clock.h"
+#include "bus/log.h"
+#include "contract/bounded_decode.h"
+#include "contract/scene_contract.h"
 #include "session/consumer.h"
 #include "session/delivery.h"
-#include "bus/log.h"
-#include "contract/scene_contract.h"
 
 namespace stackgen::feed {
 namespace {

@@ -5,10 +5,10 @@
 //
 // A thread of its own reads the bus (or an LCM log), checks and decodes every scene and queues it;
 // the learner takes scenes from the queue. On a live bus a reliable stream is a reliable consumer
-// (session/delivery.h): it credits each scene once it has been handed to the learner and asks for what
-// it missed, so it loses nothing and holds the generators within its window; a best-effort stream
-// sends nothing, keeps only the newest scenes when the learner falls behind and never holds a
-// generator back. Because the thread serves the bus, credits flow while the learner trains.
+// (session/delivery.h): it credits each scene once it has been handed to the learner and asks for
+// what it missed, so it loses nothing and holds the generators within its window; a best-effort
+// stream sends nothing, keeps only the newest scenes when the learner falls behind and never holds
+// a generator back. Because the thread serves the bus, credits flow while the learner trains.
 
 #include <sys/types.h>
 

@@ -30,15 +30,15 @@
 #include <stackgen/scene.hpp>
 #include <stackgen/status.hpp>
 
-#include "contract/bounded_decode.h"
 #include "bus/bus.h"
 #include "bus/channels.h"
-#include "session/consumer.h"
 #include "cli/flags.h"
-#include "contract/scene_contract.h"
-#include "contract/rle.h"
 #include "consumers/bop/bop_dataset.h"
 #include "consumers/view/contact_sheet.h"
+#include "contract/bounded_decode.h"
+#include "contract/rle.h"
+#include "contract/scene_contract.h"
+#include "session/consumer.h"
 
 namespace {
 

@@ -10,8 +10,14 @@
 #include "gen/mesh/mesh.h"
 #include "gen/physics/hull_faces.h"
 #include "gen/physics/settle_detector.h"
+#include "stackgen_config.pb.h"
 
 namespace stackgen {
+
+// The structs below mirror parts of the config (types/stackgen_config.proto: BinConfig,
+// PartConfig, PhysicsConfig) for the simulator, which tests also use on their own: their
+// defaults are the schema's (its default instances), and PileSimulator checks their values
+// against the schema's ranges, so each is stated once, there.
 
 /// The bin, millimetres: an open box on z = 0 whose inner floor is centred at the origin, z up.
 /// The inner floor is the plane z = 0 (the floor slab fills z in [-wall_mm, 0]) and the rim is at
@@ -21,22 +27,24 @@ namespace stackgen {
 /// collision shape instead of the box (a static triangle mesh), its lowest point is the bottom,
 /// and the inner sizes still say where parts are released and what counts as inside.
 struct BinSpec {
-  double inner_length_mm;    // along x
-  double inner_width_mm;     // along y
-  double inner_height_mm;    // inner floor to rim, along z
-  double wall_mm;            // thickness of the floor and the walls
-  double friction = 0.6;     // Coulomb coefficient of the bin's surfaces, >= 0
-  double restitution = 0.1;  // 0..1
-  TriangleMesh mesh;         // optional tote mesh, world frame, mm; empty = the box above
+  double inner_length_mm;  // along x
+  double inner_width_mm;   // along y
+  double inner_height_mm;  // inner floor to rim, along z
+  double wall_mm;          // thickness of the floor and the walls (wall_thickness_mm)
+  // Coulomb coefficient of the bin's surfaces, and its restitution
+  double friction = config::BinConfig::default_instance().friction();
+  double restitution = config::BinConfig::default_instance().restitution();
+  TriangleMesh mesh;  // optional tote mesh, world frame, mm; empty = the box above
 };
 
 /// Material of a part type. A contact gets the geometric mean of the two surfaces' friction and
 /// of their restitution.
 struct PartPhysics {
-  double density_kg_m3 = 2700;     // > 0; aluminium
-  double friction = 0.6;           // Coulomb coefficient, >= 0
-  double restitution = 0.1;        // 0..1
-  double rolling_friction_mm = 0;  // lever arm resisting rolling and spinning, mm, >= 0
+  double density_kg_m3 = config::PartConfig::default_instance().density_kg_m3();
+  double friction = config::PartConfig::default_instance().friction();  // Coulomb coefficient
+  double restitution = config::PartConfig::default_instance().restitution();
+  // lever arm resisting rolling and spinning, mm
+  double rolling_friction_mm = config::PartConfig::default_instance().rolling_friction_mm();
 };
 
 /// One part type: its mesh (mm, closed, outward-wound), optional convex collision pieces (mm,
@@ -63,17 +71,27 @@ enum class DropMode {
 /// is looser), then it rests (holding friction, rest_time_step_s, contacts that push apart only
 /// past a 0.01 mm overlap) until it is at rest by the settle rule, which publishes it.
 struct SimulationParams {
-  double time_step_s = 1.0 / 600;       // fixed physics step while falling, 1e-4..0.01 s
-  double rest_time_step_s = 1.0 / 300;  // fixed physics step once landed, time_step_s..0.01 s
-  double max_sim_time_s = 10;           // simulated-time cap after the last release, s
-  double settle_translation_mm = 0.1;   // at rest when every body's centre of mass moved less
-  double settle_rotation_deg = 0.1;     // than this and turned less than this over the last
-  double settle_window_s = 2;           // settle_window_s seconds (a sliding window)
-  double drop_height_mm = 40;           // gap between the rim and the lowest released part, >= 0
-  DropMode drop_mode = DropMode::kRandomVolume;
-  Eigen::Vector2d drop_point_mm = Eigen::Vector2d::Zero();  // kSequential: x, y of the release
-  int solver_iterations = 20;                               // contact solver, per step, 5..500
-  bool free_friction_while_falling = true;  // velocity-aligned friction until landed
+  static const config::PhysicsConfig& Defaults() {
+    return config::PhysicsConfig::default_instance();
+  }
+  double time_step_s = Defaults().time_step_s();  // fixed physics step while falling, s
+  // fixed physics step once landed, s, at least time_step_s
+  double rest_time_step_s = Defaults().rest_time_step_s();
+  double max_sim_time_s = Defaults().max_sim_time_s();  // simulated-time cap after the last release
+  // at rest when every body's centre of mass moved less than settle_translation_mm and turned
+  // less than settle_rotation_deg over the last settle_window_s seconds (a sliding window)
+  double settle_translation_mm = Defaults().settle_translation_mm();
+  double settle_rotation_deg = Defaults().settle_rotation_deg();
+  double settle_window_s = Defaults().settle_window_s();
+  // gap between the rim and the lowest released part, mm
+  double drop_height_mm = Defaults().drop_height_mm();
+  DropMode drop_mode = DropMode::kRandomVolume;  // (the schema's RANDOM_VOLUME)
+  // kSequential: x, y of the release, mm, inside the bin's opening
+  Eigen::Vector2d drop_point_mm =
+      Eigen::Vector2d(Defaults().drop_point_x_mm(), Defaults().drop_point_y_mm());
+  int solver_iterations = Defaults().solver_iterations();  // contact solver, per step
+  // velocity-aligned friction until landed
+  bool free_friction_while_falling = Defaults().free_friction_while_falling();
 };
 
 /// A settled (or capped) pile.

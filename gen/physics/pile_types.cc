@@ -2,6 +2,7 @@
 
 #include <sstream>
 #include <stdexcept>
+#include <string>
 
 #include "gen/physics/convex_pieces.h"
 #include "gen/physics/pile_internal.h"
@@ -54,25 +55,42 @@ std::vector<Piece> MakePieces(const std::vector<std::vector<Eigen::Vector3d>>& p
 
 }  // namespace
 
-// Throws unless lo <= value <= hi.
-void CheckRange(const char* object, const char* field, double value, double lo, double hi) {
-  if (!(std::isfinite(value) && value >= lo && value <= hi)) {
+// Throws unless lo <= value <= hi (lo < value with `lo_open`).
+void CheckRange(const char* object, const char* field, double value, double lo, double hi,
+                bool lo_open) {
+  if (!(std::isfinite(value) && (lo_open ? value > lo : value >= lo) && value <= hi)) {
     std::ostringstream message;
-    message << "PileSimulator: " << object << "." << field << " must be in [" << lo << ", " << hi
-            << "], got " << value;
+    message << "PileSimulator: " << object << "." << field << " must be in "
+            << (lo_open ? "(" : "[") << lo << ", " << hi << "], got " << value;
     throw std::runtime_error(message.str());
   }
+}
+
+void CheckRange(const char* object, const char* field, double value, double lo, double hi) {
+  CheckRange(object, field, value, lo, hi, false);
+}
+
+// Throws unless `value` is in the range the config schema states for `schema_field` of
+// `message` (types/stackgen_config.proto): the simulator's ranges are the config's.
+void CheckSchemaRange(const std::string& object, const char* field,
+                      const google::protobuf::Descriptor* message, const char* schema_field,
+                      double value) {
+  const config::Range& range =
+      message->FindFieldByName(schema_field)->options().GetExtension(config::range);
+  CheckRange(object.c_str(), field, value, range.min(), range.max(), range.min_open());
 }
 
 // Builds a part type; errors start with `what`.
 TypeModel MakeTypeModel(const PartType& type, const std::string& what,
                         const std::string& cache_dir) {
   const PartPhysics& physics = type.physics;
-  CheckRange((what + "PartPhysics").c_str(), "density_kg_m3", physics.density_kg_m3, 1e-3, 1e6);
-  CheckRange((what + "PartPhysics").c_str(), "friction", physics.friction, 0, 10);
-  CheckRange((what + "PartPhysics").c_str(), "restitution", physics.restitution, 0, 1);
-  CheckRange((what + "PartPhysics").c_str(), "rolling_friction_mm", physics.rolling_friction_mm, 0,
-             100);
+  const std::string object = what + "PartPhysics";
+  const google::protobuf::Descriptor* part = config::PartConfig::descriptor();
+  CheckSchemaRange(object, "density_kg_m3", part, "density_kg_m3", physics.density_kg_m3);
+  CheckSchemaRange(object, "friction", part, "friction", physics.friction);
+  CheckSchemaRange(object, "restitution", part, "restitution", physics.restitution);
+  CheckSchemaRange(object, "rolling_friction_mm", part, "rolling_friction_mm",
+                   physics.rolling_friction_mm);
   if (type.mesh.triangles.empty()) {
     throw std::runtime_error("PileSimulator: " + what + "the part mesh is empty");
   }
@@ -114,23 +132,29 @@ TypeModel MakeTypeModel(const PartType& type, const std::string& what,
 }
 
 // Throws, naming the field, unless the bin's and the simulation's values are in range.
+// (each range the config schema's; what depends on another value, here)
 void CheckInputs(const BinSpec& bin, const SimulationParams& params) {
-  CheckRange("BinSpec", "inner_length_mm", bin.inner_length_mm, 1e-3, 1e6);
-  CheckRange("BinSpec", "inner_width_mm", bin.inner_width_mm, 1e-3, 1e6);
-  CheckRange("BinSpec", "inner_height_mm", bin.inner_height_mm, 1e-3, 1e6);
-  CheckRange("BinSpec", "wall_mm", bin.wall_mm, 1e-3, 1e6);
-  CheckRange("BinSpec", "friction", bin.friction, 0, 10);
-  CheckRange("BinSpec", "restitution", bin.restitution, 0, 1);
-  CheckRange("SimulationParams", "time_step_s", params.time_step_s, 1e-4, 0.01);
-  CheckRange("SimulationParams", "rest_time_step_s", params.rest_time_step_s, params.time_step_s,
-             0.01);
-  CheckRange("SimulationParams", "max_sim_time_s", params.max_sim_time_s, params.time_step_s, 1e5);
-  CheckRange("SimulationParams", "settle_translation_mm", params.settle_translation_mm, 1e-6, 1e6);
-  CheckRange("SimulationParams", "settle_rotation_deg", params.settle_rotation_deg, 1e-6, 360);
-  CheckRange("SimulationParams", "settle_window_s", params.settle_window_s, params.time_step_s,
+  const google::protobuf::Descriptor* b = config::BinConfig::descriptor();
+  CheckSchemaRange("BinSpec", "inner_length_mm", b, "inner_length_mm", bin.inner_length_mm);
+  CheckSchemaRange("BinSpec", "inner_width_mm", b, "inner_width_mm", bin.inner_width_mm);
+  CheckSchemaRange("BinSpec", "inner_height_mm", b, "inner_height_mm", bin.inner_height_mm);
+  CheckSchemaRange("BinSpec", "wall_mm", b, "wall_thickness_mm", bin.wall_mm);
+  CheckSchemaRange("BinSpec", "friction", b, "friction", bin.friction);
+  CheckSchemaRange("BinSpec", "restitution", b, "restitution", bin.restitution);
+  const google::protobuf::Descriptor* p = config::PhysicsConfig::descriptor();
+  const char* s = "SimulationParams";
+  CheckSchemaRange(s, "time_step_s", p, "time_step_s", params.time_step_s);
+  CheckSchemaRange(s, "rest_time_step_s", p, "rest_time_step_s", params.rest_time_step_s);
+  CheckRange(s, "rest_time_step_s", params.rest_time_step_s, params.time_step_s, 1e9);
+  CheckSchemaRange(s, "max_sim_time_s", p, "max_sim_time_s", params.max_sim_time_s);
+  CheckSchemaRange(s, "settle_translation_mm", p, "settle_translation_mm",
+                   params.settle_translation_mm);
+  CheckSchemaRange(s, "settle_rotation_deg", p, "settle_rotation_deg", params.settle_rotation_deg);
+  CheckSchemaRange(s, "settle_window_s", p, "settle_window_s", params.settle_window_s);
+  CheckRange(s, "settle_window_s", params.settle_window_s, params.time_step_s,
              params.max_sim_time_s);
-  CheckRange("SimulationParams", "drop_height_mm", params.drop_height_mm, 0, 1e6);
-  CheckRange("SimulationParams", "solver_iterations", params.solver_iterations, 5, 500);
+  CheckSchemaRange(s, "drop_height_mm", p, "drop_height_mm", params.drop_height_mm);
+  CheckSchemaRange(s, "solver_iterations", p, "solver_iterations", params.solver_iterations);
   CheckRange("SimulationParams", "drop_point_mm.x", params.drop_point_mm.x(),
              -bin.inner_length_mm / 2, bin.inner_length_mm / 2);
   CheckRange("SimulationParams", "drop_point_mm.y", params.drop_point_mm.y(),

@@ -4,20 +4,10 @@
 
 #include <Eigen/Geometry>
 
+#include "gen/render/camera.h"
 #include "stackgen_config.pb.h"
 
 namespace stackgen {
-
-/// Pinhole intrinsics, OpenCV convention (pixel centres at integers): a point (x, y, z) in the
-/// camera frame (x right, y down, z forward, mm) projects to (fx x / z + cx, fy y / z + cy) px.
-struct Intrinsics {
-  int width = 640;  // image size, pixels
-  int height = 480;
-  double fx = 800;  // focal lengths, pixels
-  double fy = 800;
-  double cx = 319.5;  // principal point, pixels
-  double cy = 239.5;
-};
 
 /// The nominal pose, world from camera, mm: the camera at `distance_mm` above the bin floor
 /// centre (the world origin, z up), looking straight down, image x along world +x, image y along

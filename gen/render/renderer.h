@@ -10,17 +10,16 @@
 #include <opencv2/core.hpp>
 
 #include "gen/mesh/mesh.h"
+#include "gen/render/camera.h"
 #include "gen/render/environment.h"
 #include "gen/render/lights.h"
 
 namespace stackgen {
 
-/// A pinhole camera in the OpenCV convention: pixel centres at integer coordinates, so a point
-/// at (x, y, z) in the camera frame lands in pixel (round(fx x / z + cx), round(fy y / z + cy)).
-struct CameraModel {
-  int width = 640;                                    // pixels
-  int height = 480;                                   // pixels
-  double fx = 800, fy = 800, cx = 319.5, cy = 239.5;  // pixels
+/// A pinhole camera in the OpenCV convention: its intrinsics (Intrinsics: pixel centres at
+/// integer coordinates, so a point at (x, y, z) in the camera frame lands in pixel
+/// (round(fx x / z + cx), round(fy y / z + cy))), its pose and its clipping range.
+struct CameraModel : Intrinsics {
   /// OpenCV camera frame: x right, y down (row 0 at the top), z forward; millimetres.
   Eigen::Isometry3d world_from_camera = Eigen::Isometry3d::Identity();
   double near_mm = 10;    // surfaces closer than this (camera z) are clipped

@@ -149,14 +149,13 @@ int Run(int argc, char** argv) {
   const LoadedConfig config = LoadConfig(config_path);
   Bus bus(ResolveLcmUrl(lcm_url), bus_options);
   SceneGenerator generator(config, generator_id, seed, cache_dir);
-  std::printf(
-      "stackgen: generator %d, seed %llu, config %s, bus %s (%s)\n%s\n", generator_id,
-      static_cast<unsigned long long>(seed), config.path.c_str(), bus.url().c_str(),
-      bus.state().keyed() ? ("signed with " + bus.state().key_file() + ", key id " +
-                             KeyIdText(bus.state().key_id()))
-                                .c_str()
-          : "open: no bus key",
-      generator.Description().c_str());
+  std::printf("stackgen: generator %d, seed %llu, config %s, bus %s (%s)\n%s\n", generator_id,
+              static_cast<unsigned long long>(seed), config.path.c_str(), bus.url().c_str(),
+              bus.state().keyed() ? ("signed with " + bus.state().key_file() + ", key id " +
+                                     KeyIdText(bus.state().key_id()))
+                                        .c_str()
+                                  : "open: no bus key",
+              generator.Description().c_str());
   std::fflush(stdout);
   if (check) {
     std::printf("stackgen: --check: the config, the bus and the renderer are usable\n");

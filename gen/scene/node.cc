@@ -23,10 +23,10 @@
 
 #include "bus/auth.h"
 #include "bus/channels.h"
-#include "session/delivery.h"
-#include "contract/scene_contract.h"
 #include "bus/udpm.h"
+#include "contract/scene_contract.h"
 #include "gen/config/config.h"
+#include "session/delivery.h"
 
 namespace stackgen {
 namespace {

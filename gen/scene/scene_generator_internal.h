@@ -118,12 +118,7 @@ struct SceneGenerator::Impl {
   CameraModel Camera(std::mt19937_64& engine) const {
     const Intrinsics intrinsics = CameraIntrinsics();
     CameraModel camera;
-    camera.width = intrinsics.width;
-    camera.height = intrinsics.height;
-    camera.fx = intrinsics.fx;
-    camera.fy = intrinsics.fy;
-    camera.cx = intrinsics.cx;
-    camera.cy = intrinsics.cy;
+    static_cast<Intrinsics&>(camera) = intrinsics;
     camera.world_from_camera =
         SampleCameraPose(config().camera(), intrinsics, config().bin(), engine);
     // clip nothing in view: beyond the farthest camera, the bin's whole extent

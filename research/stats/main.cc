@@ -14,8 +14,8 @@
 #include <vector>
 
 #include "cli/flags.h"
-#include "gen/annotate/pose.h"
 #include "consumers/bop/bop_dataset.h"
+#include "gen/annotate/pose.h"
 #include "research/stats/dataset.h"
 #include "research/stats/piles.h"
 #include "research/stats/plots.h"

@@ -51,8 +51,8 @@
 
 #include "bus/bus.h"
 #include "bus/channels.h"
-#include "cli/flags.h"
 #include "bus/log.h"
+#include "cli/flags.h"
 #include "tests/support/lcm_wire.h"
 
 namespace {

@@ -2,6 +2,8 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -263,6 +265,83 @@ TEST(ConfigTest, CameraLooksDown) {
   // world +y is up in the image (camera -y).
   const Eigen::Vector3d plus_y = camera_from_world * Eigen::Vector3d(0, 10, 0);
   EXPECT_LT(plus_y.y(), 0);
+}
+
+// Every number of the schema (each numeric field of each message a config holds) states its
+// range once, as the (range) option of types/stackgen_config.proto, and its default keeps it.
+TEST(ConfigSchemaTest, EveryNumberStatesItsRangeAndItsDefaultKeepsIt) {
+  namespace pb = google::protobuf;
+  const pb::Descriptor* root = config::GeneratorConfig::descriptor();
+  int numbers = 0;
+  for (int i = 0; i < root->field_count(); ++i) {
+    const pb::Descriptor* type = root->field(i)->message_type();
+    ASSERT_NE(type, nullptr) << root->field(i)->name();
+    for (int j = 0; j < type->field_count(); ++j) {
+      const pb::FieldDescriptor* field = type->field(j);
+      const auto kind = field->cpp_type();
+      if (kind == pb::FieldDescriptor::CPPTYPE_STRING ||
+          kind == pb::FieldDescriptor::CPPTYPE_BOOL || kind == pb::FieldDescriptor::CPPTYPE_ENUM) {
+        EXPECT_FALSE(field->options().HasExtension(config::range)) << field->full_name();
+        continue;
+      }
+      ++numbers;
+      ASSERT_TRUE(field->options().HasExtension(config::range))
+          << field->full_name() << " states no (range)";
+      const config::Range& range = field->options().GetExtension(config::range);
+      ASSERT_TRUE(range.has_min() && range.has_max()) << field->full_name();
+      double value = 0;
+      switch (kind) {
+        case pb::FieldDescriptor::CPPTYPE_DOUBLE:
+          value = field->default_value_double();
+          break;
+        case pb::FieldDescriptor::CPPTYPE_FLOAT:
+          value = field->default_value_float();
+          break;
+        case pb::FieldDescriptor::CPPTYPE_INT32:
+          value = field->default_value_int32();
+          break;
+        default:
+          FAIL() << "a number of another type: " << field->full_name();
+      }
+      if (field->is_repeated()) continue;  // (no default)
+      EXPECT_TRUE((range.min_open() ? value > range.min() : value >= range.min()) &&
+                  value <= range.max())
+          << field->full_name() << ": default " << value << " outside its range";
+    }
+  }
+  EXPECT_GT(numbers, 100);
+}
+
+// The validator knows every stated range: a value just outside it, in a config that is fine
+// otherwise, is refused with a line naming the field.
+TEST(ConfigSchemaTest, TheValidatorRefusesAValueJustOutsideEveryRange) {
+  namespace pb = google::protobuf;
+  const pb::Descriptor* root = config::GeneratorConfig::descriptor();
+  int checked = 0;
+  for (int i = 0; i < root->field_count(); ++i) {
+    const pb::FieldDescriptor* outer = root->field(i);
+    const pb::Descriptor* type = outer->message_type();
+    for (int j = 0; j < type->field_count(); ++j) {
+      const pb::FieldDescriptor* field = type->field(j);
+      if (!field->options().HasExtension(config::range)) continue;
+      const config::Range& range = field->options().GetExtension(config::range);
+      const bool integer = field->cpp_type() == pb::FieldDescriptor::CPPTYPE_INT32;
+      for (const double outside :
+           {range.min_open() ? range.min() : range.min() - 1,
+            range.max() + (integer ? 1 : 1e-3 * std::max(1.0, std::abs(range.max())))}) {
+        std::ostringstream text;
+        text.precision(17);
+        text << outer->name() << " { " << field->name() << ": " << outside << " }";
+        const std::string error = ErrorOf(text.str());
+        const std::string named =
+            outer->name() + (outer->is_repeated() ? "[0]." : ".") + field->name() + ": ";
+        EXPECT_NE(error.find(named), std::string::npos) << text.str() << " -> " << error;
+        EXPECT_NE(error.find("out of range"), std::string::npos) << text.str() << " -> " << error;
+        ++checked;
+      }
+    }
+  }
+  EXPECT_GT(checked, 200);
 }
 
 }  // namespace

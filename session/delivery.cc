@@ -389,7 +389,7 @@ std::string SceneServer::stalled() const {
            std::to_string(static_cast<int>(stalled_s)) + " s though it still credits and they " +
            "were sent again " + std::to_string(consumer.resent_since_progress) +
            " times: the bus loses them on the way (between hosts: frame loss with a large mtu= " +
-           "in the URL, a firewall or a full receive buffer; README, Across hosts)";
+           "in the URL, a firewall or a full receive buffer; docs/operations.md, Across hosts)";
   }
   return "";
 }

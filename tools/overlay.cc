@@ -1,5 +1,5 @@
 // stackgen-overlay: draws the masks, boxes and ids of one image of a COCO dataset written by
-// stackgen-coco over the image, for a quick look (the README's example image).
+// stackgen-coco over the image, for a quick look (the README's example image, docs/example.png).
 
 #include <algorithm>
 #include <cstdint>

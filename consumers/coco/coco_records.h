@@ -1,7 +1,7 @@
 #pragma once
 
 // The records of a COCO instances file as stackgen-coco writes them: COCO's fields and
-// stackgen's own labels beside them (the README's COCO section lists them).
+// stackgen's own labels beside them (docs/programs.md, "`stackgen-coco`" lists them).
 
 #include <cstdint>
 #include <string>

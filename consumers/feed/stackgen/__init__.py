@@ -168,7 +168,7 @@ class Stream:
             "stackgen-feed@<host>:<pid>").
         fault_drop: drop this fraction of received messages on purpose, [0, 1) (tests, demos).
         status: publish the stream's counters on STACKGEN_STATUS every second (live bus).
-        bus_key_file: the bus key (see the README, "Trust"): scenes not signed with it are
+        bus_key_file: the bus key (see docs/operations.md, "Trust: the bus key"): scenes not signed with it are
             refused and counted (counters "refused_unsigned", "refused_forged",
             "refused_replayed", "refused_relayed"), and credits are signed; a log is checked with it too. None:
             $STACKGEN_BUS_KEY_FILE when set, else this user's key ~/.config/stackgen/bus.key

@@ -96,8 +96,8 @@ bool FlatOnFloor(const Rest& rest) {
 
 // LandedRule() (the settle rule before piles had to be at rest) for the tests of resting faces,
 // sinking and bounds, which do not depend on it: the default rule (0.1 mm, 0.1 degree, 2 s)
-// takes several times the physics, and it is absolute: in 10 s 3 of 5 piles of 300 mm
-// connectors did not meet it (README, "Checks before publishing").
+// takes several times the physics, and it is absolute: large parts may not meet it within 10 s
+// (docs/results.md, "Piles at rest").
 using testing::LandedRule;
 
 // Drops one part at a time into `bin` (seeds 0, 1, ...) until `flat_wanted` have come to lie flat

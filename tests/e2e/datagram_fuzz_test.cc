@@ -71,19 +71,26 @@ struct RunOutputs {
 
 class DatagramFuzzTest : public ::testing::Test {
  protected:
-  void SetUp() override {
+  // the clean run, made once for the file's tests (CTest runs them in one process)
+  static void SetUpTestSuite() {
+    scratch_ = new testing::ScratchDir("datagram-fuzz");
     ASSERT_NE(std::getenv("STACKGEN_BUS_KEY_FILE"), nullptr)
         << "the suite runs with a bus key (tests/CMakeLists.txt); run this through ctest";
-    std::ofstream(scratch_.path() + "/stream.py") << kStreamScript;
+    std::ofstream(scratch_->path() + "/stream.py") << kStreamScript;
     RunAll("clean", {}, false, &clean_);
+  }
+
+  static void TearDownTestSuite() {
+    delete scratch_;
+    scratch_ = nullptr;
   }
 
   // the four processes on a bus of their own, and the forger with `forger_flags` when given
   // (stopped with SIGINT once they are done when `stop_forger`, else waited for)
-  void RunAll(const std::string& name, const std::vector<std::string>& forger_flags,
+  static void RunAll(const std::string& name, const std::vector<std::string>& forger_flags,
               bool stop_forger, RunOutputs* run) {
     const std::string url = testing::FreeMulticastUrl();
-    const std::string base = scratch_.path() + "/" + name;
+    const std::string base = scratch_->path() + "/" + name;
     run->coco = base + "-coco";
     run->bop = base + "-bop";
     Process coco({kBin + "/stackgen-coco", "--out", run->coco, "--count", std::to_string(kScenes),
@@ -93,14 +100,14 @@ class DatagramFuzzTest : public ::testing::Test {
                  "--lcm-url", url},
                 base + "-bop-log");
     const testing::ScopedEnv python_path("PYTHONPATH", STACKGEN_PYTHON_DIR);
-    Process stream({STACKGEN_PYTHON, scratch_.path() + "/stream.py", url, std::to_string(kScenes)},
+    Process stream({STACKGEN_PYTHON, scratch_->path() + "/stream.py", url, std::to_string(kScenes)},
                    base + "-stream");
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
     ASSERT_TRUE(bop.WaitForOutput("listening", 30)) << bop.Stderr();
     ASSERT_TRUE(stream.WaitForOutput("listening", 60)) << stream.Stderr();
     Process generator({kBin + "/stackgen", "--config", testing::kLandedRule, "--count",
                        std::to_string(kScenes), "--seed", "3", "--lcm-url", url, "--cache-dir",
-                       scratch_.path() + "/cache", "--consumer-timeout", "20"},
+                       scratch_->path() + "/cache", "--consumer-timeout", "20"},
                       base + "-gen");
     // the forger once all four listen (the generator says so when its bus and renderer are
     // up, then listens 0.5 s before its first scene): every datagram reaches every process
@@ -168,9 +175,12 @@ class DatagramFuzzTest : public ::testing::Test {
     }
   }
 
-  testing::ScratchDir scratch_{"datagram-fuzz"};
-  RunOutputs clean_;
+  static testing::ScratchDir* scratch_;
+  static RunOutputs clean_;
 };
+
+testing::ScratchDir* DatagramFuzzTest::scratch_ = nullptr;
+RunOutputs DatagramFuzzTest::clean_;
 
 // The two datagrams of lcm#628 on every channel, every 20 ms through the whole run: stackgen
 // (credits, resends, status), the writers (scenes, config, models) and the stream (scenes) each

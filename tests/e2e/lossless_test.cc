@@ -124,22 +124,33 @@ class StatusListener {
 
 class LosslessTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    cache_ = scratch_.path() + "/cache";
-    reference_ = scratch_.path() + "/reference";
-    // the reference: a plain run, no injected loss
+  // the reference, made once for the file's tests (CTest runs them in one process): a plain
+  // run, no injected loss
+  static void SetUpTestSuite() {
+    shared_ = new testing::ScratchDir("stackgen-lossless-reference");
+    cache_ = shared_->path() + "/cache";
+    reference_ = shared_->path() + "/reference";
     const std::string url = testing::FreeMulticastUrl();
-    Process coco(Coco(reference_, url), scratch_.path() + "/reference-coco");
+    Process coco(Coco(reference_, url), shared_->path() + "/reference-coco");
     ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
-    Process generator(Generator(url, cache_), scratch_.path() + "/reference-gen");
+    Process generator(Generator(url, cache_), shared_->path() + "/reference-gen");
     ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
     ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();
   }
+  static void TearDownTestSuite() {
+    delete shared_;
+    shared_ = nullptr;
+  }
 
+  static testing::ScratchDir* shared_;
+  static std::string cache_;
+  static std::string reference_;
   testing::ScratchDir scratch_{"stackgen-lossless"};
-  std::string cache_;
-  std::string reference_;
 };
+
+testing::ScratchDir* LosslessTest::shared_ = nullptr;
+std::string LosslessTest::cache_;
+std::string LosslessTest::reference_;
 
 // with 10 % of the messages each process receives dropped (scenes at the writer; credits and
 // resend requests at the generator), the dataset is complete and identical to the reference.

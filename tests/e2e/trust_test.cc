@@ -85,12 +85,14 @@ std::vector<int64_t> Refused(const std::string& output) {
 
 class TrustTest : public ::testing::Test {
  protected:
-  void SetUp() override {
+  // the reference, made once for the file's tests (CTest runs them in one process)
+  static void SetUpTestSuite() {
+    scratch_ = new testing::ScratchDir("trust");
     ASSERT_NE(std::getenv("STACKGEN_BUS_KEY_FILE"), nullptr)
         << "the suite runs with a bus key (tests/CMakeLists.txt); run this through ctest";
-    cache_ = scratch_.path() + "/cache";
-    reference_ = scratch_.path() + "/reference";
-    recording_ = scratch_.path() + "/reference.lcmlog";
+    cache_ = scratch_->path() + "/cache";
+    reference_ = scratch_->path() + "/reference";
+    recording_ = scratch_->path() + "/reference.lcmlog";
     logger_ = testing::FindOnPath("lcm-logger");
     player_ = testing::FindOnPath("lcm-logplayer");
     ASSERT_FALSE(logger_.empty() || player_.empty())
@@ -122,15 +124,29 @@ class TrustTest : public ::testing::Test {
     }
   }
 
-  testing::ScratchDir scratch_{"trust"};
-  std::string cache_;
-  std::string reference_;
-  std::string recording_;  // the reference run's STACKGEN_SCENE and STACKGEN_CONFIG
-  std::string logger_;
-  std::string player_;
-  int64_t reference_peak_gen_kb_ = 0;
-  int64_t reference_peak_coco_kb_ = 0;
+  static void TearDownTestSuite() {
+    delete scratch_;
+    scratch_ = nullptr;
+  }
+
+  static testing::ScratchDir* scratch_;
+  static std::string cache_;
+  static std::string reference_;
+  static std::string recording_;  // the reference run's STACKGEN_SCENE and STACKGEN_CONFIG
+  static std::string logger_;
+  static std::string player_;
+  static int64_t reference_peak_gen_kb_;
+  static int64_t reference_peak_coco_kb_;
 };
+
+testing::ScratchDir* TrustTest::scratch_ = nullptr;
+std::string TrustTest::cache_;
+std::string TrustTest::reference_;
+std::string TrustTest::recording_;
+std::string TrustTest::logger_;
+std::string TrustTest::player_;
+int64_t TrustTest::reference_peak_gen_kb_ = 0;
+int64_t TrustTest::reference_peak_coco_kb_ = 0;
 
 // Strangers without the key, or with another one, forge scenes, impersonate the writer (all
 // stored, leaving), offer a window of 0 and flood resend requests for the whole run, and a
@@ -140,12 +156,12 @@ TEST_F(TrustTest, StrangersAreRefusedAndCounted) {
   const std::string& logger = logger_;
   const std::string& player = player_;
   const std::string url = testing::FreeMulticastUrl();
-  const std::string out = scratch_.path() + "/attacked";
-  const std::string wrong_key = scratch_.path() + "/wrong.key";
+  const std::string out = scratch_->path() + "/attacked";
+  const std::string wrong_key = scratch_->path() + "/wrong.key";
   std::ofstream(wrong_key) << "not the key of this deployment, but long enough to be one\n";
   chmod(wrong_key.c_str(), 0600);
 
-  const std::string recording = scratch_.path() + "/recording.lcmlog";
+  const std::string recording = scratch_->path() + "/recording.lcmlog";
   Process record({logger, "--lcm-url", url, "--quiet", recording}, out + "-logger");
   Process coco(Coco(out, url), out + "-coco");
   ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
@@ -196,7 +212,7 @@ TEST_F(TrustTest, StrangersAreRefusedAndCounted) {
 // back), leave both processes running with memory near a clean run's, and the dataset intact.
 TEST_F(TrustTest, FuzzLeavesBothRunning) {
   const std::string url = testing::FreeMulticastUrl();
-  const std::string out = scratch_.path() + "/fuzzed";
+  const std::string out = scratch_->path() + "/fuzzed";
   Process coco(Coco(out, url), out + "-coco");
   ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
   Process fuzzer({kForger, "--lcm-url", url, "--seconds", "4", "--no-attacks", "--fuzz", "4000",
@@ -234,7 +250,7 @@ TEST_F(TrustTest, FuzzLeavesBothRunning) {
 // sender would not answer the liveness check, LivenessCheckTest.ARecordingNeverAnswers); told
 // that it reads a replay, a writer stores it: the reference dataset, file for file.
 TEST_F(TrustTest, ARecordingIsTakenOnlyAsAReplay) {
-  const std::string refused = scratch_.path() + "/refused";
+  const std::string refused = scratch_->path() + "/refused";
   {
     const std::string url = testing::FreeMulticastUrl();
     Process coco(Coco(refused, url), refused + "-coco");
@@ -252,7 +268,7 @@ TEST_F(TrustTest, ARecordingIsTakenOnlyAsAReplay) {
     const std::regex relayed(R"(([1-9]\d*) relayed from another bus)");
     EXPECT_TRUE(std::regex_search(coco.Stdout(), relayed)) << coco.Stdout();
   }
-  const std::string taken = scratch_.path() + "/taken";
+  const std::string taken = scratch_->path() + "/taken";
   const std::string url = testing::FreeMulticastUrl();
   std::vector<std::string> argv = Coco(taken, url);
   argv.push_back("--replay");

@@ -7,9 +7,9 @@
 namespace stackgen {
 namespace testing {
 
-/// The settle rule before piles had to be at rest (1 mm, 1 degree over 0.25 s; the default is
-/// 0.1 mm, 0.1 degree over 1 s): less physics, for tests that do not depend on rest, and for
-/// comparing the two rules.
+/// The landed rule (1 mm, 1 degree over 0.25 s: when a falling pile counts as landed) as the
+/// settle rule; the default publishes piles at rest (0.1 mm, 0.1 degree over 2 s): less physics,
+/// for tests that do not depend on rest, and for comparing the two rules.
 inline SimulationParams LandedRule() {
   SimulationParams params;
   params.settle_translation_mm = 1;

@@ -24,9 +24,9 @@
 
 namespace stackgen::testing {
 
-/// config/default.pbtxt's parts, bin and a fixed camera, without its drawn look, with the settle
-/// rule before piles had to be at rest (1 mm, 1 degree, 0.25 s), for end-to-end tests that
-/// depend on neither: about 0.6 times the physics.
+/// config/default.pbtxt's parts, bin and a fixed camera, without its drawn look, with the landed
+/// rule as the settle rule (1 mm, 1 degree over 0.25 s), for end-to-end tests that depend on
+/// neither: about 0.6 times the physics.
 inline const std::string kLandedRule =
     std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/scene/landed_rule.pbtxt";
 

@@ -130,7 +130,7 @@ TEST_F(PileModesTest, RollingFrictionSettlesRoundPartsSooner) {
 }
 
 // A tote given as a triangle mesh (thin walls, no boxes) holds a settled pile like the box bin,
-// with the settle rule before piles had to be at rest (1 mm, 1 degree, 0.25 s). A thin triangle
+// with the landed rule (1 mm, 1 degree over 0.25 s: a falling pile has landed). A thin triangle
 // floor is not a box: a tote keeps the holding friction throughout, and the drop of seed 1 loses
 // a part through the floor (the generator redraws such drops; docs/configuration.md, "Piles:
 // parts, distractors, drops and checks"); seeds 2 to 4 stay inside.

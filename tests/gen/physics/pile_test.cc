@@ -435,10 +435,10 @@ MovedOn Moved(const PileResult& published, const PileResult& after) {
 // Connector piles published by the default settle rule (0.1 mm and 0.1 degree over 1 s) are at
 // rest: simulated on in the same world until every part moved less than 0.1 mm and 0.1 degree
 // over 1 s (60 s at most), none of the 24 parts of 2 piles moves more than 1 mm or 1 degree, and
-// the heaps do not sink. The rule before (1 mm, 1 degree, 0.25 s) publishes a pile with a part
-// that moves on (seed 14, the first of seeds 1 to 24 that does; later ones where the physics
-// changed): the check tells the rules apart. With the rule before as the default this test fails.
-// stackgen-rest-check measures the rules over 300 piles (README).
+// the heaps do not sink. The landed rule (1 mm, 1 degree over 0.25 s) publishes a pile with a
+// part that moves on (seed 14, the first of seeds 1 to 24 that does): the check tells the rules
+// apart, and with the landed rule as the default this test fails. stackgen-rest-check measures
+// the rules over 300 piles (docs/results.md, "Piles at rest").
 TEST_F(PileTest, DefaultSettleRulePublishesPilesThatStayPut) {
   const PileSimulator simulator = ConnectorSimulator();
   int piles = 0, parts = 0, over_1 = 0, at_rest = 0, tries = 0;

@@ -94,8 +94,8 @@ bool FlatOnFloor(const Rest& rest) {
   return rest.tilt_deg < kFlatDeg && std::abs(rest.lowest_mm) < kMaxPenetrationMm;
 }
 
-// LandedRule() (the settle rule before piles had to be at rest) for the tests of resting faces,
-// sinking and bounds, which do not depend on it: the default rule (0.1 mm, 0.1 degree, 2 s)
+// LandedRule() (1 mm, 1 degree over 0.25 s: a falling pile has landed) for the tests of resting
+// faces, sinking and bounds, which do not depend on it: the default rule (0.1 mm, 0.1 degree, 2 s)
 // takes several times the physics, and it is absolute: large parts may not meet it within 10 s
 // (docs/results.md, "Piles at rest").
 using testing::LandedRule;

@@ -40,8 +40,8 @@ constexpr double kRestitutionThresholdMmS = 50;
 // push deeper overlap back through the velocity (split impulse's moves along a slanted contact
 // slide resting parts a little every step, so a pile never comes to rest). Velocities at rest are
 // small, so the pile is stepped at rest_time_step_s. A triangle-mesh tote holds throughout (a
-// part sliding freely passes through its floor). README, "Checks before publishing", has the
-// figures.
+// part sliding freely passes through its floor). docs/results.md, "Piles at rest" and "Single
+// flat boxes", has the figures.
 constexpr int kDropIterations = 20;
 constexpr double kPileLandedMm = 1.0;
 constexpr double kPileLandedDeg = 1.0;

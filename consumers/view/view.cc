@@ -32,6 +32,7 @@
 
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "bus/clock.h"
 #include "cli/flags.h"
 #include "consumers/bop/bop_dataset.h"
 #include "consumers/view/contact_sheet.h"
@@ -607,12 +608,14 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
 
   // scenes until enough, the timeout or a signal; generators that use another key: a warning
   // now, and the reason at the timeout (an open viewer reads signed scenes all the same)
-  const auto deadline = std::chrono::steady_clock::now() +
-                        std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                            std::chrono::duration<double>(flags.timeout_s));
+  // (the process's clock, through the seam: bus/clock.h)
+  const stackgen::Clock& clock = stackgen::SteadyClock();
+  const auto deadline =
+      clock.Now() + std::chrono::duration_cast<stackgen::Clock::TimePoint::duration>(
+                        std::chrono::duration<double>(flags.timeout_s));
   const auto held = [&] { return static_cast<int64_t>(tiles.size()); };
   while (!stop_requested && static_cast<int>(tiles.size()) < flags.count &&
-         std::chrono::steady_clock::now() < deadline && !bus.state().log_ended()) {
+         clock.Now() < deadline && !bus.state().log_ended()) {
     session.bus().HandleFor(100);
     session.Service(held(), held());
   }

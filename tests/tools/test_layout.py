@@ -1,6 +1,7 @@
 """The folders' include rules (docs/design.md, "Layout"): each layer includes only the layers
 below it, consumers never include gen/, only bus/ talks to LCM, and nothing but the tests
-includes tests/, tools/ or research/ (the research bench's own files aside).
+includes tests/, tools/ or research/ (the research bench's own files aside); and consumers read
+time only through the clock seam.
 
 CTest runs this file with Debian's /usr/bin/python3 -m pytest and STACKGEN_SOURCE_DIR set."""
 
@@ -59,3 +60,17 @@ def test_only_bus_talks_to_lcm():
              if not quoted and included.startswith("lcm/") and included != "lcm/lcm_coretypes.h"
              and not where.startswith("bus" + os.sep)]
     assert not wrong, "\n".join(wrong)
+
+
+def test_consumers_read_time_through_the_clock_seam():
+    # (bus/clock.h: SteadyClock() in programs, a ManualClock in tests)
+    wrong = []
+    for base, _, names in os.walk(os.path.join(SOURCE, "consumers")):
+        for name in names:
+            if name.endswith((".h", ".cc")):
+                path = os.path.join(base, name)
+                with open(path) as file:
+                    for number, line in enumerate(file, 1):
+                        if "steady_clock" in line or "system_clock" in line:
+                            wrong.append("%s:%d" % (os.path.relpath(path, SOURCE), number))
+    assert not wrong, wrong

@@ -4,11 +4,15 @@ folder)."""
 
 import os
 import subprocess
+import sys
 import time
 
 SOURCE = os.environ.get("STACKGEN_SOURCE_DIR",
                         os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(
                             __file__)))))
+sys.path.insert(0, os.path.join(SOURCE, "tests", "support"))
+import configs  # noqa: E402  (tests/support/configs.py)
+
 BIN = os.environ.get("STACKGEN_BIN_DIR", os.path.join(SOURCE, "build", "bin"))
 # 6 connectors, 160 x 120: small and quick scenes
 TINY = os.path.join(SOURCE, "tests", "fixtures", "logs", "tiny.pbtxt")
@@ -49,3 +53,9 @@ def left_running(pids, seconds=60):
         except FileNotFoundError:
             pass
     return [command for command in left if command]
+
+
+def quick_config(folder, source=None, halls=1):
+    """The tiny config (or `source`) with `halls` lighting environments, in `folder`
+    (tests/support/configs.py)."""
+    return configs.quick_config(folder, source or TINY, halls)

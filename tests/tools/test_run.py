@@ -18,7 +18,7 @@ import time
 
 import pytest
 
-from conftest import SOURCE, TINY, descendants, left_running
+from conftest import SOURCE, TINY, descendants, left_running, quick_config
 
 RUN = os.path.join(SOURCE, "tools", "run")
 
@@ -41,7 +41,19 @@ def dataset_files(folder):
     return files
 
 
-ARGS = ["--config", TINY, "--count", "30", "--seed", "3"]
+# a run of 12 scenes, stopped once it has stored 3 (each run starts a `stackgen --check` and a
+# generator, which prepare the config's lighting environments first: the tiny config with one of
+# them, conftest.quick_config)
+COUNT = 12
+ARGS = ["--config", TINY, "--count", str(COUNT), "--seed", "3"]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def quick_tiny(tmp_path_factory):
+    global ARGS
+    ARGS = ["--config", quick_config(tmp_path_factory.mktemp("config")), "--count", str(COUNT),
+            "--seed", "3"]
+    yield ARGS
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +62,7 @@ def whole(tmp_path_factory):
     out = tmp_path_factory.mktemp("run") / "whole"
     straight = run(*ARGS, "--out", str(out))
     assert straight.returncode == 0, straight.stderr
-    assert "images: 30," in straight.stdout
+    assert "images: %d," % COUNT in straight.stdout
     return dataset_files(out)
 
 
@@ -75,15 +87,16 @@ def test_interrupted_run_resumes_to_the_same_files(tmp_path, whole):
     out, err = process.communicate(timeout=120)
     assert process.returncode == 130, err
     stored = len(os.listdir(cut / "images"))
-    assert 3 <= stored < 30, err
-    assert "tools/run: interrupted: %d of 30 scenes stored in %s" % (stored, cut) in err, err
+    assert 3 <= stored < COUNT, err
+    assert "tools/run: interrupted: %d of %d scenes stored in %s" % (stored, COUNT, cut) in err, \
+        err
     hint = err.split("continue with:\n", 1)[1].strip()
     assert hint.startswith("tools/run --resume --out ")
 
     resumed = subprocess.run(shlex.split(hint), capture_output=True, text=True, timeout=600,
                              cwd=SOURCE)
     assert resumed.returncode == 0, resumed.stderr
-    assert "%d in all" % 30 in resumed.stdout, resumed.stdout
+    assert "%d in all" % COUNT in resumed.stdout, resumed.stdout
     assert dataset_files(cut) == whole
 
 
@@ -98,7 +111,7 @@ def test_killed_run_leaves_nothing_running_and_resumes(tmp_path, whole):
     process.communicate(timeout=60)
     assert not left_running(children)
     stored = len(os.listdir(cut / "images"))
-    assert stored < 30
+    assert stored < COUNT
     # its temporary folder is left, and goes with the next run
     assert glob.glob("/tmp/stackgen-run.%d.*" % process.pid)
 
@@ -111,20 +124,21 @@ def test_killed_run_leaves_nothing_running_and_resumes(tmp_path, whole):
     # the README's resume: the same command with --resume
     resumed = run(*ARGS, "--out", str(cut), "--resume")
     assert resumed.returncode == 0, resumed.stderr
-    assert "%d scenes made now, 30 in all" % (30 - stored) in resumed.stdout, resumed.stdout
+    assert "%d scenes made now, %d in all" % (COUNT - stored, COUNT) in resumed.stdout, \
+        resumed.stdout
     assert dataset_files(cut) == whole
     assert not glob.glob("/tmp/stackgen-run.%d.*" % process.pid)
 
     # a resume of a whole dataset has nothing to make: it says so and exits 0
     again = run(*ARGS, "--out", str(cut), "--resume")
     assert again.returncode == 0, again.stderr
-    assert "already holds its 30 scenes: nothing to make" in again.stdout, again.stdout
+    assert "already holds its %d scenes: nothing to make" % COUNT in again.stdout, again.stdout
     assert dataset_files(cut) == whole
 
 
 def test_split_is_disjoint_by_pile(tmp_path):
     out = tmp_path / "split"
-    result = run("--config", TINY, "--count", "10", "--split", "train=0.8,val=0.2", "--out",
+    result = run("--config", ARGS[1], "--count", "10", "--split", "train=0.8,val=0.2", "--out",
                  str(out))
     assert result.returncode == 0, result.stderr
     splits = {}

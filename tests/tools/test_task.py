@@ -18,15 +18,26 @@ import time
 
 import pytest
 
-from conftest import BIN, SOURCE, TINY, descendants, left_running
+from conftest import BIN, SOURCE, TINY, descendants, left_running, quick_config
 
 TASK = os.path.join(SOURCE, "tools", "task")
 MERGE = os.path.join(BIN, "stackgen-merge")
+CONFIG = TINY  # the tasks' config: the tiny one with one lighting environment (fixture below)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def quick_tiny(tmp_path_factory):
+    """Every task and reference run of this file on conftest.quick_config: each task starts a
+    `stackgen --check` and its generators, and each prepares the config's environments first."""
+    global CONFIG
+    CONFIG = quick_config(tmp_path_factory.mktemp("config"))
+    yield CONFIG
+    CONFIG = TINY
 
 
 def task(out, count, tasks, *args, env=None):
     command = [TASK, "--out", str(out), "--count", str(count), "--tasks", str(tasks),
-               "--config", TINY, *args]
+               "--config", CONFIG, *args]
     return subprocess.run(command, capture_output=True, text=True, timeout=600,
                           env={**os.environ, **(env or {})})
 
@@ -54,7 +65,7 @@ def one_process(out, count, seed, fmt="coco", shards=None):
         if "listening" in line:
             break
     generator = subprocess.run(
-        [os.path.join(BIN, "stackgen"), "--config", TINY, "--count", str(count), "--seed",
+        [os.path.join(BIN, "stackgen"), "--config", CONFIG, "--count", str(count), "--seed",
          str(seed), "--lcm-url", url], capture_output=True, text=True, timeout=300)
     assert generator.returncode == 0, generator.stderr
     listening.stdout.read()
@@ -114,12 +125,12 @@ def test_shards_merge_to_the_one_process_dataset(job):
 
 
 def test_killed_task_runs_again_to_the_same_shard(tmp_path):
-    clean = task(tmp_path / "clean", 40, 2, "--task", "0", "--generators", "1")
+    clean = task(tmp_path / "clean", 16, 2, "--task", "0", "--generators", "1")
     assert clean.returncode == 0, clean.stderr
     out = tmp_path / "killed"
     process = subprocess.Popen(
-        [TASK, "--out", str(out), "--count", "40", "--tasks", "2", "--task", "0", "--config",
-         TINY, "--generators", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        [TASK, "--out", str(out), "--count", "16", "--tasks", "2", "--task", "0", "--config",
+         CONFIG, "--generators", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     partial = out / ".task-00000.partial" / "part-000" / "images"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline:
@@ -136,8 +147,8 @@ def test_killed_task_runs_again_to_the_same_shard(tmp_path):
     assert not left_running(children)
     # killed half way: no shard at all, only the partial folder
     assert not (out / "task-00000").exists()
-    assert 2 <= len(os.listdir(partial)) < 20
-    again = task(out, 40, 2, "--task", "0", "--generators", "1")
+    assert 2 <= len(os.listdir(partial)) < 8
+    again = task(out, 16, 2, "--task", "0", "--generators", "1")
     assert again.returncode == 0, again.stderr
     assert sorted(os.listdir(out)) == ["task-00000"]
     assert files_of(out / "task-00000", ()) == files_of(tmp_path / "clean" / "task-00000", ())

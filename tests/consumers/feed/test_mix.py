@@ -1,5 +1,5 @@
 """Real labelled images mixed into the stream (StreamDataset's mix and mix_fraction): the share
-over 1,000 samples, the labels a real sample carries, the same draws for the same seed, and the
+over 192 samples, the labels a real sample carries, the same draws for the same seed, and the
 readers of the folders (COCO and labelme)."""
 
 import json
@@ -24,11 +24,11 @@ def photos(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def long_log(tmp_path_factory):
-    """A log to replay as 752 samples: the fixture's 4 scenes, each recorded 188 times."""
+    """A log to replay as 144 samples: the fixture's 4 scenes, each recorded 36 times."""
     path = str(tmp_path_factory.mktemp("log") / "long.lcmlog")
     scenes = list(stackgen.Stream("file://" + TINY_LOG, open_bus=True))
     recorder = stackgen.LogRecorder(path)
-    for _ in range(188):
+    for _ in range(36):
         for scene in scenes:
             recorder.append(scene)
     del recorder
@@ -44,13 +44,13 @@ def samples(long_log, photos, seed, workers=2, fraction=0.25):
             for images, targets in loader for image, target in zip(images, targets)]
 
 
-# a quarter of 1,000 samples are real, in both workers; each real one carries its photo's
+# a quarter of 192 samples are real, in both workers; each real one carries its photo's
 # labels, augmented; every photo is used, evenly; the same seed gives the same samples
 def test_mix_fraction_and_draws(long_log, photos):
     got = samples(long_log, photos, seed=3)
     real = [(image, target) for image, target in got if int(target["scene"][0]) == -1]
     synthetic = len(got) - len(real)
-    assert synthetic == 752
+    assert synthetic == 144
     assert abs(len(real) / len(got) - 0.25) <= 0.02
     assert abs(len(real) - 0.25 * len(got)) <= 2  # within one per worker
     folder = CocoDataset(photos)

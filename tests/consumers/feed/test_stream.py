@@ -13,7 +13,24 @@ from torch.utils.data import DataLoader
 
 import stackgen
 import stackgen.torch as sgt
-from conftest import BIN, TINY_LOG, free_url, generator_argv
+from conftest import BIN, TINY_CONFIG, TINY_LOG, free_url, generator_argv, quick_config
+
+CONFIG = TINY_CONFIG  # the generators' config: the tiny one, one lighting environment (below)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def quick_tiny(tmp_path_factory):
+    """Every generator of this file on conftest.quick_config: a generator prepares the config's
+    lighting environments when it starts, most of a short run's time."""
+    global CONFIG
+    CONFIG = quick_config(tmp_path_factory.mktemp("config"))
+    yield CONFIG
+    CONFIG = TINY_CONFIG
+
+
+def quick_generator(url, count, cache_dir, *extra, **options):
+    """A generator's command line (conftest.generator_argv) on that config."""
+    return generator_argv(url, count, cache_dir, *extra, config=CONFIG, **options)
 
 
 # the scenes a reliable stream hands out are the ones stackgen-coco stores for the same run:
@@ -25,7 +42,7 @@ def test_stream_equals_what_stackgen_coco_stores(tmp_path, processes):
                       count, "--lcm-url", url], "coco")
     assert coco.wait_for_output("listening", 10), coco.stderr()
     with stackgen.Stream(url, reliable=True, count=count, timeout=60, depth=True) as stream:
-        generator = processes(generator_argv(url, count, tmp_path / "cache"), "stackgen")
+        generator = processes(quick_generator(url, count, tmp_path / "cache"), "stackgen")
         scenes = list(stream)
     assert generator.wait(60) == 0, generator.stderr()
     assert coco.wait(60) == 0, coco.stderr()
@@ -91,8 +108,8 @@ def test_stream_equals_what_stackgen_coco_stores(tmp_path, processes):
 def test_reliable_stream_misses_nothing_under_loss(tmp_path, processes):
     url, count = free_url(), 16
     with stackgen.Stream(url, reliable=True, count=count, timeout=60, fault_drop=0.3) as stream:
-        generator = processes(generator_argv(url, count, tmp_path / "cache", "--fault-drop", "0.1"),
-                              "stackgen")
+        generator = processes(quick_generator(url, count, tmp_path / "cache", "--fault-drop",
+                                              "0.1"), "stackgen")
         seqs = [scene.seq for scene in stream]
     # the counters after close: while live they are refreshed every 20 ms, so a scene asked
     # for again and handed out last may still count as lost for that long
@@ -109,8 +126,8 @@ def test_reliable_stream_misses_nothing_under_loss(tmp_path, processes):
 def test_best_effort_stream_never_holds_the_generator(tmp_path, processes):
     url, count = free_url(), 10
     with stackgen.Stream(url, reliable=False, queue=2, timeout=60) as stream:
-        generator = processes(generator_argv(url, count, tmp_path / "cache", "--no-consumer-ok"),
-                              "stackgen")
+        generator = processes(quick_generator(url, count, tmp_path / "cache",
+                                              "--no-consumer-ok"), "stackgen")
         first = stream.next(timeout=60)
         assert generator.wait(60) == 0, generator.stderr()
         counters = stream.counters
@@ -127,7 +144,7 @@ def test_two_workers_never_see_the_same_scene(tmp_path, processes):
     dataset = sgt.StreamDataset(url, count=count, timeout=60, window=4)
     loader = DataLoader(dataset, batch_size=1, num_workers=2, collate_fn=sgt.collate)
     batches = iter(loader)
-    generator = processes(generator_argv(url, count, tmp_path / "cache"), "stackgen")
+    generator = processes(quick_generator(url, count, tmp_path / "cache"), "stackgen")
     keys = [tuple(target["scene"][:2].tolist()) for _, targets in batches for target in targets]
     assert generator.wait(60) == 0, generator.stderr()
     assert sorted(keys) == [(0, seq) for seq in range(count)]
@@ -144,7 +161,7 @@ from torch.utils.data import DataLoader
 import stackgen.torch as sgt
 dist.init_process_group("gloo", init_method="file://" + sys.argv[2], rank=int(sys.argv[3]),
                         world_size=2)
-dataset = sgt.StreamDataset(sys.argv[1], count=16, timeout=60, window=4)
+dataset = sgt.StreamDataset(sys.argv[1], count=8, timeout=60, window=4)
 loader = DataLoader(dataset, batch_size=1, num_workers=2, collate_fn=sgt.collate)
 keys = [target["scene"][:2].tolist() for _, targets in loader for target in targets]
 json.dump(keys, open(sys.argv[4], "w"))
@@ -159,7 +176,7 @@ def test_ranks_never_see_the_same_scene(tmp_path, processes):
     url = free_url()
     # a generator that runs until stopped: each rank's streams take their shards from the scene
     # they first hear on
-    generator = processes(generator_argv(url, 0, tmp_path / "cache"), "stackgen")
+    generator = processes(quick_generator(url, 0, tmp_path / "cache"), "stackgen")
     (tmp_path / "rank.py").write_text(RANK_SCRIPT)
     ranks = [subprocess.Popen([sys.executable, str(tmp_path / "rank.py"), url,
                                str(tmp_path / "rendezvous"), str(rank),
@@ -171,7 +188,7 @@ def test_ranks_never_see_the_same_scene(tmp_path, processes):
     assert generator.wait(60) == 0, generator.stderr()
     keys = [json.loads((tmp_path / ("rank%d.json" % rank)).read_text()) for rank in (0, 1)]
     for rank, taken in enumerate(keys):
-        assert len(taken) == 8 and len({tuple(key) for key in taken}) == 8, taken
+        assert len(taken) == 4 and len({tuple(key) for key in taken}) == 4, taken
         assert {seq % 4 for _, seq in taken} <= {2 * rank, 2 * rank + 1}, (rank, taken)
     assert not {tuple(key) for key in keys[0]} & {tuple(key) for key in keys[1]}
     for bad in (dict(rank=1), dict(rank=2, world_size=2), dict(rank=0, world_size=True)):
@@ -184,7 +201,7 @@ def test_ranks_never_see_the_same_scene(tmp_path, processes):
 def test_reuse_keeps_a_fast_learner_busy(tmp_path, processes):
     url, count, reuse = free_url(), 4, 3
     dataset = sgt.StreamDataset(url, count=count, reuse=reuse, timeout=60)
-    generator = processes(generator_argv(url, count, tmp_path / "cache"), "stackgen")
+    generator = processes(quick_generator(url, count, tmp_path / "cache"), "stackgen")
     meter = sgt.ReuseMeter()
     uses = collections.defaultdict(list)
     for _, target in dataset:
@@ -201,23 +218,25 @@ def test_reuse_keeps_a_fast_learner_busy(tmp_path, processes):
 
 # a reliable stream that attaches to a generator which has been running for a while takes it
 # from the scene it first hears, lossless from there on; the generator is not made to go back
-# over its history (a writer would collect it from seq 0, regenerating what left its ring)
+# over its history (a writer would collect it from seq 0, regenerating what left its ring: a
+# ring of 4 scenes here, so that 8 scenes are history enough)
 def test_reliable_stream_joins_a_running_generator(tmp_path, processes):
     import signal
     import time
 
     url = free_url()
     monitor = stackgen.StatusMonitor(url)
-    generator = processes(generator_argv(url, 0, tmp_path / "cache"), "stackgen")
+    generator = processes(quick_generator(url, 0, tmp_path / "cache", "--resend-ring", "4"),
+                          "stackgen")
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
         published = [s["next_seq"] for s in monitor.latest("stackgen")]
-        if published and published[0] > 20:
+        if published and published[0] > 8:
             break
         time.sleep(0.1)
     with stackgen.Stream(url, reliable=True, count=6, timeout=60) as stream:
         seqs = [scene.seq for scene in stream]
-    assert seqs[0] > 20
+    assert seqs[0] > 8
     assert seqs == list(range(seqs[0], seqs[0] + 6))
     time.sleep(1.5)  # a status of the generator after the stream left
     generator.popen.send_signal(signal.SIGINT)
@@ -233,8 +252,8 @@ def test_worker_that_ends_early_leaves(tmp_path, processes):
 
     url = free_url()
     monitor = stackgen.StatusMonitor(url)
-    generator = processes(generator_argv(url, 0, tmp_path / "cache", "--consumer-timeout", "60"),
-                          "stackgen")
+    generator = processes(quick_generator(url, 0, tmp_path / "cache", "--consumer-timeout",
+                                          "60"), "stackgen")
     loader = DataLoader(sgt.StreamDataset(url, timeout=60), batch_size=1, num_workers=1,
                         collate_fn=sgt.collate)
 
@@ -281,7 +300,7 @@ def test_bad_copy_does_not_move_where_a_stream_joins(tmp_path, processes):
         while time.monotonic() < deadline and stream.counters["bad_messages"] == 0:
             time.sleep(0.05)
         assert stream.counters["bad_messages"] == 1
-        processes(generator_argv(url, 3, tmp_path / "cache", generator_id=5), "stackgen")
+        processes(quick_generator(url, 3, tmp_path / "cache", generator_id=5), "stackgen")
         seqs = [scene.seq for scene in stream]
     assert seqs == [0, 1, 2]
 
@@ -305,8 +324,8 @@ def test_stream_with_another_key_says_so(tmp_path, processes):
                            "signed with another bus key"),
                           (dict(open_bus=True, reliable=True), "runs with an open bus")):
         url = free_url()
-        with stackgen.Stream(url, timeout=8, **options) as stream:
-            processes(generator_argv(url, 20, tmp_path / "cache"), "stackgen")
+        with stackgen.Stream(url, timeout=5, **options) as stream:
+            processes(quick_generator(url, 20, tmp_path / "cache"), "stackgen")
             with pytest.raises(stackgen.StreamError) as error:
                 for _ in stream:
                     pass

@@ -298,11 +298,17 @@ void ValidateLighting(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckOrdered(n, "lighting", "distance_min_mm", light.distance_min_mm(), "distance_max_mm",
                light.distance_max_mm());
   if (light.color_temperature_min_k() != 0 || light.color_temperature_max_k() != 0) {
-    // (0 and 0: no colour temperature drawn; else the range of real light sources)
-    CheckRange(n, "lighting", "color_temperature_min_k", light.color_temperature_min_k(), 1667,
-               25000);
-    CheckRange(n, "lighting", "color_temperature_max_k", light.color_temperature_max_k(), 1667,
-               25000);
+    // (0 and 0: no colour temperature drawn; else from the reddest the Planckian fit covers)
+    constexpr double kReddestK = 1667;
+    for (const auto& [field, value] :
+         {std::make_pair("color_temperature_min_k", light.color_temperature_min_k()),
+          std::make_pair("color_temperature_max_k", light.color_temperature_max_k())}) {
+      if (value < kReddestK) {
+        throw ConfigError(n.Where("lighting", field) + ": " + Number(value) +
+                          " is out of range: 0 (with the other 0) or at least " +
+                          Number(kReddestK));
+      }
+    }
     CheckOrdered(n, "lighting", "color_temperature_min_k", light.color_temperature_min_k(),
                  "color_temperature_max_k", light.color_temperature_max_k());
   }

@@ -267,6 +267,25 @@ TEST(ConfigTest, CameraLooksDown) {
   EXPECT_LT(plus_y.y(), 0);
 }
 
+// Colour temperatures: both 0 (white lights) or both from 1667 K on, the lower first.
+TEST(ConfigTest, ColourTemperaturesAreOffOrFromTheReddest) {
+  EXPECT_EQ(ErrorOf("lighting { color_temperature_min_k: 0 color_temperature_max_k: 0 }"), "");
+  EXPECT_EQ(ErrorOf("lighting { color_temperature_min_k: 2700 color_temperature_max_k: 6500 }"),
+            "");
+  const std::string low =
+      ErrorOf("lighting { color_temperature_min_k: 1000 color_temperature_max_k: 6500 }");
+  EXPECT_NE(low.find("lighting.color_temperature_min_k: 1000 is out of range"), std::string::npos)
+      << low;
+  const std::string half = ErrorOf("lighting { color_temperature_max_k: 6500 }");
+  EXPECT_NE(half.find("lighting.color_temperature_min_k (default): 0 is out of range"),
+            std::string::npos)
+      << half;
+  const std::string order =
+      ErrorOf("lighting { color_temperature_min_k: 6500 color_temperature_max_k: 2700 }");
+  EXPECT_NE(order.find("lighting.color_temperature_max_k: 2700 is below"), std::string::npos)
+      << order;
+}
+
 // Every number of the schema (each numeric field of each message a config holds) states its
 // range once, as the (range) option of types/stackgen_config.proto, and its default keeps it.
 TEST(ConfigSchemaTest, EveryNumberStatesItsRangeAndItsDefaultKeepsIt) {

@@ -432,7 +432,7 @@ MovedOn Moved(const PileResult& published, const PileResult& after) {
   return moved;
 }
 
-// Connector piles published by the default settle rule (0.1 mm and 0.1 degree over 1 s) are at
+// Connector piles published by the default settle rule (0.1 mm and 0.1 degree over 2 s) are at
 // rest: simulated on in the same world until every part moved less than 0.1 mm and 0.1 degree
 // over 1 s (60 s at most), none of the 24 parts of 2 piles moves more than 1 mm or 1 degree, and
 // the heaps do not sink. The landed rule (1 mm, 1 degree over 0.25 s) publishes a pile with a

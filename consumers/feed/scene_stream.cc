@@ -198,7 +198,6 @@ struct SceneStream::Impl {
   void OnLiveScene(const scene& message) {
     const int32_t generator_id = message.header.generator_id;
     const int64_t seq = message.header.seq;
-    const bool reliable = session->reliable();
     if (!SceneIdsInRange(generator_id, seq)) {
       CountBad();
       session->CountRefused();
@@ -343,7 +342,7 @@ struct SceneStream::Impl {
         const std::lock_guard<std::mutex> lock(mutex);
         skipped.swap(skipped_pending);
       }
-      if (!session->reliable()) return;
+      if (!reliable) return;
       for (const auto& [generator_id, seq] : handed) session->Stored(generator_id, seq);
       for (const auto& [generator_id, seq] : skipped) session->Skipped(generator_id, seq);
       session->Credit();

@@ -277,7 +277,7 @@ void ValidateBin(const config::GeneratorConfig& c, const FieldNamer& n) {
 
 // the camera's own fields
 void ValidateCameraFields(const config::GeneratorConfig& c, const FieldNamer& n) {
-  // camera
+  // (the principal point within the image: its ranges depend on the size)
   const config::CameraConfig& camera = c.camera();
   if (camera.cx() >= 0) CheckRange(n, "camera", "cx", camera.cx(), 0, camera.width() - 1);
   if (camera.cy() >= 0) CheckRange(n, "camera", "cy", camera.cy(), 0, camera.height() - 1);

@@ -7,8 +7,7 @@ import re
 def quick_config(folder, source, halls=1):
     """The config `source` written into `folder` as quick.pbtxt, with `halls` procedural
     environments instead of its 8: a generator, and `stackgen --check`, prepares every
-    environment when it starts (about 1.7 s for 8 on this CPU; 0.2 s for one), which is most of
-    a short run's time. The piles are the config's (same parts, camera, physics); the images
+    environment when it starts, most of a short run's time (docs/results.md, "Tests"). The piles are the config's (same parts, camera, physics); the images
     are lit by fewer environments. Relative mesh paths are made absolute, as the copy is read
     from another folder. Returns its path."""
     with open(source) as file:

@@ -29,8 +29,8 @@ def losses(csv):
 
 # a live run of a few steps on the small config lowers the loss (fixed seeds), prints the rates
 # and the reuse factor, and its recording trains again to the same losses, step by step. (Eight
-# steps with 16 RoIs an image, the mask head's cost: the last three steps' mean loss was 0.50 to
-# 0.59 times the first three's with --seed and --scene-seed 0 to 3; the test wants below 0.8.)
+# steps with 16 RoIs an image, the mask head's cost; the margin over seeds: docs/results.md,
+# "Tests".)
 def test_live_training_lowers_the_loss_and_replays_bit_for_bit(tmp_path):
     log = tmp_path / "run.lcmlog"
     # (a generator of the tiny config with one lighting environment: conftest.quick_config)

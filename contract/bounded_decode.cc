@@ -450,7 +450,8 @@ bool ReadScene(Reader& reader, scene* m) {
   return reader.Struct("header", &m->header) && reader.Struct("camera", &m->camera) &&
          ReadInstances(reader, &m->num_instances, &m->instances) &&
          ReadImage(reader, "color", &m->color) && ReadImage(reader, "depth", &m->depth) &&
-         ReadImage(reader, "instance_map", &m->instance_map);
+         ReadImage(reader, "instance_map", &m->instance_map) &&
+         ReadImage(reader, "depth_sensor", &m->depth_sensor);
 }
 
 bool ReadLabels(Reader& reader, labels* m) {

@@ -96,7 +96,7 @@ bool Refuse(std::string reason, std::string* why);
 /// (268435456)"), and `*out` unchanged. Bytes left over after the message are refused too, and
 /// strings that LCM would not write (no NUL at the end, one inside). Never throws for bad input.
 ///
-/// Images (scene color, depth, instance_map; an image message): width and height >= 0, width *
+/// Images (scene color, depth, instance_map, depth_sensor; an image message): width and height >= 0, width *
 /// height <= max_image_pixels, pixel_format and encoding known values; size 0 is accepted as "no
 /// image" (whatever the encoding). With data: width and height > 0, pixel_format and encoding
 /// not INVALID, RAW size == width * height * bytes per pixel (3, 1, 2, 2), PNG and JPEG size <=

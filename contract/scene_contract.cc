@@ -149,8 +149,8 @@ bool CheckCamera(const camera_info& camera, std::string* why) {
   return true;
 }
 
-// The images of `message`: colour always, depth and the instance map when sent, each of the
-// camera's size and of a pixel format it may have.
+// The images of `message`: colour always, depth, the instance map and the sensor's depth when
+// sent, each of the camera's size and of a pixel format it may have.
 bool CheckImages(const scene& message, std::string* why) {
   const int width = message.camera.width, height = message.camera.height;
   if (message.color.size == 0) return Refuse("the scene has no color image", why);
@@ -165,6 +165,11 @@ bool CheckImages(const scene& message, std::string* why) {
   if (message.instance_map.size != 0 &&
       !CheckImage(message.instance_map, "instance_map", width, height, {image::PIXEL_INSTANCE16},
                   "INSTANCE16", why)) {
+    return false;
+  }
+  if (message.depth_sensor.size != 0 &&
+      !CheckImage(message.depth_sensor, "depth_sensor", width, height, {image::PIXEL_DEPTH16},
+                  "DEPTH16", why)) {
     return false;
   }
   return true;

@@ -44,9 +44,12 @@ constexpr int kMaskPngCompression = 1;
 
 // the folders of a chunk's images
 constexpr const char* kDepthFolder = "depth";
+constexpr const char* kDepthIdealFolder = "depth_ideal";
+constexpr const char* kPointsFolder = "points";
 constexpr const char* kMaskFolder = "mask";
 constexpr const char* kMaskVisibFolder = "mask_visib";
-const char* const kImageFolders[] = {"rgb", "gray", kDepthFolder, kMaskFolder, kMaskVisibFolder};
+const char* const kImageFolders[] = {"rgb",       "gray", kDepthFolder, kDepthIdealFolder,
+                                     kPointsFolder, kMaskFolder, kMaskVisibFolder};
 
 // six digits, as BOP names its files and folders
 std::string Six(int64_t value) {
@@ -135,6 +138,8 @@ void WriteShards(const fs::path& chunk, int64_t scene_id,
     members.emplace_back(key + "." + rgb.substr(0, slash) + rgb.substr(dot), read(rgb));
     members.emplace_back(key + ".depth.png",
                          read(std::string(kDepthFolder) + "/" + Six(im_id) + ".png"));
+    const std::string ideal = std::string(kDepthIdealFolder) + "/" + Six(im_id) + ".png";
+    if (fs::exists(chunk / ideal)) members.emplace_back(key + ".depth_ideal.png", read(ideal));
     members.emplace_back(key + ".camera.json", ToolkitText(record.at("camera")));
     members.emplace_back(key + ".gt.json", ToolkitText(record.at("gt")));
     members.emplace_back(key + ".gt_info.json", ToolkitText(record.at("gt_info")));
@@ -464,6 +469,13 @@ bool BopWriter::Add(const scene& scene) {
   if (color.empty()) FailScene(scene, "color." + why);
   const cv::Mat depth = DecodeImage(scene.depth, &why);
   if (depth.empty()) FailScene(scene, "depth." + why);
+  // a 3D camera's depth goes to depth/, the exact one beside it
+  const bool sensor = scene.depth_sensor.size > 0;
+  cv::Mat sensor_depth;
+  if (sensor) {
+    sensor_depth = DecodeImage(scene.depth_sensor, &why);
+    if (sensor_depth.empty()) FailScene(scene, "depth_sensor." + why);
+  }
 
   // where its files go
   const camera_info& camera = scene.camera;
@@ -479,6 +491,8 @@ bool BopWriter::Add(const scene& scene) {
          {gray ? "gray" : "rgb", kDepthFolder, kMaskFolder, kMaskVisibFolder}) {
       CreateFolders(chunk_path / folder);
     }
+    if (sensor) CreateFolders(chunk_path / kDepthIdealFolder);
+    if (options_.point_clouds) CreateFolders(chunk_path / kPointsFolder);
     const FileWriter write = [&](const std::string& relative, const std::vector<uint8_t>& bytes) {
       const fs::path path = chunk_path / relative;
       staged.files.push_back(path.string());
@@ -489,8 +503,19 @@ bool BopWriter::Add(const scene& scene) {
     const bool keep_color = scene.color.encoding == image::ENCODING_JPEG ||
                             (scene.color.encoding == image::ENCODING_PNG && !jpeg);
     write(rgb_name, keep_color ? scene.color.data : EncodeImage(color, -1, options_.jpeg_quality));
+    const auto depth_file = [](const image& message, const cv::Mat& pixels) {
+      return message.encoding == image::ENCODING_PNG ? message.data : EncodeImage(pixels, -1);
+    };
     write(std::string(kDepthFolder) + "/" + Six(im_id) + ".png",
-          scene.depth.encoding == image::ENCODING_PNG ? scene.depth.data : EncodeImage(depth, -1));
+          sensor ? depth_file(scene.depth_sensor, sensor_depth) : depth_file(scene.depth, depth));
+    if (sensor) {
+      write(std::string(kDepthIdealFolder) + "/" + Six(im_id) + ".png",
+            depth_file(scene.depth, depth));
+    }
+    if (options_.point_clouds) {
+      write(std::string(kPointsFolder) + "/" + Six(im_id) + ".ply",
+            PointCloudPly(sensor ? sensor_depth : depth, camera));
+    }
 
     // the ground truths, by instance id, and their mask images
     GroundTruths truths = MakeGroundTruths(scene, im_id, depth, write, &staged.classes);

@@ -32,6 +32,9 @@ struct BopWriterOptions {
   /// into place, its journal line held) and Commit makes the staged scenes durable at once (one
   /// syncfs, one journal write and sync). Without, every Add is durable when it returns.
   bool group_commit = false;
+  /// Also each image's depth as an organised point cloud, SCENE_ID/points/IM_ID.ply (see the
+  /// class comment). Default false.
+  bool point_clouds = false;
 };
 
 /// Streams stackgen::scene messages into a dataset in the BOP-scenewise format
@@ -42,7 +45,12 @@ struct BopWriterOptions {
 ///   DIR/models/obj_OBJ_ID.ply            the mesh of each class, ASCII PLY with normals, mm
 ///   DIR/models/models_info.json          diameter, min_x/y/z, size_x/y/z, symmetries
 ///   DIR/SPLIT/SCENE_ID/rgb/IM_ID.png     colour (.jpg with jpeg_quality; gray/ for GRAY8 scenes)
-///   DIR/SPLIT/SCENE_ID/depth/IM_ID.png   uint16 depth; depth_mm = value * depth_scale
+///   DIR/SPLIT/SCENE_ID/depth/IM_ID.png   uint16 depth; depth_mm = value * depth_scale: as the
+///                                        3D camera measures it when the scenes carry its depth
+///                                        (config sensor_3d; 0 = no depth), else the exact depth
+///   DIR/SPLIT/SCENE_ID/depth_ideal/IM_ID.png   the exact depth, beside the 3D camera's only
+///   DIR/SPLIT/SCENE_ID/points/IM_ID.ply  with point_clouds: depth/'s points in the camera frame,
+///                                        mm, an organised cloud (PointCloudPly, model_files.h)
 ///   DIR/SPLIT/SCENE_ID/mask/IM_ID_GT_ID.png, mask_visib/IM_ID_GT_ID.png   0/255 masks
 ///   DIR/SPLIT/SCENE_ID/scene_camera.json, scene_gt.json, scene_gt_info.json, scene_gt_coco.json
 ///
@@ -69,7 +77,8 @@ struct BopWriterOptions {
 ///
 ///   DIR/shards/shard-SHARD_ID.tar        at most N images, by key; each image KEY =
 ///                                        SCENE_ID_IM_ID has KEY.rgb.png (or .jpg; gray.png),
-///                                        KEY.depth.png, KEY.camera.json, KEY.gt.json,
+///                                        KEY.depth.png (KEY.depth_ideal.png beside a 3D
+///                                        camera's), KEY.camera.json, KEY.gt.json,
 ///                                        KEY.gt_info.json, KEY.mask.json, KEY.mask_visib.json
 ///                                        (gt id -> uncompressed COCO RLE, as the toolkit's)
 ///   DIR/shards/key_to_shard.json         every key -> its SHARD_ID

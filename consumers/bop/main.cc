@@ -22,21 +22,23 @@ struct Flags {
   std::string split = "train_pbr";
   int64_t jpeg_quality = 0;
   int64_t shards = 0;
+  bool point_clouds = false;
 };
 
 void PrintHelp() {
   std::printf(
       "Usage: %s --out DIR [--count N] [--resume] [--lcm-url URL]\n"
       "       [--bus-key-file FILE | --open-bus] [--replay]\n"
-      "       [--split NAME] [--jpeg-quality Q] [--shards N] [--window N] [--group-commit N]\n"
-      "       [--fault-drop F]\n"
+      "       [--split NAME] [--jpeg-quality Q] [--shards N] [--point-clouds] [--window N]\n"
+      "       [--group-commit N] [--fault-drop F]\n"
       "\n"
       "Writes every scene published on %s into a dataset in the BOP format\n"
       "(thodan/bop_toolkit docs/bop_datasets_format.md), for training and evaluating 6D pose\n"
       "estimators:\n"
       "  DIR/camera.json, DIR/models/obj_OBJ_ID.ply and models_info.json (from %s),\n"
       "  DIR/SPLIT/SCENE_ID/{rgb,depth,mask,mask_visib}/ and scene_camera.json,\n"
-      "  scene_gt.json, scene_gt_info.json, scene_gt_coco.json.\n"
+      "  scene_gt.json, scene_gt_info.json, scene_gt_coco.json. Scenes with a 3D camera's depth\n"
+      "  (config sensor_3d) store it in depth/ and the exact depth in depth_ideal/.\n"
       "OBJ_ID is the class id; a SCENE_ID folder (a chunk) holds 1000 consecutive scenes of one\n"
       "generator: SCENE_ID = generator_id * 1000000 + seq / 1000, image id = seq %% 1000.\n"
       "Every labelled instance is a ground truth (distractors are not objects of the dataset);\n"
@@ -64,6 +66,10 @@ void PrintHelp() {
       "                        and key_to_shard.json), to stream a large set into a DataLoader\n"
       "                        (default 0: none). Shard ID = SCENE_ID * ceil(1000 / N) + image\n"
       "                        id / N.\n"
+      "  --point-clouds        also write each image's depth (the 3D camera's where there is\n"
+      "                        one) as an organised point cloud, SCENE_ID/points/IM_ID.ply:\n"
+      "                        binary PLY, width x height points in the camera frame, mm, NaN\n"
+      "                        where there is no depth (default: none).\n"
       "  --help                print this help and exit.\n"
       "\n"
       "Exit status: 0 done, 1 error, 2 bad command line.\n",
@@ -80,6 +86,7 @@ int main(int argc, char** argv) {
   parser.String("--split", &flags.split, "a folder name");
   parser.Int("--jpeg-quality", &flags.jpeg_quality, 0, 100);
   parser.Int("--shards", &flags.shards, 0, 1000);
+  parser.Switch("--point-clouds", &flags.point_clouds);
   parser.ParseOrExit(argc, argv, PrintHelp);
 
   stackgen::WriterProgram program;
@@ -90,6 +97,7 @@ int main(int argc, char** argv) {
     options.split = flags.split;
     options.jpeg_quality = static_cast<int>(flags.jpeg_quality);
     options.shard_images = static_cast<int>(flags.shards);
+    options.point_clouds = flags.point_clouds;
     options.resume = writer_flags.resume;
     options.group_commit = writer_flags.group_commit > 1;
     return std::make_unique<stackgen::BopWriter>(writer_flags.out, options);

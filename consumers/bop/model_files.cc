@@ -1,8 +1,11 @@
 #include "consumers/bop/model_files.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
+#include <stdexcept>
 
 namespace stackgen {
 
@@ -63,6 +66,40 @@ json ModelInfo(const model& m) {
     info["symmetries_continuous"] = std::move(continuous);
   }
   return info;
+}
+
+std::vector<uint8_t> PointCloudPly(const cv::Mat& depth, const camera_info& camera) {
+  if (depth.type() != CV_16UC1 || depth.cols != camera.width || depth.rows != camera.height) {
+    throw std::invalid_argument("PointCloudPly: the depth image must be CV_16UC1 of the camera's " +
+                                std::to_string(camera.width) + " x " +
+                                std::to_string(camera.height) + " pixels");
+  }
+  const std::string header =
+      "ply\nformat binary_little_endian 1.0\ncomment stackgen depth, camera frame (OpenCV), "
+      "millimetres; NaN = no depth\nobj_info num_cols " +
+      std::to_string(depth.cols) + "\nobj_info num_rows " + std::to_string(depth.rows) +
+      "\nelement vertex " + std::to_string(depth.total()) +
+      "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  std::vector<uint8_t> bytes(header.begin(), header.end());
+  bytes.resize(header.size() + depth.total() * 3 * sizeof(float));
+  uint8_t* out = bytes.data() + header.size();
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (int v = 0; v < depth.rows; ++v) {
+    const uint16_t* row = depth.ptr<uint16_t>(v);
+    for (int u = 0; u < depth.cols; ++u) {
+      float point[3] = {nan, nan, nan};
+      if (row[u] != 0) {
+        const double z = row[u] * camera.depth_scale_mm;
+        point[0] = static_cast<float>((u - camera.cx) * z / camera.fx);
+        point[1] = static_cast<float>((v - camera.cy) * z / camera.fy);
+        point[2] = static_cast<float>(z);
+      }
+      static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "the PLY says little-endian");
+      std::memcpy(out, point, sizeof(point));
+      out += sizeof(point);
+    }
+  }
+  return bytes;
 }
 
 }  // namespace stackgen

@@ -250,6 +250,17 @@ void BindSceneImages(SceneClass& scene) {
           "is_gray",
           [](const FeedScene& s) { return s.message().color.pixel_format == image::PIXEL_GRAY8; })
       .def_property_readonly("has_depth", &FeedScene::has_depth)
+      .def_property_readonly("has_depth_sensor", &FeedScene::has_depth_sensor)
+      .def_property_readonly("depth_sensor",
+                             [](py::object self) {
+                               FeedScene& s = self.cast<FeedScene&>();
+                               cv::Mat mat;
+                               {
+                                 py::gil_scoped_release release;
+                                 mat = s.DepthSensor();
+                               }
+                               return MatToArray(mat, self);
+                             })
       .def_property_readonly("color",
                              [](py::object self) {
                                FeedScene& s = self.cast<FeedScene&>();

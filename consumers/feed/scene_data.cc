@@ -53,6 +53,7 @@ void FeedScene::Prepare(bool color, bool depth, bool instance_map) {
     if (color) Color();
     if (instance_map) InstanceMap();
     if (depth && has_depth()) Depth();
+    if (depth && has_depth_sensor()) DepthSensor();
   } catch (const std::exception& error) {
     why = error.what();
   }
@@ -85,6 +86,9 @@ bool FeedScene::WaitPrepared(std::string* why) {
 
 cv::Mat FeedScene::Color() { return Decoded(&color_, message_.color, "color"); }
 cv::Mat FeedScene::Depth() { return Decoded(&depth_, message_.depth, "depth"); }
+cv::Mat FeedScene::DepthSensor() {
+  return Decoded(&depth_sensor_, message_.depth_sensor, "depth_sensor");
+}
 cv::Mat FeedScene::InstanceMap() {
   return Decoded(&instance_map_, message_.instance_map, "instance_map");
 }

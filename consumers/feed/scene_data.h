@@ -27,7 +27,7 @@ class FeedError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-/// The image of `field` ("color", "depth", "instance_map") decoded: RGB8 as CV_8UC3 in R, G, B
+/// The image of `field` ("color", "depth", "instance_map", "depth_sensor") decoded: RGB8 as CV_8UC3 in R, G, B
 /// order, GRAY8 as CV_8UC1, DEPTH16 and INSTANCE16 as CV_16UC1. A RAW image is not copied: the
 /// matrix points into `message.data`, which must outlive it. Throws FeedError naming the field
 /// if the data does not decode to the size and format the message declares.
@@ -57,12 +57,18 @@ class FeedScene {
   cv::Mat InstanceMap();
   /// Whether the scene carries a depth image.
   bool has_depth() const { return message_.depth.size > 0; }
+  /// The 3D camera's depth (config sensor_3d; CV_16UC1, mm = value * camera.depth_scale_mm,
+  /// 0 = no depth). Throws FeedError if the scene has none or it does not decode.
+  cv::Mat DepthSensor();
+  /// Whether the scene carries a 3D camera's depth.
+  bool has_depth_sensor() const { return message_.depth_sensor.size > 0; }
 
   /// How many times the stream handed this same scene out before (a recording that repeats a
   /// scene for each use; 0 otherwise).
   int64_t occurrence = 0;
 
-  /// Decodes the images asked for (those already decoded are kept) and marks the scene
+  /// Decodes the images asked for (depth: both depths the scene has; those already decoded are
+  /// kept) and marks the scene
   /// prepared: ready when they decoded, failed with the reason otherwise. Never throws.
   void Prepare(bool color, bool depth, bool instance_map);
   /// Marks the scene failed with `why` (it will not be prepared).
@@ -79,6 +85,7 @@ class FeedScene {
   std::optional<cv::Mat> color_;
   std::optional<cv::Mat> depth_;
   std::optional<cv::Mat> instance_map_;
+  std::optional<cv::Mat> depth_sensor_;
   // Prepare's outcome: 0 not yet, 1 ready, 2 failed (`failure` says why)
   std::mutex prepared_mutex_;
   std::condition_variable prepared_changed_;

@@ -211,6 +211,23 @@ void ApplyCameraPreset(config::CameraConfig* camera, const FieldNamer& n) {
   if (!camera->has_fy()) camera->set_fy(focal_px);
 }
 
+// fills the 3D camera's fields from its preset, keeping fields the file sets (the field
+// defaults are the structured-light preset).
+void ApplySensor3dPreset(config::Sensor3dConfig* sensor, const FieldNamer& n) {
+  if (sensor->preset() == "structured_light") return;
+  if (sensor->preset() != "active_stereo") {
+    throw ConfigError(n.Where("sensor_3d", "preset") + ": unknown 3D camera '" +
+                      sensor->preset() + "'; known: structured_light, active_stereo");
+  }
+  if (!sensor->has_baseline_mm()) sensor->set_baseline_mm(55);
+  if (!sensor->has_noise_at_1m_mm()) sensor->set_noise_at_1m_mm(1.6);
+  if (!sensor->has_quantization_mm()) sensor->set_quantization_mm(1);
+  if (!sensor->has_subsample()) sensor->set_subsample(2);
+  if (!sensor->has_min_return()) sensor->set_min_return(0.01);
+  if (!sensor->has_max_return()) sensor->set_max_return(50);
+  if (!sensor->has_flying_pixel_probability()) sensor->set_flying_pixel_probability(0.8);
+}
+
 // the parts, and the objects a scene can hold
 void ValidateParts(const config::GeneratorConfig& c, const FieldNamer& n) {
   // parts
@@ -374,6 +391,18 @@ void ValidateLook(const config::GeneratorConfig& c, const FieldNamer& n) {
   }
   CheckOrdered(n, "rendering", "environment_intensity_min", rendering.environment_intensity_min(),
                "environment_intensity_max", rendering.environment_intensity_max());
+
+  // the 3D camera
+  const config::Sensor3dConfig& sensor_3d = c.sensor_3d();
+  if (sensor_3d.enabled() && rendering.shading() != config::RenderingConfig::PBR) {
+    throw ConfigError(n.Where("sensor_3d", "enabled") +
+                      ": the 3D camera needs rendering.shading PBR (its dropout comes from the "
+                      "physically based materials)");
+  }
+  if (sensor_3d.baseline_mm() == 0) {
+    throw ConfigError(n.Where("sensor_3d", "baseline_mm") +
+                      ": must not be 0 (the projector cannot sit in the camera)");
+  }
 }
 
 // the simulation and the drops
@@ -511,6 +540,7 @@ LoadedConfig ParseConfig(const std::string& text, const std::string& name,
   }
   const FieldNamer namer(name, &tree);
   ApplyCameraPreset(loaded.config.mutable_camera(), namer);
+  ApplySensor3dPreset(loaded.config.mutable_sensor_3d(), namer);
   Validate(loaded.config, namer);
   return loaded;
 }

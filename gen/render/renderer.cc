@@ -567,8 +567,14 @@ void Renderer::Impl::CheckOptions(const CameraModel& camera, const std::vector<L
                                std::to_string(options.background_scale) +
                                " must be finite and >= 0, environment_yaw_deg finite");
     }
+    if (options.projector_return && !options.projector_position_mm.allFinite()) {
+      throw std::runtime_error("Renderer::Render: projector_position_mm is not finite");
+    }
   } else if (options.shading != Shading::kPhong) {
     throw std::runtime_error("Renderer::Render: unknown shading");
+  } else if (options.projector_return) {
+    throw std::runtime_error(
+        "Renderer::Render: projector_return needs physically based shading (Shading::kPbr)");
   }
 }
 
@@ -673,6 +679,7 @@ void Renderer::Impl::RenderPhong(const CameraModel& camera, const RenderOptions&
   glReadBuffer(GL_COLOR_ATTACHMENT2);
   glReadPixels(0, 0, width, height, GL_RED, GL_FLOAT, result->depth_mm.data);
   result->color_linear.release();
+  result->projector_return.release();
   CheckGlError("Renderer::Render");
 
   // the background image where nothing was drawn (camera z 0), copied exactly
@@ -736,6 +743,10 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
             .cast<float>();
     std::memcpy(frame.environment_from_camera, environment_from_camera.data(),
                 sizeof(frame.environment_from_camera));
+    frame.projector = options.projector_return;
+    const Eigen::Vector3f projector_camera =
+        (camera_from_world * options.projector_position_mm).cast<float>();
+    for (int c = 0; c < 3; ++c) frame.projector_camera[c] = projector_camera[c];
     impl.RenderPbr(camera, options, items, result);
     return;
   }

@@ -130,6 +130,11 @@ struct RenderOptions {
   /// Linear radiance of a background pixel whose display value is 1 (background_rgb and
   /// background_image are decoded as sRGB and scaled by this), >= 0.
   float background_scale = 1.f;
+  /// Physically based shading only: also compute, per pixel, how much of a 3D camera's
+  /// projected pattern comes back to this camera (RenderResult::projector_return) from a
+  /// projector (or the active stereo pair's second view) at `projector_position_mm`, world frame.
+  bool projector_return = false;
+  Eigen::Vector3d projector_position_mm{0, 0, 0};
 };
 
 /// The images of one render, all camera.width x camera.height, row 0 at the top.
@@ -140,6 +145,14 @@ struct RenderResult {
   cv::Mat color_linear;
   cv::Mat depth_mm;  // CV_32FC1, z of the surface in the camera frame, mm; 0 where nothing drawn
   cv::Mat instance;  // CV_16UC1, instance_id of the nearest surface, 0 = background or non-object
+  /// CV_32FC1, with RenderOptions::projector_return only (empty otherwise): the radiance this
+  /// camera receives from the projector's light reflected by the surface of the pixel's centre,
+  /// relative to a white matte surface facing the projector (pi x BRDF x cos, averaged over
+  /// R, G and B, from the same material, normal and detail as the colour): about 1 for white
+  /// paper, 0 for a mirror whose reflection misses the camera, far above 1 in a metal's
+  /// highlight; 0 where nothing is drawn or the surface faces away from the projector. The
+  /// projector's shadow is not in it (see gen/randomize/depth_sensor.h).
+  cv::Mat projector_return;
 };
 
 /// Renders scenes of meshes headless with OpenGL 3.3 core through EGL (see EglContext): colour,

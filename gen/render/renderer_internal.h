@@ -197,6 +197,7 @@ struct PbrProgram {
   GLint detail_frame = -1;
   GLint detail_kind = -1;
   GLint detail_strength = -1;
+  GLint projector_camera = -1;
   uint64_t frame = 0;              // the Render call its per-frame uniforms were set for
   const DrawItem* item = nullptr;  // the item its pose was set for, this frame
 };
@@ -221,6 +222,8 @@ struct FrameUniforms {
   float shadow_normal_offset_mm[Renderer::kMaxLights] = {};
   float shadow_depth_bias[Renderer::kMaxLights] = {};
   float shadow_texel = 0;
+  bool projector = false;              // physically based: write the projector's return
+  float projector_camera[3] = {0, 0, 0};  // the projector's position, camera frame, mm
 };
 
 struct Renderer::Impl {
@@ -263,13 +266,14 @@ struct Renderer::Impl {
   // physically based frames: the programs, the DFG table, the environments;
   // a single-sampled framebuffer shading each pixel once (colour, id, camera z, surface), and
   // when anti-aliased a multisampled coverage pass and its resolve (resolve.frag.glsl)
-  std::array<PbrProgram, (kMaxLights + 1) * 16> pbr;
+  std::array<PbrProgram, (kMaxLights + 1) * 32> pbr;
   GLuint empty_vertex_array = 0;  // 0 until the first physically based frame
   GLuint dfg_texture = 0;
   std::vector<EnvironmentTexture> environments;
   GLuint shaded_framebuffer = 0;  // colour, instance, camera z, surface; the scene depth buffer
   GLuint shaded_texture = 0;      // RGBA16F linear colour
   GLuint surface_texture = 0;     // R16UI item index + 1
+  GLuint return_texture = 0;      // R32F the projector's return (RenderOptions::projector_return)
   GLuint coverage_program = 0;
   ProjectionUniforms coverage_projection;
   GLint coverage_surface_id = -1;
@@ -307,7 +311,8 @@ struct Renderer::Impl {
   }
   ShadingProgram& Shading(int light_count, bool shadows, bool textured);
   ShadingProgram& UseShading(bool textured);
-  PbrProgram& Pbr(int light_count, bool shadows, bool textured, bool environment, bool detailed);
+  PbrProgram& Pbr(int light_count, bool shadows, bool textured, bool environment, bool detailed,
+                  bool projector);
   PbrProgram& UsePbr(bool textured, bool detailed);
   void EnsurePbrResources();
   void EnsurePbrTargets(int samples);

@@ -69,18 +69,21 @@ ShadingProgram& Renderer::Impl::UseShading(bool textured) {
 }
 
 PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bool environment,
-                                bool detailed) {
-  PbrProgram& p = pbr[light_count * 16 + (shadows ? 8 : 0) + (textured ? 4 : 0) +
-                      (detailed ? 2 : 0) + (environment ? 1 : 0)];
+                                bool detailed, bool projector) {
+  PbrProgram& p = pbr[(projector ? (kMaxLights + 1) * 16 : 0) + light_count * 16 +
+                      (shadows ? 8 : 0) + (textured ? 4 : 0) + (detailed ? 2 : 0) +
+                      (environment ? 1 : 0)];
   if (p.program != 0) return p;
   const std::string header =
       "#version 330 core\n#define LIGHT_COUNT " + std::to_string(light_count) +
       "\n#define SHADOWS " + (shadows ? "1" : "0") + "\n#define TEXTURED " +
       (textured ? "1" : "0") + "\n#define ENVIRONMENT " + (environment ? "1" : "0") +
-      "\n#define DETAIL " + (detailed ? "1" : "0") + "\n#define SHADOW_TAPS 1\n";
+      "\n#define DETAIL " + (detailed ? "1" : "0") + "\n#define PROJECTOR " +
+      (projector ? "1" : "0") + "\n#define SHADOW_TAPS 1\n";
   const std::string name = "physically based program, " + std::to_string(light_count) + " lights" +
                            (shadows ? ", shadows" : "") + (textured ? ", texture" : "") +
-                           (environment ? ", environment" : "") + (detailed ? ", detail" : "");
+                           (environment ? ", environment" : "") + (detailed ? ", detail" : "") +
+                           (projector ? ", projector" : "");
   const GLuint program = LinkProgram(
       header + projection_glsl + scene_vert_glsl,
       header + color_glsl + brdf_glsl + shadow_lookup_glsl + pbr_frag_glsl, name.c_str());
@@ -103,6 +106,7 @@ PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bo
   p.detail_frame = find("detail_frame");
   p.detail_kind = find("detail_kind");
   p.detail_strength = find("detail_strength");
+  p.projector_camera = find("projector_camera");
   // samplers on their fixed units
   glUseProgram(program);
   glUniform1i(find("material_texture"), kMaterialTextureUnit);
@@ -116,7 +120,8 @@ PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bo
 
 PbrProgram& Renderer::Impl::UsePbr(bool textured, bool detailed) {
   const FrameUniforms& f = frame_uniforms;
-  PbrProgram& p = Pbr(f.light_count, f.shadows, textured, f.environment != nullptr, detailed);
+  PbrProgram& p =
+      Pbr(f.light_count, f.shadows, textured, f.environment != nullptr, detailed, f.projector);
   glUseProgram(p.program);
   if (p.frame == frame) return p;
 
@@ -134,6 +139,7 @@ PbrProgram& Renderer::Impl::UsePbr(bool textured, bool detailed) {
     glUniform3fv(p.irradiance_sh, 9, f.environment->irradiance_sh[0].data());
     glUniform3fv(p.environment_intensity, 1, f.environment_intensity);
   }
+  if (f.projector) glUniform3fv(p.projector_camera, 1, f.projector_camera);
   return p;
 }
 
@@ -169,6 +175,7 @@ void Renderer::Impl::EnsurePbrResources() {
   glGenFramebuffers(1, &resolve_framebuffer);
   glGenTextures(1, &shaded_texture);
   glGenTextures(1, &surface_texture);
+  glGenTextures(1, &return_texture);
   glGenTextures(1, &coverage_texture);
   glGenRenderbuffers(1, &coverage_depth_buffer);
   glGenRenderbuffers(1, &resolve_buffer);
@@ -180,7 +187,8 @@ void Renderer::Impl::EnsurePbrTargets(int samples) {
                                  GL_COLOR_ATTACHMENT3};
   const auto plain_texture = [](GLuint texture, GLenum format, int w, int h) {
     glBindTexture(GL_TEXTURE_2D, texture);
-    glTexImage2D(GL_TEXTURE_2D, 0, format, w, h, 0, format == GL_R16UI ? GL_RED_INTEGER : GL_RGBA,
+    glTexImage2D(GL_TEXTURE_2D, 0, format, w, h, 0,
+                 format == GL_R16UI ? GL_RED_INTEGER : (format == GL_R32F ? GL_RED : GL_RGBA),
                  format == GL_R16UI ? GL_UNSIGNED_SHORT : GL_FLOAT, nullptr);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
     glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
@@ -192,6 +200,7 @@ void Renderer::Impl::EnsurePbrTargets(int samples) {
     glActiveTexture(GL_TEXTURE0 + kSetupUnit);
     plain_texture(shaded_texture, GL_RGBA16F, width, height);
     plain_texture(surface_texture, GL_R16UI, width, height);
+    plain_texture(return_texture, GL_R32F, width, height);
     glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
     glBindRenderbuffer(GL_RENDERBUFFER, resolve_buffer);
     glRenderbufferStorage(GL_RENDERBUFFER, GL_RGBA16UI, width, height);
@@ -203,6 +212,7 @@ void Renderer::Impl::EnsurePbrTargets(int samples) {
     glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT2, GL_RENDERBUFFER,
                               camera_z_buffer);
     glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT3, GL_TEXTURE_2D, surface_texture, 0);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT4, GL_TEXTURE_2D, return_texture, 0);
     glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth_buffer);
     glDrawBuffers(4, draw_buffers);
     CheckFramebuffer("physically based framebuffer");
@@ -387,6 +397,12 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
   // camera z of the same surface as its colour
   glBindFramebuffer(GL_FRAMEBUFFER, shaded_framebuffer);
   glViewport(0, 0, width, height);
+  // the projector's return is written only when asked for (the programs without it leave
+  // location 4 alone)
+  const GLenum draw_buffers[] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1, GL_COLOR_ATTACHMENT2,
+                                 GL_COLOR_ATTACHMENT3, GL_COLOR_ATTACHMENT4};
+  const bool projector = frame_uniforms.projector;
+  glDrawBuffers(projector ? 5 : 4, draw_buffers);
   GLfloat background[4] = {0, 0, 0, 1};
   for (int c = 0; c < 3; ++c) {
     background[c] = options.background_scale * SrgbToLinear(options.background_rgb[c]);
@@ -398,6 +414,7 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
   glClearBufferuiv(GL_COLOR, 1, zero_id);
   glClearBufferfv(GL_COLOR, 2, zero_z);
   glClearBufferuiv(GL_COLOR, 3, zero_id);
+  if (projector) glClearBufferfv(GL_COLOR, 4, zero_z);
   glClearBufferfv(GL_DEPTH, 0, &far_depth);
   ForEachSurface(items, [&](const DrawItem& item, size_t index, const MeshBuffers& mesh,
                             const Material& material, GLsizei first, GLsizei count) {
@@ -410,6 +427,13 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
   glReadPixels(0, 0, width, height, GL_RED_INTEGER, GL_UNSIGNED_SHORT, result->instance.data);
   glReadBuffer(GL_COLOR_ATTACHMENT2);
   glReadPixels(0, 0, width, height, GL_RED, GL_FLOAT, result->depth_mm.data);
+  if (projector) {
+    EnsureImage(&result->projector_return, height, width, CV_32FC1);
+    glReadBuffer(GL_COLOR_ATTACHMENT4);
+    glReadPixels(0, 0, width, height, GL_RED, GL_FLOAT, result->projector_return.data);
+  } else {
+    result->projector_return.release();
+  }
   if (samples <= 1) {
     glReadBuffer(GL_COLOR_ATTACHMENT0);
     ReadLinearColor(&result->color_linear);

@@ -17,6 +17,7 @@
 #include "gen/physics/pile.h"
 #include "gen/randomize/background.h"
 #include "gen/randomize/camera_pose.h"
+#include "gen/randomize/depth_sensor.h"
 #include "gen/randomize/lighting.h"
 #include "gen/randomize/sensor.h"
 #include "gen/randomize/surroundings.h"
@@ -43,6 +44,7 @@ enum class Lever : uint64_t {
   kSensor,
   kEnvironment,
   kSurroundings,
+  kDepthSensor,
 };
 
 std::mt19937_64 LeverEngine(uint64_t scene_seed, Lever lever) {
@@ -89,6 +91,18 @@ image EncodeImage(const cv::Mat& pixels, int8_t pixel_format,
   }
   message.size = static_cast<int32_t>(message.data.size());
   return message;
+}
+
+// the nearest depth in `depth_mm` (CV_32FC1, 0 = nothing), or 0 when there is none
+double NearestDepth(const cv::Mat& depth_mm) {
+  float nearest = 0;
+  for (int v = 0; v < depth_mm.rows; ++v) {
+    const float* row = depth_mm.ptr<float>(v);
+    for (int u = 0; u < depth_mm.cols; ++u) {
+      if (row[u] > 0 && (nearest == 0 || row[u] < nearest)) nearest = row[u];
+    }
+  }
+  return nearest;
 }
 
 // The scene message's camera: intrinsics, pose and the depth image's scale.
@@ -322,6 +336,11 @@ struct RenderedImages {
   cv::Mat depth_mm;      // float
   cv::Mat instance;      // uint16 ids
   SensorEffects sensor;
+  // with a 3D camera (sensor_3d): where its projector lights the surface, how much of the
+  // pattern comes back, and the scene's seed for the sensor's own draws
+  cv::Mat projector_visible;  // CV_8UC1
+  cv::Mat projector_return;   // CV_32FC1
+  uint64_t seed = 0;
 };
 
 void SceneGenerator::Impl::DrawEnvironment(std::mt19937_64& engine, RenderOptions* options) const {
@@ -475,6 +494,12 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   options.shadows = config.lighting().shadows();
   options.shadow_map_size = config.lighting().shadow_map_size();
   impl_->DrawEnvironment(environment_engine, &options);
+  const config::Sensor3dConfig& sensor_3d = config.sensor_3d();
+  if (sensor_3d.enabled()) {
+    options.projector_return = true;
+    options.projector_position_mm =
+        camera.world_from_camera * Eigen::Vector3d(sensor_3d.baseline_mm(), 0, 0);
+  }
   // one gain per part type: the copies of a type look alike, like one batch of parts
   std::vector<MaterialGain> gains;
   for (int t = 0; t < config.part_size(); ++t) {
@@ -492,6 +517,22 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   std::vector<ObjectTruth> objects;
   impl_->AddParts(settled, gains, seed, &items, &objects);
   RenderResult rendered = impl_->renderer->Render(camera, lights, options, items);
+  cv::Mat projector_visible;
+  if (sensor_3d.enabled()) {
+    // the 3D camera's projector: what it lights, from its depth image (an unlit pass from its
+    // pose holding everything the camera sees from the nearest surface on)
+    const double nearest = NearestDepth(rendered.depth_mm);
+    if (nearest > 0) {
+      const CameraModel projector =
+          ProjectorCamera(camera, sensor_3d.baseline_mm(), nearest);
+      RenderOptions unlit;
+      const RenderResult seen = impl_->renderer->Render(projector, {}, unlit, items);
+      projector_visible = ProjectorVisible(rendered.depth_mm, camera, seen.depth_mm, projector,
+                                           sensor_3d.baseline_mm());
+    } else {
+      projector_visible = cv::Mat(rendered.depth_mm.size(), CV_8UC1, cv::Scalar(0));
+    }
+  }
   std::vector<cv::Mat> silhouettes, beyond;
   impl_->renderer->RenderSilhouettes(camera, items, &silhouettes, &beyond);
   local.render_ms = MillisecondsSince(start);
@@ -519,6 +560,9 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   images->depth_mm = rendered.depth_mm;
   images->instance = rendered.instance;
   images->sensor = SampleSensorEffects(config.sensor(), sensor_engine);
+  images->projector_visible = projector_visible;
+  images->projector_return = rendered.projector_return;
+  images->seed = seed;
   if (times != nullptr) times->Add(local);
   return RenderedScene{std::move(out), std::move(images)};
 }
@@ -550,6 +594,16 @@ scene SceneGenerator::Encode(RenderedScene rendered_scene, StageTimes* times) co
   rendered.depth_mm.convertTo(depth, CV_16U, 1.0 / config.camera().depth_scale_mm());
   out.depth = EncodeImage(depth, image::PIXEL_DEPTH16, encoding);
   out.instance_map = EncodeImage(rendered.instance, image::PIXEL_INSTANCE16, encoding);
+  if (!rendered.projector_visible.empty()) {
+    // the 3D camera's depth, from its own engine
+    std::mt19937_64 depth_engine = LeverEngine(rendered.seed, Lever::kDepthSensor);
+    const cv::Mat measured =
+        SensorDepth(rendered.depth_mm, rendered.projector_visible, rendered.projector_return,
+                    DepthSensorOf(config.sensor_3d()), depth_engine);
+    cv::Mat counts;
+    measured.convertTo(counts, CV_16U, 1.0 / config.camera().depth_scale_mm());
+    out.depth_sensor = EncodeImage(counts, image::PIXEL_DEPTH16, encoding);
+  }
   local.encode_ms = MillisecondsSince(start);
 
   if (times != nullptr) times->Add(local);

@@ -5,6 +5,7 @@
         for scene in stream:
             scene.rgb              # (H, W, 3) uint8, or scene.gray (H, W) for a gray camera
             scene.depth_mm         # (H, W) float32 millimetres, 0 = no depth
+            scene.depth_sensor_mm  # the 3D camera's depth (config sensor_3d), with its holes
             scene.instance_map     # (H, W) uint16, 0 = background, else the instance_id
             scene.masks_visib()    # (N, H, W) uint8 0/1 visible masks, decoded on demand
             scene.camera_from_object, scene.bbox_visib, scene.visib_fract, scene.K, ...
@@ -50,6 +51,25 @@ def _depth_mm(scene):
     return scene.depth.astype(_np.float32) * _np.float32(scene.depth_scale_mm)
 
 
+def _depth_sensor_mm(scene):
+    if not scene.has_depth_sensor:
+        return None
+    return scene.depth_sensor.astype(_np.float32) * _np.float32(scene.depth_scale_mm)
+
+
+def _point_cloud(scene, sensor: bool = True):
+    """(H, W, 3) float32 points in the camera frame (OpenCV: x right, y down, z forward), mm,
+    NaN where there is no depth: an organised cloud of the 3D camera's depth (`sensor`, where the
+    scene has one) or of the exact depth."""
+    depth = scene.depth_sensor_mm if sensor and scene.has_depth_sensor else scene.depth_mm
+    K = scene.K
+    v, u = _np.mgrid[0:depth.shape[0], 0:depth.shape[1]].astype(_np.float32)
+    z = _np.where(depth > 0, depth, _np.float32(_np.nan))
+    x = (u - _np.float32(K[0, 2])) * z / _np.float32(K[0, 0])
+    y = (v - _np.float32(K[1, 2])) * z / _np.float32(K[1, 1])
+    return _np.stack([x, y, z], axis=-1)
+
+
 def _instances(scene):
     return [Instance(scene, k) for k in range(scene.num_instances)]
 
@@ -64,6 +84,10 @@ Scene.gray = property(_gray, doc="(H, W) uint8 gray image, None for a colour cam
 Scene.depth_mm = property(
     _depth_mm, doc="(H, W) float32 depth along the camera z axis in millimetres, 0 = no depth "
                    "(`depth` is the stored uint16, mm = value * depth_scale_mm).")
+Scene.depth_sensor_mm = property(
+    _depth_sensor_mm, doc="(H, W) float32 depth as the config's 3D camera measures it (sensor_3d), "
+                          "mm, 0 = no depth (its shadow, dropout); None without a 3D camera.")
+Scene.point_cloud = _point_cloud
 Scene.instances = property(_instances, doc="One `Instance` per labelled object of the scene.")
 Scene.__repr__ = _scene_repr
 

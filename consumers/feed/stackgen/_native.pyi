@@ -35,9 +35,11 @@ class Scene:
     depth_scale_mm: float
     is_gray: bool
     has_depth: bool
+    has_depth_sensor: bool                       # a 3D camera's depth (config sensor_3d)
     color: npt.NDArray[np.uint8]                 # (H, W, 3) RGB or (H, W) gray
     depth: npt.NDArray[np.uint16]                # (H, W), mm = value x depth_scale_mm
     instance_map: npt.NDArray[np.uint16]         # (H, W), 0 = background
+    depth_sensor: npt.NDArray[np.uint16]         # (H, W), the 3D camera's, 0 = no depth
     num_instances: int
     instance_ids: npt.NDArray[np.int32]
     class_ids: npt.NDArray[np.int32]
@@ -57,6 +59,8 @@ class Scene:
     rgb: Optional[npt.NDArray[np.uint8]]
     gray: Optional[npt.NDArray[np.uint8]]
     depth_mm: npt.NDArray[np.float32]
+    depth_sensor_mm: Optional[npt.NDArray[np.float32]]
+    def point_cloud(self, sensor: bool = True) -> npt.NDArray[np.float32]: ...
     instances: List[Any]                          # stackgen.Instance, one per object
 
     def masks_visib(self, indices: Optional[Sequence[int]] = None) -> npt.NDArray[np.uint8]: ...

@@ -5,13 +5,18 @@
 // compensation (docs/Filament.md 4.7.2). The diffuse lobe gets what the specular albedo leaves,
 // so a white surface in a uniform environment reflects exactly that environment (the furnace
 // test). Writes linear radiance (the tone curve comes later), the instance id, camera z and the
-// surface (item index + 1, for resolve.frag.glsl) of the same fragment.
+// surface (item index + 1, for resolve.frag.glsl) of the same fragment; with PROJECTOR, also how
+// much of a 3D camera's projected pattern comes back to the camera from this surface.
 in vec3 position_camera;
 in vec3 normal_camera;
 layout(location = 0) out vec4 color_out;
 layout(location = 1) out uint instance_out;
 layout(location = 2) out float depth_out;
 layout(location = 3) out uint surface_out;
+#if PROJECTOR
+layout(location = 4) out float projector_return_out;
+uniform vec3 projector_camera;  // the projector's position, camera frame, mm
+#endif
 uniform uint instance_id;
 uniform uint surface_id;
 uniform vec3 base_color_linear;
@@ -158,6 +163,24 @@ void main() {
                                 r * environment_max_lod).rgb;
   linear += environment_intensity * (diffuse_weight * (gl_FrontFacing ? irradiance : irradiance_back) +
                                      specular_albedo * prefiltered);
+#endif
+#if PROJECTOR
+  // the pattern's light, from the projector to the camera over this surface's BRDF, relative to
+  // a white matte surface facing the projector (pi x BRDF x cos): the same material, normal and
+  // detail as the colour, so a polished face mirrors the pattern past the camera and returns
+  // nothing, while matte plastic returns its albedo
+  vec3 lp = normalize(projector_camera - position_camera);
+  float n_dot_lp = dot(n, lp);
+  float pattern = 0.0;
+  if (n_dot_lp > 0.0) {
+    vec3 hp = normalize(lp + v);
+    vec3 specular_p = D_GGX(max(dot(n, hp), 0.0), alpha) *
+                      V_SmithGGXCorrelated(n_dot_v, n_dot_lp, alpha) *
+                      F_Schlick(f0, max(dot(v, hp), 0.0)) * energy_compensation;
+    vec3 brdf = diffuse_weight * (1.0 / kPi) + specular_p;
+    pattern = kPi * n_dot_lp * dot(brdf, vec3(1.0 / 3.0));
+  }
+  projector_return_out = pattern;
 #endif
   color_out = vec4(linear, 1.0);
   instance_out = instance_id;

@@ -1,10 +1,11 @@
 // The BOP writer's own rules: floats as the toolkit's Python writes them, models stored once and
-// checked, a folder that holds a dataset refused.
+// checked, a folder that holds a dataset refused, a 3D camera's depth and point clouds.
 
 #include "consumers/bop/bop_writer.h"
 #include "consumers/bop/toolkit_json.h"
 
 #include <cmath>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -13,7 +14,9 @@
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
 
+#include "tests/consumers/coco/coco_test_scenes.h"
 #include "tests/support/process.h"
 
 namespace stackgen {
@@ -136,6 +139,77 @@ TEST(BopWriterTest, AnotherDatasetIsRefused) {
     EXPECT_NE(std::string(error.what()).find("bop.journal line 1"), std::string::npos)
         << error.what();
   }
+}
+
+// a RAW DEPTH16 image of the test scenes' size, every pixel `value`
+image RawDepth(uint16_t value) {
+  image out{};
+  out.width = testing::kSceneWidth;
+  out.height = testing::kSceneHeight;
+  out.pixel_format = image::PIXEL_DEPTH16;
+  out.encoding = image::ENCODING_RAW;
+  for (int k = 0; k < out.width * out.height; ++k) {
+    out.data.push_back(static_cast<uint8_t>(value & 0xff));
+    out.data.push_back(static_cast<uint8_t>(value >> 8));
+  }
+  out.size = static_cast<int32_t>(out.data.size());
+  return out;
+}
+
+// a 3D camera's depth goes to depth/ and the exact one to depth_ideal/; with point_clouds the
+// stored depth is also an organised PLY: width x height points, the back-projection of each
+// pixel, NaN at a hole; a scene without a 3D camera keeps its exact depth in depth/ alone
+TEST(BopWriterTest, SensorDepthBesideTheExactOneAndPointClouds) {
+  testing::ScratchDir scratch("stackgen-bop-writer");
+  const std::string dir = scratch.path() + "/dataset";
+  scene with = testing::SceneA();
+  with.depth = RawDepth(5000);  // 500 mm at depth_scale 0.1
+  with.depth_sensor = RawDepth(5010);
+  const size_t hole = 2 * (1 * testing::kSceneWidth + 2);  // pixel (u 2, v 1)
+  with.depth_sensor.data[hole] = with.depth_sensor.data[hole + 1] = 0;
+  scene without = testing::SceneB();
+  without.depth = RawDepth(6000);
+  BopWriterOptions options;
+  options.point_clouds = true;
+  {
+    BopWriter writer(dir, options);
+    ASSERT_TRUE(writer.Add(with));
+    ASSERT_TRUE(writer.Add(without));
+    writer.Finish();
+  }
+  const std::string chunk = dir + "/train_pbr/000000/";
+  const cv::Mat sensor = cv::imread(chunk + "depth/000000.png", cv::IMREAD_UNCHANGED);
+  const cv::Mat ideal = cv::imread(chunk + "depth_ideal/000000.png", cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(sensor.type(), CV_16UC1);
+  ASSERT_EQ(ideal.type(), CV_16UC1);
+  EXPECT_EQ(sensor.at<uint16_t>(1, 2), 0);
+  EXPECT_EQ(sensor.at<uint16_t>(4, 5), 5010);
+  EXPECT_EQ(cv::countNonZero(ideal != 5000), 0);
+  EXPECT_EQ(cv::imread(chunk + "depth/000001.png", cv::IMREAD_UNCHANGED).at<uint16_t>(0, 0), 6000);
+  EXPECT_FALSE(std::filesystem::exists(chunk + "depth_ideal/000001.png"));
+
+  // the point cloud: its header, then x y z floats row by row
+  const std::string ply = ReadFile(chunk + "points/000000.ply");
+  const size_t end = ply.find("end_header\n");
+  ASSERT_NE(end, std::string::npos);
+  const std::string header = ply.substr(0, end);
+  EXPECT_EQ(header.rfind("ply\nformat binary_little_endian 1.0\n", 0), 0u) << header;
+  EXPECT_NE(header.find("obj_info num_cols 8\nobj_info num_rows 6\nelement vertex 48\n"),
+            std::string::npos)
+      << header;
+  const size_t body = end + std::string("end_header\n").size();
+  ASSERT_EQ(ply.size(), body + 48 * 3 * sizeof(float));
+  const auto point = [&](int u, int v) {
+    float xyz[3];
+    std::memcpy(xyz, ply.data() + body + 3 * sizeof(float) * (v * 8 + u), sizeof(xyz));
+    return std::vector<float>(xyz, xyz + 3);
+  };
+  EXPECT_TRUE(std::isnan(point(2, 1)[2]));
+  const std::vector<float> p = point(5, 4);  // cx 3.5, cy 2.5, fx fy 500, z 501 mm
+  EXPECT_FLOAT_EQ(p[0], static_cast<float>((5 - 3.5) * 501.0 / 500));
+  EXPECT_FLOAT_EQ(p[1], static_cast<float>((4 - 2.5) * 501.0 / 500));
+  EXPECT_FLOAT_EQ(p[2], 501.f);
+  EXPECT_TRUE(std::filesystem::exists(chunk + "points/000001.ply"));
 }
 
 }  // namespace

@@ -101,6 +101,46 @@ def test_stream_equals_what_stackgen_coco_stores(tmp_path, processes):
     assert compared == len(dataset["annotations"]) > 0
 
 
+# a 3D camera's depth reaches the learner beside the exact one: holes where the exact depth has
+# a surface, and its organised point cloud is the back-projection of each pixel, NaN at holes;
+# a scene without a 3D camera (the fixture log's) has none
+def test_stream_carries_the_3d_cameras_depth(tmp_path, processes):
+    config = tmp_path / "sensor.pbtxt"
+    with open(CONFIG) as file:
+        config.write_text(file.read() + "\nsensor_3d {\n  enabled: true\n}\n")
+    url, count = free_url(), 2
+    with stackgen.Stream(url, reliable=True, count=count, timeout=60, depth=True) as stream:
+        generator = processes(generator_argv(url, count, tmp_path / "cache", config=config),
+                              "stackgen")
+        scenes = list(stream)
+    assert generator.wait(60) == 0, generator.stderr()
+    assert len(scenes) == count
+    for scene in scenes:
+        assert scene.has_depth_sensor
+        sensor, exact = scene.depth_sensor_mm, scene.depth_mm
+        assert sensor.dtype == np.float32 and sensor.shape == exact.shape
+        surface = exact > 0
+        holes = (sensor == 0) & surface
+        assert 0 < holes.sum() < surface.sum() / 2
+        assert np.all(sensor[~surface] == 0)
+        measured = sensor > 0
+        # noise 0.2 mm at 1 m and 0.1 mm steps; flying pixels (a 160 x 120 picture is much edge)
+        assert np.percentile(np.abs(sensor - exact)[measured], 80) < 0.2  # mm
+        cloud = scene.point_cloud()
+        assert cloud.shape == (scene.height, scene.width, 3) and cloud.dtype == np.float32
+        assert np.all(np.isnan(cloud[~measured]))
+        assert np.array_equal(cloud[..., 2][measured], sensor[measured])
+        K = scene.K
+        v, u = np.nonzero(measured)
+        k = len(u) // 2
+        assert abs(cloud[v[k], u[k], 0] - (u[k] - K[0, 2]) * sensor[v[k], u[k]] / K[0, 0]) < 1e-3
+        exact_cloud = scene.point_cloud(sensor=False)
+        assert np.array_equal(exact_cloud[..., 2][surface], exact[surface])
+    with stackgen.Stream("file://" + TINY_LOG, open_bus=True, count=1) as stream:
+        logged = list(stream)[0]
+    assert not logged.has_depth_sensor and logged.depth_sensor_mm is None
+
+
 # a reliable stream that drops 30 % of what it receives (and a generator that drops 10 % of the
 # credits and resend requests) still gets every scene, exactly once. (At 10 %, which messages
 # are dropped shifts with timing, as status messages interleave, and now and then none of the 16

@@ -204,7 +204,8 @@ TEST(ViewTest, DrawsBopDataset) {
     const cv::Rect tile = TileRect(im_id % 3, im_id / 3, 160, 120);
     EXPECT_GT(CountColour(sheet, tile, kAnnotated), 100) << im_id;
     EXPECT_EQ(CountColour(sheet, tile, kIgnored) > 0, has_orange[im_id]) << im_id;
-    EXPECT_EQ(CountColour(sheet, tile, kDropped), 0) << im_id;
+    // no outline in the dropped colour (tens of pixels; a rendered pixel may have it by chance)
+    EXPECT_LT(CountColour(sheet, tile, kDropped), 10) << im_id;
   }
 
   // another split name: found when it is the only one, else named with --split

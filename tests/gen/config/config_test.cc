@@ -26,10 +26,35 @@ TEST(ConfigTest, ShippedConfigsAreValid) {
        {"default.pbtxt", "tote.pbtxt", "mixed.pbtxt", "tapered_tote.pbtxt", "basler.pbtxt",
         "ignore_occluded.pbtxt", "phong.pbtxt", "studio_hdri.pbtxt", "cut_and_paste.pbtxt",
         "ablation/none.pbtxt", "ablation/no_background.pbtxt", "ablation/no_lighting.pbtxt",
-        "ablation/no_noise.pbtxt", "ablation/no_occlusion_filter.pbtxt", "surroundings.pbtxt"}) {
+        "ablation/no_noise.pbtxt", "ablation/no_occlusion_filter.pbtxt", "surroundings.pbtxt",
+        "structured_light.pbtxt"}) {
     const LoadedConfig loaded = LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/" + name);
     EXPECT_GT(loaded.config.part(0).count(), 0) << name;
   }
+}
+
+// the 3D camera: off by default; a preset fills the fields the file leaves out; an unknown
+// preset, a projector in the camera and Phong shading are refused, naming the field
+TEST(ConfigTest, Sensor3dPresetsAndChecks) {
+  const LoadedConfig plain = ParseConfig("", "test.pbtxt", "/configs");
+  EXPECT_FALSE(plain.config.sensor_3d().enabled());
+  EXPECT_DOUBLE_EQ(plain.config.sensor_3d().baseline_mm(), 120);
+  const LoadedConfig stereo = ParseConfig(
+      "sensor_3d { enabled: true preset: \"active_stereo\" noise_at_1m_mm: 3 }", "test.pbtxt",
+      "/configs");
+  EXPECT_DOUBLE_EQ(stereo.config.sensor_3d().baseline_mm(), 55);
+  EXPECT_EQ(stereo.config.sensor_3d().subsample(), 2);
+  EXPECT_DOUBLE_EQ(stereo.config.sensor_3d().noise_at_1m_mm(), 3);
+  EXPECT_EQ(ErrorOf("sensor_3d { preset: \"kinect\" }"),
+            "test.pbtxt:1: sensor_3d.preset: unknown 3D camera 'kinect'; known: "
+            "structured_light, active_stereo");
+  EXPECT_EQ(ErrorOf("sensor_3d { enabled: true baseline_mm: 0 }"),
+            "test.pbtxt:1: sensor_3d.baseline_mm: must not be 0 (the projector cannot sit in the "
+            "camera)");
+  EXPECT_EQ(ErrorOf("rendering { shading: PHONG }\nsensor_3d { enabled: true }"),
+            "test.pbtxt:2: sensor_3d.enabled: the 3D camera needs rendering.shading PBR (its "
+            "dropout comes from the physically based materials)");
+  EXPECT_NE(ErrorOf("sensor_3d { subsample: 0 }").find("sensor_3d.subsample"), std::string::npos);
 }
 
 // an empty config takes the documented defaults, and relative paths resolve to its folder.

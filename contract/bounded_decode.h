@@ -29,6 +29,8 @@ struct DecodeLimits {
   int64_t max_image_pixels = int64_t{64} << 20;
   /// Instances per scene/labels message above this are refused. Default 65535.
   int32_t max_instances = 65535;
+  /// Suction grasps per scene/labels message above this are refused. Default 1,048,576.
+  int32_t max_suction_grasps = 1 << 20;
   /// Vertices per model message above this are refused (triangles: twice as many). Default
   /// 4,000,000.
   int32_t max_model_vertices = 4000000;

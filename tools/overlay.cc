@@ -2,6 +2,7 @@
 // stackgen-coco over the image, for a quick look (the README's example image, docs/example.png).
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <filesystem>
@@ -22,7 +23,10 @@ constexpr const char* kUsage = R"(usage: stackgen-overlay DATASET_DIR OUT.png [-
 
 Draws every annotation of image N (default 0: the first in annotations.json) of a COCO dataset
 written by stackgen-coco: each visible mask tinted in its own colour with its outline, its box
-and its instance id and visible fraction.
+and its instance id and visible fraction; and its suction grasps (config grasps), each a dot
+with a 15 mm line along the surface's normal: green where the cup seals fully and the tool
+comes in, yellow where it seals but the approach is blocked, red where it does not seal; the
+best of each part ringed in white, a proven one filled (lifted) or crossed (dropped, stuck).
 )";
 
 // The error for an annotation of image `image_id` in `json_path`: names it and says `what`.
@@ -124,6 +128,54 @@ int Draw(const std::vector<const nlohmann::json*>& annotations, int64_t image_id
   return drawn;
 }
 
+// Draws the suction grasps of `annotations` (their "stackgen" blocks) over `picture`, projected
+// with the image's camera `camera` (its "stackgen" block's fx, fy, cx, cy); returns how many.
+int DrawGrasps(const std::vector<const nlohmann::json*>& annotations, const nlohmann::json& camera,
+               int64_t image_id, const std::string& json_path, cv::Mat* picture) {
+  int drawn = 0;
+  for (const nlohmann::json* annotation_pointer : annotations) {
+    const nlohmann::json& annotation = *annotation_pointer;
+    if (!annotation.contains("stackgen")) continue;
+    const nlohmann::json& grasps = annotation["stackgen"].value("suction_grasps", nlohmann::json());
+    for (const nlohmann::json& grasp : grasps) {
+      try {
+        const cv::Point at(grasp.at("u").get<int>(), grasp.at("v").get<int>());
+        const bool sealed = grasp.at("seal").get<double>() >= 0.99;
+        const bool clear = grasp.at("approach_clear").get<bool>();
+        const cv::Scalar colour = !sealed ? cv::Scalar(60, 60, 255)
+                                  : clear ? cv::Scalar(80, 230, 80)
+                                          : cv::Scalar(40, 220, 240);
+        // the normal, 15 mm of it, through the camera
+        const std::vector<double> p = grasp.at("point_mm").get<std::vector<double>>();
+        const std::vector<double> n = grasp.at("normal").get<std::vector<double>>();
+        const double tip[3] = {p.at(0) + 15 * n.at(0), p.at(1) + 15 * n.at(1),
+                               p.at(2) + 15 * n.at(2)};
+        if (tip[2] > 1) {
+          const cv::Point end(
+              static_cast<int>(std::lround(camera.at("fx").get<double>() * tip[0] / tip[2] +
+                                           camera.at("cx").get<double>())),
+              static_cast<int>(std::lround(camera.at("fy").get<double>() * tip[1] / tip[2] +
+                                           camera.at("cy").get<double>())));
+          cv::line(*picture, at, end, colour, 1, cv::LINE_AA);
+        }
+        const std::string proof = grasp.value("proof", std::string("not tried"));
+        cv::circle(*picture, at, 3, colour, proof == "lifted" ? cv::FILLED : 1, cv::LINE_AA);
+        if (proof == "dropped" || proof == "stuck") {
+          cv::drawMarker(*picture, at, colour, cv::MARKER_TILTED_CROSS, 9, 1, cv::LINE_AA);
+        }
+        if (grasp.at("rank").get<int>() == 0) {
+          cv::circle(*picture, at, 6, cv::Scalar(255, 255, 255), 1, cv::LINE_AA);
+        }
+      } catch (const nlohmann::json::exception& error) {
+        throw AnnotationError(json_path, image_id, annotation,
+                              std::string("stackgen.suction_grasps: ") + error.what());
+      }
+      ++drawn;
+    }
+  }
+  return drawn;
+}
+
 int Run(int argc, char** argv) {
   // the command line: a bad one is one line and exit status 2
   std::vector<std::string> paths;
@@ -161,8 +213,14 @@ int Run(int argc, char** argv) {
   const int64_t image_id = record["id"].get<int64_t>();
   const std::vector<const nlohmann::json*> of_image = AnnotationsOf(dataset, image_id, json_path);
   const int drawn = Draw(of_image, image_id, json_path, &picture);
+  const nlohmann::json camera =
+      record.contains("stackgen") ? record["stackgen"].value("camera", nlohmann::json())
+                                  : nlohmann::json();
+  const int grasps = camera.is_object() ? DrawGrasps(of_image, camera, image_id, json_path, &picture)
+                                        : 0;
   if (!cv::imwrite(out, picture)) throw std::runtime_error(out + ": cannot write");
   std::printf("stackgen-overlay: %s: %d annotations of %s\n", out.c_str(), drawn, path.c_str());
+  if (grasps > 0) std::printf("stackgen-overlay: %d suction grasps drawn\n", grasps);
   return 0;
 }
 

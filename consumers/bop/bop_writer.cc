@@ -15,6 +15,7 @@
 #include "consumers/bop/model_files.h"
 #include "consumers/bop/toolkit_json.h"
 #include "consumers/dataset/files.h"
+#include "consumers/dataset/grasp_records.h"
 #include "consumers/dataset/images.h"
 #include "consumers/dataset/shards.h"
 #include "contract/rle.h"
@@ -160,6 +161,7 @@ struct GroundTruths {
   json gt_info = json::array();  // scene_gt_info: boxes and pixel counts
   json coco = json::array();     // scene_gt_coco: the visible ones
   json masks = json::array();    // the full and visible masks' RLEs, for the journal
+  json grasps = json::array();   // scene_grasp: each ground truth's suction grasps (if any)
   int64_t count = 0;
 };
 
@@ -215,6 +217,9 @@ GroundTruths MakeGroundTruths(const scene& scene, int64_t im_id, const cv::Mat& 
            {"width", camera.width}});
     }
     out.masks.push_back({object.mask_obj_rle, object.mask_visib_rle});
+    if (scene.num_suction_grasps > 0) {
+      out.grasps.push_back(SuctionGraspsJson(scene, object.instance_id));
+    }
     classes->emplace(object.class_id, object.class_name);
   }
   out.count = static_cast<int64_t>(objects.size());
@@ -532,9 +537,10 @@ bool BopWriter::Add(const scene& scene) {
         JournalScene(scene, scene_id, im_id, rgb_name, staged.classes, staged.files, dir_);
     const auto run = runs_.find(generator_id);
     if (run != runs_.end()) record_scene["run"] = run->second;
-    const json record = {{"camera", SceneCamera(camera)},    {"coco", std::move(truths.coco)},
-                         {"gt", std::move(truths.gt)},       {"gt_info", std::move(truths.gt_info)},
-                         {"masks", std::move(truths.masks)}, {"scene", std::move(record_scene)}};
+    json record = {{"camera", SceneCamera(camera)},    {"coco", std::move(truths.coco)},
+                   {"gt", std::move(truths.gt)},       {"gt_info", std::move(truths.gt_info)},
+                   {"masks", std::move(truths.masks)}, {"scene", std::move(record_scene)}};
+    if (scene.num_suction_grasps > 0) record["grasps"] = std::move(truths.grasps);
     staged.line = record.dump() + "\n";
   } catch (...) {
     for (const std::string& path : staged.files) unlink(path.c_str());
@@ -595,7 +601,7 @@ std::vector<std::pair<int32_t, int64_t>> BopWriter::Commit() {
 
 void BopWriter::WriteChunk(int64_t scene_id) {
   json scene_camera = json::object(), scene_gt = json::object(), scene_gt_info = json::object();
-  std::vector<std::pair<int64_t, json>> cameras, gts, infos;
+  std::vector<std::pair<int64_t, json>> cameras, gts, infos, grasps;
   json images = json::array(), annotations = json::array();
   std::map<int32_t, std::string> chunk_classes;
   // each image's journal record, read and parsed once for the files and the shards
@@ -610,6 +616,7 @@ void BopWriter::WriteChunk(int64_t scene_id) {
     cameras.emplace_back(im_id, record["camera"]);
     gts.emplace_back(im_id, record["gt"]);
     infos.emplace_back(im_id, record["gt_info"]);
+    if (record.contains("grasps")) grasps.emplace_back(im_id, record["grasps"]);
     for (json annotation : record["coco"]) {
       annotation["id"] = annotation_id++;
       annotations.push_back(std::move(annotation));
@@ -634,6 +641,7 @@ void BopWriter::WriteChunk(int64_t scene_id) {
   write("scene_camera.json", cameras);
   write("scene_gt.json", gts);
   write("scene_gt_info.json", infos);
+  if (!grasps.empty()) write("scene_grasp.json", grasps);
 
   // scene_gt_coco.json: annotations numbered in image order; categories of this chunk
   json categories = json::array();

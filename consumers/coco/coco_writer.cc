@@ -22,6 +22,7 @@
 
 #include "consumers/coco/coco_records.h"
 #include "consumers/dataset/files.h"
+#include "consumers/dataset/grasp_records.h"
 #include "consumers/dataset/images.h"
 #include "consumers/dataset/shards.h"
 #include "contract/bounded_decode.h"
@@ -491,9 +492,12 @@ std::string CocoWriter::AnnotationRecords(const stackgen::scene& scene, int64_t 
       DecodeRleInto(instance->mask_visib_rle, camera.height, camera.width, mask.data);
       segmentation = MaskPolygons(mask);
     }
-    const json annotation =
+    json annotation =
         AnnotationRecord(*instance, AnnotationId(image_id, instance->instance_id), image_id, camera,
                          std::move(segmentation), crowd);
+    // stackgen's own labels beyond COCO's: the suction grasps, when the scene has some
+    json grasps = SuctionGraspsJson(scene, instance->instance_id);
+    if (!grasps.empty()) annotation["stackgen"] = {{"suction_grasps", std::move(grasps)}};
     if (!annotations.empty()) annotations += ",";
     annotations += annotation.dump();
     if (crowd) {

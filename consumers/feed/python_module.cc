@@ -204,6 +204,7 @@ using SceneClass =
 void BindSceneImages(SceneClass& scene);
 void BindSceneInstances(SceneClass& scene);
 void BindSceneMasks(SceneClass& scene);
+void BindSceneGrasps(SceneClass& scene);
 
 // stackgen.Scene: a checked scene, its arrays without copies, masks decoded on demand
 void BindScene(py::module_& m) {
@@ -213,6 +214,7 @@ void BindScene(py::module_& m) {
   BindSceneImages(scene);
   BindSceneInstances(scene);
   BindSceneMasks(scene);
+  BindSceneGrasps(scene);
 }
 
 // the header, camera and images of a scene
@@ -580,6 +582,54 @@ void BindFunctions(py::module_& m) {
       "Names the program in the stream's warnings on stderr (\"NAME: warning: ...\"); default "
       "\"stackgen\".");
 }
+// the suction grasps (config grasps), one array per field over all of them, each instance's
+// best first
+void BindSceneGrasps(SceneClass& scene) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
+  scene.def_property_readonly("suction_grasps", [](const FeedScene& s) {
+    const std::vector<suction_grasp>& grasps = s.message().suction_grasps;
+    const auto n = static_cast<py::ssize_t>(grasps.size());
+    py::array_t<int32_t> instance_ids(n), ranks(n), pixels({n, py::ssize_t{2}});
+    py::array_t<double> points({n, py::ssize_t{3}}), normals({n, py::ssize_t{3}}), seal(n),
+        clearance(n), com_offset(n), swing(n), moved(n);
+    py::array_t<bool> clear(n);
+    py::array_t<int8_t> proof(n);
+    for (py::ssize_t k = 0; k < n; ++k) {
+      const suction_grasp& g = grasps[static_cast<size_t>(k)];
+      instance_ids.mutable_at(k) = g.instance_id;
+      ranks.mutable_at(k) = g.rank;
+      pixels.mutable_at(k, 0) = g.u;
+      pixels.mutable_at(k, 1) = g.v;
+      for (py::ssize_t c = 0; c < 3; ++c) {
+        points.mutable_at(k, c) = g.point_mm[c];
+        normals.mutable_at(k, c) = g.normal[c];
+      }
+      seal.mutable_at(k) = g.seal;
+      clearance.mutable_at(k) = g.clearance_mm;
+      clear.mutable_at(k) = g.approach_clear;
+      com_offset.mutable_at(k) = g.com_offset_mm;
+      proof.mutable_at(k) = g.proof;
+      swing.mutable_at(k) = g.proof_swing_deg;
+      moved.mutable_at(k) = g.proof_neighbours_moved_mm;
+    }
+    py::dict out;
+    out["instance_id"] = instance_ids;
+    out["rank"] = ranks;
+    out["uv"] = pixels;
+    out["point_mm"] = points;
+    out["normal"] = normals;
+    out["seal"] = seal;
+    out["clearance_mm"] = clearance;
+    out["approach_clear"] = clear;
+    out["com_offset_mm"] = com_offset;
+    out["proof"] = proof;
+    out["proof_swing_deg"] = swing;
+    out["proof_neighbours_moved_mm"] = moved;
+    return out;
+  });
+}
+
 }  // namespace
 
 PYBIND11_MODULE(_native, m) {

@@ -399,6 +399,20 @@ void ValidateLook(const config::GeneratorConfig& c, const FieldNamer& n) {
                       ": the 3D camera needs rendering.shading PBR (its dropout comes from the "
                       "physically based materials)");
   }
+  const config::GraspConfig& grasps = c.grasps();
+  if (grasps.tool_diameter_mm() < grasps.cup_diameter_mm()) {
+    throw ConfigError(n.Where("grasps", "tool_diameter_mm") + ": " +
+                      Number(grasps.tool_diameter_mm()) + " is below grasps.cup_diameter_mm = " +
+                      Number(grasps.cup_diameter_mm()));
+  }
+  if (grasps.prove_per_part() > grasps.candidates_per_part()) {
+    throw ConfigError(n.Where("grasps", "prove_per_part") + ": " +
+                      Number(grasps.prove_per_part()) + " is above grasps.candidates_per_part = " +
+                      Number(grasps.candidates_per_part()));
+  }
+  if (grasps.prove_per_part() > 0 && !grasps.suction()) {
+    throw ConfigError(n.Where("grasps", "prove_per_part") + ": proofs need grasps.suction true");
+  }
   if (sensor_3d.baseline_mm() == 0) {
     throw ConfigError(n.Where("sensor_3d", "baseline_mm") +
                       ": must not be 0 (the projector cannot sit in the camera)");

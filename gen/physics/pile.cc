@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <random>
 #include <sstream>
 #include <stdexcept>
@@ -23,6 +24,10 @@ namespace {
 // tolerances (contact breaking 0.02 units, default margin 0.04 units), metres above them
 constexpr double kSimPerMm = 0.1;
 constexpr double kGravityMmS2 = 9810.0;
+// Lift: the contacts take up the load for this long before the cup pulls, and the cup holds
+// the part this long at the top, s
+constexpr double kLiftSettleS = 0.1;
+constexpr double kLiftHoldS = 0.3;
 
 // contact solver: each step starts from this share of the last step's impulses, and impacts
 // slower than this (mm/s) do not bounce. With Bullet's 0.85 a resting pile's impulses never
@@ -718,6 +723,90 @@ PileResult PileSimulator::Resettle(const std::vector<int>& types,
   result.simulated_s = time_s;
   Place(m.bin, m.types, types, bodies, &w, &result);
   if (after != nullptr) GoOnToRest(m.bin, params, m.types, rule, types, bodies, &w, after);
+  return result;
+}
+
+LiftResult PileSimulator::Lift(const std::vector<int>& types,
+                               const std::vector<Eigen::Isometry3d>& world_from_object, int part,
+                               const Eigen::Vector3d& point_mm, const Eigen::Vector3d& normal,
+                               const LiftParams& lift) const {
+  const Model& m = *model_;
+  for (int type : types) TypeAt(m.types, type);
+  if (types.size() != world_from_object.size() || part < 0 ||
+      part >= static_cast<int>(types.size())) {
+    throw std::invalid_argument("PileSimulator::Lift: part " + std::to_string(part) + " of " +
+                                std::to_string(types.size()) + " types and " +
+                                std::to_string(world_from_object.size()) + " poses");
+  }
+  if (!point_mm.allFinite() || !(std::abs(normal.norm() - 1) < 1e-6) ||
+      !(lift.cup_diameter_mm > 0) || !(lift.vacuum_kpa >= 0) || !(lift.lift_mm > 0) ||
+      !(lift.lift_speed_mm_s > 0)) {
+    throw std::invalid_argument(
+        "PileSimulator::Lift: the point must be finite, the normal of unit length, the cup's "
+        "diameter, lift and speed positive and the vacuum not negative");
+  }
+  const SimulationParams& params = m.params;
+  const double dt = params.rest_time_step_s;
+  PileWorld w(m.bin, m.types, m.tote_shape.get(), m.table_z_mm, params.solver_iterations);
+  w.AddShapes(types);
+  std::vector<btRigidBody*> bodies;
+  for (size_t i = 0; i < types.size(); ++i) {
+    bodies.push_back(w.AddPart(types[i], world_from_object[i]));
+  }
+  w.Rest(params.rest_time_step_s / params.time_step_s);
+  const auto step = [&](double seconds, const std::function<void(double)>& each) {
+    const int steps = static_cast<int>(std::lround(seconds / dt));
+    for (int k = 1; k <= steps; ++k) {
+      w.world().stepSimulation(static_cast<btScalar>(dt), 0, static_cast<btScalar>(dt));
+      each(k * dt);
+    }
+  };
+
+  // the contacts take up the load; the poses then are where the lift starts
+  step(kLiftSettleS, [](double) {});
+  const std::vector<Eigen::Isometry3d> start = PileWorld::Poses(bodies);
+
+  // the cup: a ball joint at the contact, its world end rising along the normal; it lets go
+  // when an impulse above vacuum x area x dt is needed (kg cm / s: N s x 100)
+  btRigidBody* held = bodies[static_cast<size_t>(part)];
+  const Eigen::Vector3d pivot_in_body =
+      FromSim(held->getCenterOfMassTransform()).inverse() * point_mm;
+  auto cup = std::make_unique<btPoint2PointConstraint>(*held, ToSim(pivot_in_body));
+  const double area_m2 = M_PI * std::pow(lift.cup_diameter_mm / 2000, 2);
+  const double force_n = lift.vacuum_kpa * 1000 * area_m2;
+  cup->setBreakingImpulseThreshold(static_cast<btScalar>(force_n * dt * 100));
+  cup->setPivotB(ToSim(point_mm));
+  w.world().addConstraint(cup.get(), true);
+
+  // the cup's rise: smooth (3 x^2 - 2 x^3), its top speed lift_speed_mm_s, so the part is not
+  // jerked off the cup at the start
+  LiftResult result;
+  const double lift_s = 1.5 * lift.lift_mm / lift.lift_speed_mm_s;
+  bool let_go = false;
+  const Eigen::Isometry3d held_start = start[static_cast<size_t>(part)];
+  step(lift_s + kLiftHoldS, [&](double t) {
+    if (let_go) return;
+    if (!cup->isEnabled()) {
+      let_go = true;
+      return;
+    }
+    const Eigen::Isometry3d now = FromSim(held->getWorldTransform());
+    result.rise_mm = std::max(result.rise_mm, (now.translation() - held_start.translation()).z());
+    const Eigen::AngleAxisd turn(held_start.linear().transpose() * now.linear());
+    result.swing_deg = std::max(result.swing_deg, std::abs(turn.angle()) * 180 / M_PI);
+    const double x = std::min(t / lift_s, 1.0);
+    cup->setPivotB(ToSim(Eigen::Vector3d(point_mm + x * x * (3 - 2 * x) * lift.lift_mm * normal)));
+  });
+  w.world().removeConstraint(cup.get());
+  result.outcome = !let_go                              ? LiftResult::Outcome::kLifted
+                   : result.rise_mm >= lift.lift_mm / 5 ? LiftResult::Outcome::kDropped
+                                                        : LiftResult::Outcome::kStuck;
+  const std::vector<Eigen::Isometry3d> end = PileWorld::Poses(bodies);
+  for (size_t i = 0; i < bodies.size(); ++i) {
+    result.moved_mm.push_back(static_cast<int>(i) == part
+                                  ? 0.0
+                                  : (end[i].translation() - start[i].translation()).norm());
+  }
   return result;
 }
 

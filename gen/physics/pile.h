@@ -115,6 +115,29 @@ struct PileResult {
   double max_penetration_mm = 0;
 };
 
+/// A suction cup lifting one part of a pile (PileSimulator::Lift).
+struct LiftParams {
+  double cup_diameter_mm = 15;   // the cup's lip diameter, > 0
+  double vacuum_kpa = 60;        // the pressure difference it holds with, >= 0
+  double lift_mm = 50;           // how far the cup rises along the normal, > 0
+  double lift_speed_mm_s = 100;  // how fast, > 0
+};
+
+/// What lifting a part did.
+struct LiftResult {
+  enum class Outcome {
+    kLifted,   // lifted lift_mm and still held at the end
+    kDropped,  // the cup let go after the part had risen a fifth of lift_mm
+    kStuck,    // the cup let go before: the part is held in the pile
+  };
+  Outcome outcome = Outcome::kStuck;
+  double swing_deg = 0;  // the part's largest turn from its pose at the start, while held
+  double rise_mm = 0;    // how far its centre of mass rose, at most, while held
+  /// For every part, how far its centre of mass moved from the start to the end (the lifted
+  /// part: 0), mm.
+  std::vector<double> moved_mm;
+};
+
 /// The strict check of a published pile (stackgen-rest-check's defaults): every part moved less
 /// than 0.1 mm and 0.1 degree over 1 s, within 60 s.
 inline constexpr RestRule kStrictRestRule{0.1, 0.1, 1, 60};
@@ -199,6 +222,21 @@ class PileSimulator {
   /// pose per type.
   std::vector<int> PickOrder(const std::vector<int>& types,
                              const std::vector<Eigen::Isometry3d>& world_from_object) const;
+
+  /// Lifts part `part` of a pile at rest (types and mesh frames as for Resettle) by a suction cup
+  /// at `point_mm` on its surface, pulled out along the outward unit `normal` (world, mm), in
+  /// the pile's own world at rest (holding friction, rest_time_step_s): after 0.1 s for the
+  /// contacts to take up the load, the cup (a ball joint at the point, so the part swings
+  /// under it) rises lift_mm smoothly (3 x^2 - 2 x^3 over 1.5 lift_mm / lift_speed_mm_s: its top
+  /// speed lift_speed_mm_s) and holds 0.3 s; it lets go when the force it
+  /// needs exceeds vacuum_kpa x its area (Bullet's breaking impulse). The other parts move as
+  /// the lift pushes and frees them. Pure function of the inputs. Throws std::invalid_argument
+  /// for a part index out of range, one pose per type missing, a normal not of unit length or
+  /// parameters out of range.
+  LiftResult Lift(const std::vector<int>& types,
+                  const std::vector<Eigen::Isometry3d>& world_from_object, int part,
+                  const Eigen::Vector3d& point_mm, const Eigen::Vector3d& normal,
+                  const LiftParams& lift) const;
 
   /// One line saying which collision shape type `type` uses, e.g. "compound of 4 convex pieces
   /// (supplied)" / "HACD decomposition, 7 pieces (cached, <file>)" / "convex hull (8 vertices)".

@@ -34,6 +34,10 @@ namespace {
 // mixed into a pile's drop seed for the seeds of the states after picks
 constexpr uint64_t kPickSalt = 0x7069636b5069636bULL;
 
+// grasps: the suction scene's object of distractor i is this + i (labelled parts are their
+// instance ids, below it; the bin is 0)
+constexpr int kDistractorObject = 1000000;
+
 // Each randomisation lever draws from an engine of its own, seeded from the scene seed and the
 // lever, so switching one lever on or off never shifts another's draws.
 enum class Lever : uint64_t {
@@ -453,6 +457,125 @@ void SceneGenerator::Impl::AddParts(const SettledPile& settled,
   }
 }
 
+void SceneGenerator::Impl::LabelSuctionGrasps(const SettledPile& settled,
+                                              const CameraModel& camera,
+                                              const cv::Mat& instance_map, scene* out) const {
+  const config::GraspConfig& grasps = config().grasps();
+  SuctionCup cup;
+  cup.diameter_mm = grasps.cup_diameter_mm();
+  cup.compliance_mm = grasps.compliance_mm();
+  cup.approach_mm = grasps.approach_mm();
+  cup.tool_diameter_mm = grasps.tool_diameter_mm();
+  cup.candidates_per_part = grasps.candidates_per_part();
+
+  // the scene for rays: the bin (object 0), the parts by instance id (distractors above them)
+  suction->ClearObjects();
+  suction->AddObject(suction_bin_mesh_id, Eigen::Isometry3d::Identity(), 0);
+  std::vector<int> object_of(settled.world_from_object.size());
+  int next_instance = 1;
+  for (size_t i = 0; i < settled.world_from_object.size(); ++i) {
+    const TypeInScene& type = types[settled.object_types[i]];
+    object_of[i] = type.class_id > 0 ? next_instance++ : kDistractorObject + static_cast<int>(i);
+    suction->AddObject(type.suction_mesh_id, settled.world_from_object[i], object_of[i]);
+  }
+
+  // each annotated instance's grasps, best first, in the camera frame
+  const Eigen::Isometry3d camera_from_world = camera.world_from_camera.inverse();
+  for (const instance& labelled : out->instances) {
+    if (!labelled.annotated) continue;
+    const auto part = std::find(object_of.begin(), object_of.end(), labelled.instance_id);
+    if (part == object_of.end()) continue;
+    const size_t i = static_cast<size_t>(part - object_of.begin());
+    const Eigen::Vector3d com =
+        settled.world_from_object[i] * types[settled.object_types[i]].center_of_mass_mm;
+    const std::vector<SuctionGrasp> found = suction->Candidates(
+        camera, instance_map, labelled.instance_id, labelled.instance_id, com, cup);
+    for (size_t rank = 0; rank < found.size(); ++rank) {
+      const SuctionGrasp& grasp = found[rank];
+      suction_grasp message{};
+      message.instance_id = labelled.instance_id;
+      message.rank = static_cast<int32_t>(rank);
+      const Eigen::Vector3d point = camera_from_world * grasp.point_mm;
+      const Eigen::Vector3d normal = camera_from_world.linear() * grasp.normal;
+      for (int k = 0; k < 3; ++k) {
+        message.point_mm[k] = point[k];
+        message.normal[k] = normal[k];
+      }
+      message.u = grasp.u;
+      message.v = grasp.v;
+      message.seal = grasp.seal;
+      message.clearance_mm = grasp.clearance_mm;
+      message.approach_clear = grasp.approach_clear;
+      message.com_offset_mm = grasp.com_offset_mm;
+      message.proof = suction_grasp::PROOF_NOT_TRIED;
+      out->suction_grasps.push_back(message);
+    }
+  }
+  out->num_suction_grasps = static_cast<int32_t>(out->suction_grasps.size());
+  if (grasps.prove_per_part() > 0) ProveSuctionGrasps(settled, object_of, camera, out);
+}
+
+void SceneGenerator::Impl::ProveSuctionGrasps(const SettledPile& settled,
+                                              const std::vector<int>& object_of,
+                                              const CameraModel& camera, scene* out) const {
+  const config::GraspConfig& grasps = config().grasps();
+  LiftParams lift;
+  lift.cup_diameter_mm = grasps.cup_diameter_mm();
+  lift.vacuum_kpa = grasps.vacuum_kpa();
+  lift.lift_mm = grasps.lift_mm();
+  lift.lift_speed_mm_s = grasps.lift_speed_mm_s();
+
+  // the parts from the top down (as a robot picks), those whose best grasp is clear
+  const std::vector<int> order =
+      simulator->PickOrder(settled.object_types, settled.world_from_object);
+  int proven_parts = 0;
+  for (const int part : order) {
+    if (proven_parts >= grasps.prove_parts()) break;
+    const int instance_id = object_of[static_cast<size_t>(part)];
+    std::vector<suction_grasp*> own;
+    for (suction_grasp& grasp : out->suction_grasps) {
+      if (grasp.instance_id == instance_id) own.push_back(&grasp);
+    }
+    std::sort(own.begin(), own.end(),
+              [](const suction_grasp* a, const suction_grasp* b) { return a->rank < b->rank; });
+    if (own.empty() || !own.front()->approach_clear) continue;
+    ++proven_parts;
+
+    // its best grasps lifted, each in the pile as it was published
+    for (size_t k = 0; k < own.size() && static_cast<int>(k) < grasps.prove_per_part(); ++k) {
+      suction_grasp& grasp = *own[k];
+      const Eigen::Vector3d point =
+          camera.world_from_camera *
+          Eigen::Vector3d(grasp.point_mm[0], grasp.point_mm[1], grasp.point_mm[2]);
+      const Eigen::Vector3d normal =
+          (camera.world_from_camera.linear() *
+           Eigen::Vector3d(grasp.normal[0], grasp.normal[1], grasp.normal[2]))
+              .normalized();
+      const LiftResult result = simulator->Lift(settled.object_types, settled.world_from_object,
+                                                part, point, normal, lift);
+      grasp.proof = result.outcome == LiftResult::Outcome::kLifted    ? suction_grasp::PROOF_LIFTED
+                    : result.outcome == LiftResult::Outcome::kDropped ? suction_grasp::PROOF_DROPPED
+                                                                      : suction_grasp::PROOF_STUCK;
+      grasp.proof_swing_deg = result.swing_deg;
+      // the labelled parts that moved more than 1 mm, most first
+      std::vector<std::pair<double, int32_t>> moved;
+      double most = 0;
+      for (size_t i = 0; i < result.moved_mm.size(); ++i) {
+        most = std::max(most, result.moved_mm[i]);
+        if (result.moved_mm[i] > 1 && object_of[i] < kDistractorObject) {
+          moved.emplace_back(-result.moved_mm[i], object_of[i]);
+        }
+      }
+      std::sort(moved.begin(), moved.end());
+      grasp.proof_neighbours_moved_mm = most;
+      grasp.num_moved = static_cast<int32_t>(moved.size());
+      for (size_t m = 0; m < moved.size() && m < 8; ++m) {
+        grasp.moved_instance_ids[m] = moved[m].second;
+      }
+    }
+  }
+}
+
 scene SceneGenerator::Finish(const SettledPile& settled, int64_t seq, StageTimes* times) {
   return Encode(Render(settled, seq, times), times);
 }
@@ -551,6 +674,9 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
                      config.annotation().occlusion_rule() == config::AnnotationConfig::IGNORE,
                      config.annotation().min_visible_px());
   out.num_instances = static_cast<int32_t>(out.instances.size());
+  if (config.grasps().suction()) {
+    impl_->LabelSuctionGrasps(settled, camera, rendered.instance, &out);
+  }
   local.annotate_ms = MillisecondsSince(start);
 
   // what the encoding stage needs: the images and this scene's sensor draw
@@ -616,6 +742,8 @@ labels LabelsOf(const scene& scene) {
   out.camera = scene.camera;
   out.num_instances = scene.num_instances;
   out.instances = scene.instances;
+  out.num_suction_grasps = scene.num_suction_grasps;
+  out.suction_grasps = scene.suction_grasps;
   return out;
 }
 

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "gen/annotate/labels.h"
+#include "gen/grasp/suction.h"
 #include "gen/physics/pile.h"
 #include "gen/randomize/background.h"
 #include "gen/randomize/camera_pose.h"
@@ -38,6 +39,9 @@ struct TypeInScene {
   SurfaceDetail detail;  // physically based: its procedural detail
   // class id among the labelled types (1, 2, ... by first class_name), 0 = not labelled
   int class_id = 0;
+  // grasps.suction: its mesh among the suction scene's, and its centre of mass (object frame)
+  int suction_mesh_id = -1;
+  Eigen::Vector3d center_of_mass_mm = Eigen::Vector3d::Zero();
 };
 
 }  // namespace scene_internal
@@ -56,6 +60,9 @@ struct SceneGenerator::Impl {
   // surroundings.table_probability: the table's quad (-1: none) and height, mm
   int floor_mesh_id = -1;
   double floor_z_mm = 0;
+  // grasps.suction: the scene's meshes for rays (the parts' and the bin's), used by Render only
+  std::unique_ptr<SuctionScene> suction;
+  int suction_bin_mesh_id = -1;
   // physically based shading: the environments a scene draws from (renderer environment ids)
   std::vector<int> environment_ids;
   std::string description;
@@ -98,6 +105,18 @@ struct SceneGenerator::Impl {
   void AddPartTypes(const std::vector<PartType>& part_types,
                     const std::vector<std::string>& size_texts, std::ostringstream* description);
   void AddBinAndTable(const BinSpec& bin_spec);
+  // grasps.suction: the meshes of the parts and the bin for the grasps' rays
+  void AddSuctionMeshes(const std::vector<PartType>& part_types, const BinSpec& bin_spec);
+  // grasps.suction: the ranked grasps of every annotated instance of `out` (its instances
+  // labelled from `instance_map`, ids given in AddParts' order), seen by `camera`, appended to
+  // out->suction_grasps. Not thread-safe (one suction scene), as Render.
+  void LabelSuctionGrasps(const SettledPile& settled, const CameraModel& camera,
+                          const cv::Mat& instance_map, scene* out) const;
+  // grasps.prove_per_part: lifts the best grasps of the topmost parts (PickOrder) whose best
+  // grasp is clear in the pile's own physics and records what happened in their messages;
+  // object_of: each part's object (its instance id; distractors above every instance id)
+  void ProveSuctionGrasps(const SettledPile& settled, const std::vector<int>& object_of,
+                          const CameraModel& camera, scene* out) const;
   void AddEnvironments(std::ostringstream* description);
 
   // the camera's intrinsics from the config (a preset is resolved when the config is parsed).

@@ -6,6 +6,7 @@
 
 #include "gen/mesh/mesh.h"
 #include "gen/mesh/symmetry.h"
+#include "gen/physics/mass_properties.h"
 #include "gen/render/environment.h"
 #include "gen/scene/scene_generator_internal.h"
 
@@ -313,6 +314,23 @@ void SceneGenerator::Impl::AddBinAndTable(const BinSpec& bin_spec) {
   }
 }
 
+void SceneGenerator::Impl::AddSuctionMeshes(const std::vector<PartType>& part_types,
+                                            const BinSpec& bin_spec) {
+  const config::BinConfig& bin = config().bin();
+  suction = std::make_unique<SuctionScene>();
+  for (size_t t = 0; t < part_types.size(); ++t) {
+    types[t].suction_mesh_id = suction->AddMesh(part_types[t].mesh);
+    types[t].center_of_mass_mm =
+        ComputeMassProperties(part_types[t].mesh, part_types[t].physics.density_kg_m3,
+                              "part " + std::to_string(t))
+            .center_of_mass_mm;
+  }
+  suction_bin_mesh_id = suction->AddMesh(
+      bin.mesh().empty() ? MakeOpenBinMesh(bin.inner_length_mm(), bin.inner_width_mm(),
+                                           bin.inner_height_mm(), bin.wall_thickness_mm())
+                         : bin_spec.mesh);
+}
+
 void SceneGenerator::Impl::AddEnvironments(std::ostringstream* description) {
   // physically based shading: the procedural halls and the user's environment files, each
   // prefiltered once here
@@ -370,6 +388,7 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   std::ostringstream description;
   impl_->AddPartTypes(types, size_texts, &description);
   impl_->AddBinAndTable(bin_spec);
+  if (config.config.grasps().suction()) impl_->AddSuctionMeshes(types, bin_spec);
   const config::PhysicsConfig& physics = config.config.physics();
   if (physics.drop_mode() == config::PhysicsConfig::CUT_AND_PASTE) {
     description << "physics: none (CUT_AND_PASTE: parts placed as drawn)\n";

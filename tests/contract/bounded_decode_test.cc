@@ -176,9 +176,16 @@ size_t NumInstancesOffset(const scene& s) {
          static_cast<size_t>(s.header._getEncodedSizeNoHash() + s.camera._getEncodedSizeNoHash());
 }
 size_t FirstClassNameLengthOffset(const scene& s) { return NumInstancesOffset(s) + 4 + 8; }
-size_t ColorOffset(const scene& s) {
+size_t NumSuctionGraspsOffset(const scene& s) {
   size_t offset = NumInstancesOffset(s) + 4;
   for (const instance& i : s.instances) offset += static_cast<size_t>(i._getEncodedSizeNoHash());
+  return offset;
+}
+size_t ColorOffset(const scene& s) {
+  size_t offset = NumSuctionGraspsOffset(s) + 4;
+  for (const suction_grasp& g : s.suction_grasps) {
+    offset += static_cast<size_t>(g._getEncodedSizeNoHash());
+  }
   return offset;
 }
 constexpr size_t kImageWidth = 0, kImageHeight = 4, kImagePixelFormat = 8, kImageSize = 10;
@@ -460,6 +467,11 @@ TEST(BoundedDecodeTest, CorruptCountsRefusedWithinAddressLimit) {
        "num_instances -1 is negative"},
       {"num_instances INT32_MIN", [&](auto* b) { PutInt32(b, NumInstancesOffset(s), INT32_MIN); },
        "num_instances -2147483648 is negative"},
+      {"num_suction_grasps INT32_MAX",
+       [&](auto* b) { PutInt32(b, NumSuctionGraspsOffset(s), INT32_MAX); },
+       "num_suction_grasps 2147483647 needs at least"},
+      {"num_suction_grasps -3", [&](auto* b) { PutInt32(b, NumSuctionGraspsOffset(s), -3); },
+       "num_suction_grasps -3 is negative"},
       {"color.size INT32_MAX", [&](auto* b) { PutInt32(b, color + kImageSize, INT32_MAX); },
        "color.size 2147483647 needs 2147483647 bytes"},
       {"color.size -1", [&](auto* b) { PutInt32(b, color + kImageSize, -1); },

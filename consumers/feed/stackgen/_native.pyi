@@ -54,6 +54,11 @@ class Scene:
     px_count_visib: npt.NDArray[np.int32]
     visib_fract: npt.NDArray[np.float64]
     annotated: npt.NDArray[np.bool_]
+    # config grasps: every suction grasp, one array per field (instance_id, rank, uv (G, 2),
+    # point_mm (G, 3) and normal (G, 3) in the camera frame, seal, clearance_mm,
+    # approach_clear, com_offset_mm, proof (0 not tried, 1 lifted, 2 dropped, 3 stuck),
+    # proof_swing_deg, proof_neighbours_moved_mm), each instance's best first
+    suction_grasps: Dict[str, npt.NDArray[Any]]
     ignored: npt.NDArray[np.bool_]
     # added by stackgen/__init__.py
     rgb: Optional[npt.NDArray[np.uint8]]

@@ -4,6 +4,7 @@
 #include "consumers/bop/bop_writer.h"
 #include "consumers/bop/toolkit_json.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -16,6 +17,8 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "bus/channels.h"
+#include "bus/log.h"
 #include "tests/consumers/coco/coco_test_scenes.h"
 #include "tests/support/process.h"
 
@@ -24,6 +27,7 @@ namespace {
 
 using nlohmann::json;
 using testing::ReadFile;
+namespace fs = std::filesystem;
 
 // a unit cube of 8 vertices and 12 triangles, millimetres, as class `class_id`
 model Cube(int32_t class_id, float size) {
@@ -210,6 +214,57 @@ TEST(BopWriterTest, SensorDepthBesideTheExactOneAndPointClouds) {
   EXPECT_FLOAT_EQ(p[1], static_cast<float>((4 - 2.5) * 501.0 / 500));
   EXPECT_FLOAT_EQ(p[2], 501.f);
   EXPECT_TRUE(std::filesystem::exists(chunk + "points/000001.ply"));
+}
+
+// the fixture log's scenes (a 3D camera, suction grasps): scene_grasp.json holds, per image, one
+// list per ground truth (scene_gt's order, by instance id) with that instance's grasps by rank;
+// depth/ is the sensor's and depth_ideal/ the exact depth
+TEST(BopWriterTest, GraspsBesideTheGroundTruths) {
+  testing::ScratchDir scratch("stackgen-bop-writer");
+  const std::string dir = scratch.path() + "/dataset";
+  std::vector<scene> scenes;
+  ReadLog(std::string(STACKGEN_SOURCE_DIR) + "/tests/fixtures/logs/tiny.lcmlog",
+          [&](const LogEvent& event) {
+            if (event.channel == kSceneChannel) scenes.push_back(DecodeLogEvent<scene>(event));
+          });
+  ASSERT_EQ(scenes.size(), 4u);
+  {
+    BopWriter writer(dir);
+    for (const scene& s : scenes) ASSERT_TRUE(writer.Add(s));
+    writer.Finish();
+  }
+  const std::string chunk = dir + "/train_pbr/2000000/";
+  const json grasps = json::parse(ReadFile(chunk + "scene_grasp.json"));
+  const json gt = json::parse(ReadFile(chunk + "scene_gt.json"));
+  int proven = 0;
+  for (const scene& s : scenes) {
+    const std::string im = std::to_string(s.header.seq % 1000);
+    ASSERT_EQ(grasps.at(im).size(), gt.at(im).size()) << im;
+    std::vector<int32_t> ids;
+    for (const instance& object : s.instances) ids.push_back(object.instance_id);
+    std::sort(ids.begin(), ids.end());
+    for (size_t g = 0; g < ids.size(); ++g) {
+      std::vector<const suction_grasp*> own;
+      for (const suction_grasp& grasp : s.suction_grasps) {
+        if (grasp.instance_id == ids[g]) own.push_back(&grasp);
+      }
+      const json& stored = grasps[im][g];
+      ASSERT_EQ(stored.size(), own.size()) << im << " gt " << g;
+      for (const suction_grasp* grasp : own) {
+        const json& record = stored.at(static_cast<size_t>(grasp->rank));
+        EXPECT_EQ(record["v"], grasp->v);
+        EXPECT_EQ(record["clearance_mm"], grasp->clearance_mm);
+        if (grasp->proof != suction_grasp::PROOF_NOT_TRIED) {
+          ++proven;
+          EXPECT_NE(record["proof"], "not tried");
+          EXPECT_EQ(record["num_moved"], grasp->num_moved);
+        }
+      }
+    }
+    const std::string file = im.size() < 6 ? std::string(6 - im.size(), '0') + im : im;
+    EXPECT_TRUE(fs::exists(chunk + "depth_ideal/" + file + ".png")) << file;
+  }
+  EXPECT_EQ(proven, 4);
 }
 
 }  // namespace

@@ -74,7 +74,7 @@ void ExpectMatchesLog(const json& dataset, const std::vector<scene>& scenes) {
         &annotation;
   }
 
-  size_t expected_annotations = 0;
+  size_t expected_annotations = 0, with_grasps = 0, proven = 0;
   for (const scene& logged : scenes) {
     // the image: its id is generator_id * 1e8 + seq + 1 (consumers/coco/coco_writer.h)
     const int64_t id = int64_t{logged.header.generator_id} * 100000000 + logged.header.seq + 1;
@@ -101,11 +101,41 @@ void ExpectMatchesLog(const json& dataset, const std::vector<scene>& scenes) {
       EXPECT_EQ(annotation["segmentation"]["counts"], object.mask_visib_rle);
       EXPECT_EQ(annotation["bbox"],
                 json(std::vector<int>(object.bbox_visib, object.bbox_visib + 4)));
+      // its suction grasps (annotated instances only) in the "stackgen" block, by rank, each
+      // the log's
+      std::vector<const suction_grasp*> grasps;
+      for (const suction_grasp& grasp : logged.suction_grasps) {
+        if (grasp.instance_id == object.instance_id) grasps.push_back(&grasp);
+      }
+      if (grasps.empty()) {
+        EXPECT_FALSE(annotation.contains("stackgen"));
+        continue;
+      }
+      const json& stored = annotation["stackgen"]["suction_grasps"];
+      ASSERT_EQ(stored.size(), grasps.size());
+      for (const suction_grasp* grasp : grasps) {
+        const json& record = stored.at(static_cast<size_t>(grasp->rank));
+        EXPECT_EQ(record["rank"], grasp->rank);
+        EXPECT_EQ(record["u"], grasp->u);
+        EXPECT_EQ(record["seal"], grasp->seal);
+        EXPECT_EQ(record["approach_clear"], grasp->approach_clear != 0);
+        EXPECT_EQ(record["point_mm"],
+                  json(std::vector<double>(grasp->point_mm, grasp->point_mm + 3)));
+        EXPECT_EQ(record.contains("moved_instance_ids"),
+                  grasp->proof != suction_grasp::PROOF_NOT_TRIED);
+      }
     }
     EXPECT_EQ(annotations[id].size(), expected_ids.size());
     expected_annotations += expected_ids.size();
+    for (const suction_grasp& grasp : logged.suction_grasps) {
+      proven += grasp.proof != suction_grasp::PROOF_NOT_TRIED;
+      with_grasps += grasp.rank == 0;
+    }
   }
   EXPECT_EQ(dataset["annotations"].size(), expected_annotations);
+  // the fixture's config labels grasps and proves the top part's best one in every scene
+  EXPECT_GT(with_grasps, scenes.size());
+  EXPECT_EQ(proven, scenes.size());
 }
 
 // the image files of a dataset: name -> bytes

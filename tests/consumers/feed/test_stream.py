@@ -103,15 +103,12 @@ def test_stream_equals_what_stackgen_coco_stores(tmp_path, processes):
 
 # a 3D camera's depth reaches the learner beside the exact one: holes where the exact depth has
 # a surface, and its organised point cloud is the back-projection of each pixel, NaN at holes;
-# a scene without a 3D camera (the fixture log's) has none
-def test_stream_carries_the_3d_cameras_depth(tmp_path, processes):
-    config = tmp_path / "sensor.pbtxt"
-    with open(CONFIG) as file:
-        config.write_text(file.read() + "\nsensor_3d {\n  enabled: true\n}\n")
+# and the suction grasps (the tiny config has both): on annotated instances, each one's best
+# first, unit normals facing the camera, one proof per scene
+def test_stream_carries_depth_sensor_and_grasps(tmp_path, processes):
     url, count = free_url(), 2
     with stackgen.Stream(url, reliable=True, count=count, timeout=60, depth=True) as stream:
-        generator = processes(generator_argv(url, count, tmp_path / "cache", config=config),
-                              "stackgen")
+        generator = processes(quick_generator(url, count, tmp_path / "cache"), "stackgen")
         scenes = list(stream)
     assert generator.wait(60) == 0, generator.stderr()
     assert len(scenes) == count
@@ -136,9 +133,20 @@ def test_stream_carries_the_3d_cameras_depth(tmp_path, processes):
         assert abs(cloud[v[k], u[k], 0] - (u[k] - K[0, 2]) * sensor[v[k], u[k]] / K[0, 0]) < 1e-3
         exact_cloud = scene.point_cloud(sensor=False)
         assert np.array_equal(exact_cloud[..., 2][surface], exact[surface])
-    with stackgen.Stream("file://" + TINY_LOG, open_bus=True, count=1) as stream:
-        logged = list(stream)[0]
-    assert not logged.has_depth_sensor and logged.depth_sensor_mm is None
+
+        grasps = scene.suction_grasps
+        annotated = set(scene.instance_ids[scene.annotated].tolist())
+        assert len(grasps["rank"]) > 0
+        assert set(grasps["instance_id"].tolist()) <= annotated
+        assert np.allclose(np.linalg.norm(grasps["normal"], axis=1), 1, atol=1e-6)
+        assert np.all(np.sum(grasps["normal"] * grasps["point_mm"], axis=1) < 0)  # facing us
+        assert np.all((grasps["seal"] >= 0) & (grasps["seal"] <= 1))
+        for instance_id in set(grasps["instance_id"].tolist()):
+            ranks = grasps["rank"][grasps["instance_id"] == instance_id]
+            assert sorted(ranks.tolist()) == list(range(len(ranks)))
+        u, v = grasps["uv"][:, 0], grasps["uv"][:, 1]
+        assert np.array_equal(scene.instance_map[v, u], grasps["instance_id"])
+        assert (grasps["proof"] != 0).sum() == 1
 
 
 # a reliable stream that drops 30 % of what it receives (and a generator that drops 10 % of the

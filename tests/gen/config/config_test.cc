@@ -27,7 +27,7 @@ TEST(ConfigTest, ShippedConfigsAreValid) {
         "ignore_occluded.pbtxt", "phong.pbtxt", "studio_hdri.pbtxt", "cut_and_paste.pbtxt",
         "ablation/none.pbtxt", "ablation/no_background.pbtxt", "ablation/no_lighting.pbtxt",
         "ablation/no_noise.pbtxt", "ablation/no_occlusion_filter.pbtxt", "surroundings.pbtxt",
-        "structured_light.pbtxt"}) {
+        "picking.pbtxt"}) {
     const LoadedConfig loaded = LoadConfig(std::string(STACKGEN_SOURCE_DIR) + "/config/" + name);
     EXPECT_GT(loaded.config.part(0).count(), 0) << name;
   }

@@ -43,6 +43,49 @@ std::pair<Eigen::Vector3d, Eigen::Vector3d> TangentsOf(const Eigen::Vector3d& n)
   return {t1, n.cross(t1)};
 }
 
+// up to `count` pixels spread over the nonzero pixels of `mask`: farthest point sampling over
+// the inner half of the region (by distance to its edge), from its deepest pixel
+std::vector<cv::Point> SpreadOver(const cv::Mat& mask, int count) {
+  std::vector<cv::Point> pixels;
+  cv::findNonZero(mask, pixels);
+  if (pixels.empty()) return {};
+  cv::Mat inside;
+  cv::distanceTransform(mask, inside, cv::DIST_L2, 3);
+  double deepest = 0;
+  cv::minMaxLoc(inside, nullptr, &deepest);
+
+  // farthest point sampling over the inner half of the region, from its deepest pixel
+  std::vector<cv::Point> pool;
+  cv::Point first = pixels[0];
+  float first_depth = -1;
+  for (const cv::Point& p : pixels) {
+    const float d = inside.at<float>(p);
+    if (d >= 0.5 * deepest) pool.push_back(p);
+    if (d > first_depth) {
+      first_depth = d;
+      first = p;
+    }
+  }
+  std::vector<cv::Point> chosen = {first};
+  std::vector<double> nearest(pool.size(), std::numeric_limits<double>::infinity());
+  while (static_cast<int>(chosen.size()) < count) {
+    const cv::Point last = chosen.back();
+    size_t best = 0;
+    double best_distance = -1;
+    for (size_t i = 0; i < pool.size(); ++i) {
+      const double dx = pool[i].x - last.x, dy = pool[i].y - last.y;
+      nearest[i] = std::min(nearest[i], dx * dx + dy * dy);
+      if (nearest[i] > best_distance) {
+        best_distance = nearest[i];
+        best = i;
+      }
+    }
+    if (best_distance <= 0) break;
+    chosen.push_back(pool[best]);
+  }
+  return chosen;
+}
+
 }  // namespace
 
 bool BetterSuction(const SuctionGrasp& a, const SuctionGrasp& b) {
@@ -177,45 +220,8 @@ std::vector<SuctionGrasp> SuctionScene::Candidates(const CameraModel& camera,
                                                    const cv::Mat& instance_map, int instance_id,
                                                    int object, const Eigen::Vector3d& com_world,
                                                    const SuctionCup& cup) const {
-  // the object's pixels, and how deep inside its region each lies
-  const cv::Mat mask = instance_map == instance_id;
-  std::vector<cv::Point> pixels;
-  cv::findNonZero(mask, pixels);
-  if (pixels.empty()) return {};
-  cv::Mat inside;
-  cv::distanceTransform(mask, inside, cv::DIST_L2, 3);
-  double deepest = 0;
-  cv::minMaxLoc(inside, nullptr, &deepest);
-
-  // farthest point sampling over the inner half of the region, from its deepest pixel
-  std::vector<cv::Point> pool;
-  cv::Point first = pixels[0];
-  float first_depth = -1;
-  for (const cv::Point& p : pixels) {
-    const float d = inside.at<float>(p);
-    if (d >= 0.5 * deepest) pool.push_back(p);
-    if (d > first_depth) {
-      first_depth = d;
-      first = p;
-    }
-  }
-  std::vector<cv::Point> chosen = {first};
-  std::vector<double> nearest(pool.size(), std::numeric_limits<double>::infinity());
-  while (static_cast<int>(chosen.size()) < cup.candidates_per_part) {
-    const cv::Point last = chosen.back();
-    size_t best = 0;
-    double best_distance = -1;
-    for (size_t i = 0; i < pool.size(); ++i) {
-      const double dx = pool[i].x - last.x, dy = pool[i].y - last.y;
-      nearest[i] = std::min(nearest[i], dx * dx + dy * dy);
-      if (nearest[i] > best_distance) {
-        best_distance = nearest[i];
-        best = i;
-      }
-    }
-    if (best_distance <= 0) break;
-    chosen.push_back(pool[best]);
-  }
+  const std::vector<cv::Point> chosen =
+      SpreadOver(instance_map == instance_id, cup.candidates_per_part);
 
   // each pixel's surface, from the camera's ray through its centre, evaluated
   std::vector<SuctionGrasp> grasps;
@@ -229,6 +235,52 @@ std::vector<SuctionGrasp> SuctionScene::Candidates(const CameraModel& camera,
     SuctionGrasp grasp = Evaluate(seen.point, seen.normal, object, com_world, cup);
     grasp.u = p.x;
     grasp.v = p.y;
+    grasps.push_back(grasp);
+  }
+  std::sort(grasps.begin(), grasps.end(), BetterSuction);
+  return grasps;
+}
+
+std::vector<SuctionGrasp> SuctionScene::CandidatesFromAbove(int object,
+                                                            const Eigen::Vector3d& com_world,
+                                                            const SuctionCup& cup,
+                                                            double pitch_mm) const {
+  // the object's box, and the top of everything
+  const btCollisionObject* placed = nullptr;
+  btVector3 top_low, top_high(0, 0, -BT_LARGE_FLOAT);
+  for (const auto& candidate : impl_->objects) {
+    btVector3 low, high;
+    candidate->getCollisionShape()->getAabb(candidate->getWorldTransform(), low, high);
+    top_high.setZ(std::max(top_high.z(), high.z()));
+    if (candidate->getUserIndex() == object) placed = candidate.get();
+  }
+  if (placed == nullptr || !(pitch_mm > 0)) return {};
+  btVector3 low, high;
+  placed->getCollisionShape()->getAabb(placed->getWorldTransform(), low, high);
+  const int nx = static_cast<int>(std::ceil((high.x() - low.x()) / pitch_mm)) + 1;
+  const int ny = static_cast<int>(std::ceil((high.y() - low.y()) / pitch_mm)) + 1;
+
+  // straight down on a grid over it: where the object is what a ray meets first
+  cv::Mat seen(ny, nx, CV_8UC1, cv::Scalar(0));
+  std::vector<Hit> hits(static_cast<size_t>(nx * ny));
+  for (int iy = 0; iy < ny; ++iy) {
+    for (int ix = 0; ix < nx; ++ix) {
+      const Eigen::Vector3d from(low.x() + ix * pitch_mm, low.y() + iy * pitch_mm,
+                                 top_high.z() + 10);
+      const Hit hit = Cast(from, Eigen::Vector3d(from.x(), from.y(), low.z() - 1));
+      if (!hit.hit || hit.object != object) continue;
+      seen.at<uint8_t>(iy, ix) = 255;
+      hits[static_cast<size_t>(iy * nx + ix)] = hit;
+    }
+  }
+
+  // spread over it as the camera's candidates are, evaluated, best first
+  std::vector<SuctionGrasp> grasps;
+  for (const cv::Point& cell : SpreadOver(seen, cup.candidates_per_part)) {
+    const Hit& hit = hits[static_cast<size_t>(cell.y * nx + cell.x)];
+    SuctionGrasp grasp = Evaluate(hit.point, hit.normal, object, com_world, cup);
+    grasp.u = cell.x;
+    grasp.v = cell.y;
     grasps.push_back(grasp);
   }
   std::sort(grasps.begin(), grasps.end(), BetterSuction);

@@ -102,6 +102,13 @@ class SuctionScene {
                                        const Eigen::Vector3d& com_world,
                                        const SuctionCup& cup) const;
 
+  /// As Candidates, seen straight down instead of by a camera (a robot picking from above):
+  /// vertical rays on a grid of pitch_mm over the object's box, the cells where the object is
+  /// met first standing for its pixels; u and v are the grid cell. Empty when the object is not
+  /// placed or nothing of it is seen from above.
+  std::vector<SuctionGrasp> CandidatesFromAbove(int object, const Eigen::Vector3d& com_world,
+                                                const SuctionCup& cup, double pitch_mm = 2) const;
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;

@@ -306,8 +306,13 @@ void SceneGenerator::Impl::Pick(SettledPile* state, int views) const {
   StageTimes local;
   // the parts in the order a robot picks them; the first whose removal leaves a pile that
   // passes the checks goes
-  const std::vector<int> order =
-      simulator->PickOrder(state->object_types, state->world_from_object);
+  std::vector<int> order = simulator->PickOrder(state->object_types, state->world_from_object);
+  // with proven grasps, the parts a cup lifts go first
+  std::map<int, std::pair<Eigen::Vector3d, Eigen::Vector3d>> proven;
+  const config::GraspConfig& grasps = config().grasps();
+  if (grasps.suction() && grasps.prove_per_part() > 0) {
+    order = ProvenPickOrder(*state, order, &proven);
+  }
   const int tries = std::min(static_cast<int>(order.size()), config().physics().max_redraws() + 1);
   for (int t = 0; t < tries; ++t) {
     std::vector<int> types = state->object_types;
@@ -318,6 +323,13 @@ void SceneGenerator::Impl::Pick(SettledPile* state, int views) const {
     if (!Passes(rest, &local)) continue;
     state->object_types = std::move(types);
     state->world_from_object = std::move(rest.world_from_object);
+    state->picked = order[t];
+    const auto grasp = proven.find(order[t]);
+    state->picked_proven = grasp != proven.end();
+    if (state->picked_proven) {
+      state->picked_point_mm = grasp->second.first;
+      state->picked_normal = grasp->second.second;
+    }
     ++state->level;
     state->first_seq += views;
     state->seed = SplitMixHash(SplitMixHash(state->drop_seed ^ kPickSalt) +
@@ -457,9 +469,7 @@ void SceneGenerator::Impl::AddParts(const SettledPile& settled,
   }
 }
 
-void SceneGenerator::Impl::LabelSuctionGrasps(const SettledPile& settled,
-                                              const CameraModel& camera,
-                                              const cv::Mat& instance_map, scene* out) const {
+SuctionCup SceneGenerator::Impl::Cup() const {
   const config::GraspConfig& grasps = config().grasps();
   SuctionCup cup;
   cup.diameter_mm = grasps.cup_diameter_mm();
@@ -467,6 +477,71 @@ void SceneGenerator::Impl::LabelSuctionGrasps(const SettledPile& settled,
   cup.approach_mm = grasps.approach_mm();
   cup.tool_diameter_mm = grasps.tool_diameter_mm();
   cup.candidates_per_part = grasps.candidates_per_part();
+  return cup;
+}
+
+LiftParams SceneGenerator::Impl::LiftOf() const {
+  const config::GraspConfig& grasps = config().grasps();
+  LiftParams lift;
+  lift.cup_diameter_mm = grasps.cup_diameter_mm();
+  lift.vacuum_kpa = grasps.vacuum_kpa();
+  lift.lift_mm = grasps.lift_mm();
+  lift.lift_speed_mm_s = grasps.lift_speed_mm_s();
+  return lift;
+}
+
+std::vector<int> SceneGenerator::Impl::ProvenPickOrder(
+    const SettledPile& state, const std::vector<int>& order,
+    std::map<int, std::pair<Eigen::Vector3d, Eigen::Vector3d>>* proven) const {
+  const config::GraspConfig& grasps = config().grasps();
+  const SuctionCup cup = Cup();
+  const LiftParams lift = LiftOf();
+
+  // the pile for rays (objects: part index + 1; the bin 0), its own: picks run on any physics
+  // thread
+  SuctionScene scene;
+  std::vector<int> mesh_of;
+  for (const TriangleMesh& mesh : part_meshes) mesh_of.push_back(scene.AddMesh(mesh));
+  scene.AddObject(scene.AddMesh(bin_mesh), Eigen::Isometry3d::Identity(), 0);
+  for (size_t i = 0; i < state.world_from_object.size(); ++i) {
+    scene.AddObject(mesh_of[static_cast<size_t>(state.object_types[i])],
+                    state.world_from_object[i], static_cast<int>(i) + 1);
+  }
+
+  // the first prove_parts parts from the top: each whose best grasps from above (clear ones)
+  // lift it goes first, in the same order
+  std::vector<int> first, rest;
+  for (size_t k = 0; k < order.size(); ++k) {
+    const int part = order[k];
+    bool lifted = false;
+    if (static_cast<int>(k) < grasps.prove_parts()) {
+      const Eigen::Vector3d com =
+          state.world_from_object[static_cast<size_t>(part)] *
+          types[static_cast<size_t>(state.object_types[static_cast<size_t>(part)])]
+              .center_of_mass_mm;
+      const std::vector<SuctionGrasp> found = scene.CandidatesFromAbove(part + 1, com, cup);
+      for (size_t g = 0; g < found.size() && static_cast<int>(g) < grasps.prove_per_part(); ++g) {
+        if (!found[g].approach_clear) break;
+        const LiftResult result = simulator->Lift(state.object_types, state.world_from_object,
+                                                  part, found[g].point_mm, found[g].normal, lift);
+        if (result.outcome == LiftResult::Outcome::kLifted) {
+          (*proven)[part] = {found[g].point_mm, found[g].normal};
+          lifted = true;
+          break;
+        }
+      }
+    }
+    (lifted ? first : rest).push_back(part);
+  }
+  first.insert(first.end(), rest.begin(), rest.end());
+  return first;
+}
+
+void SceneGenerator::Impl::LabelSuctionGrasps(const SettledPile& settled,
+                                              const CameraModel& camera,
+                                              const cv::Mat& instance_map, scene* out) const {
+  const config::GraspConfig& grasps = config().grasps();
+  const SuctionCup cup = Cup();
 
   // the scene for rays: the bin (object 0), the parts by instance id (distractors above them)
   suction->ClearObjects();
@@ -519,11 +594,7 @@ void SceneGenerator::Impl::ProveSuctionGrasps(const SettledPile& settled,
                                               const std::vector<int>& object_of,
                                               const CameraModel& camera, scene* out) const {
   const config::GraspConfig& grasps = config().grasps();
-  LiftParams lift;
-  lift.cup_diameter_mm = grasps.cup_diameter_mm();
-  lift.vacuum_kpa = grasps.vacuum_kpa();
-  lift.lift_mm = grasps.lift_mm();
-  lift.lift_speed_mm_s = grasps.lift_speed_mm_s();
+  const LiftParams lift = LiftOf();
 
   // the parts from the top down (as a robot picks), those whose best grasp is clear
   const std::vector<int> order =

@@ -71,6 +71,14 @@ struct SettledPile {
   /// physics_ms and the redraws of this state (a pick whose rest failed a check counts as a
   /// redraw).
   StageTimes times;
+  /// After a pick: the index, among the previous state's parts, of the part picked; -1 at
+  /// level 0. With grasps proven (grasps.prove_per_part), whether a suction grasp from above
+  /// lifted it in the previous state's world (PileSimulator::Lift), and that grasp (world, mm;
+  /// the normal the cup pulled along).
+  int picked = -1;
+  bool picked_proven = false;
+  Eigen::Vector3d picked_point_mm = Eigen::Vector3d::Zero();
+  Eigen::Vector3d picked_normal = Eigen::Vector3d::UnitZ();
 };
 
 /// The images of a rendered scene before the sensor and encoding (defined in the .cc).

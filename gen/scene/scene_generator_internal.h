@@ -4,6 +4,7 @@
 // (SceneGenerator::Impl) and each part type as a scene uses it. Not for use outside gen/scene/.
 
 #include <chrono>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <random>
@@ -63,6 +64,9 @@ struct SceneGenerator::Impl {
   // grasps.suction: the scene's meshes for rays (the parts' and the bin's), used by Render only
   std::unique_ptr<SuctionScene> suction;
   int suction_bin_mesh_id = -1;
+  // grasps.suction: the meshes again, for the picks' own scenes (picks run on physics threads)
+  std::vector<TriangleMesh> part_meshes;
+  TriangleMesh bin_mesh;
   // physically based shading: the environments a scene draws from (renderer environment ids)
   std::vector<int> environment_ids;
   std::string description;
@@ -83,6 +87,15 @@ struct SceneGenerator::Impl {
   SettledPile Drop(int64_t pile_index, int64_t first_seq) const;
   // Picks the next part from `state` (see physics.pick_sequence); throws if none can go.
   void Pick(SettledPile* state, int views) const;
+  // With proven grasps: `order` (PickOrder's) with the parts a suction grasp from above lifts
+  // first, among the first grasps.prove_parts, and for each part so proven its grasp (in
+  // `proven`, by part index; the others absent).
+  std::vector<int> ProvenPickOrder(const SettledPile& state, const std::vector<int>& order,
+                                   std::map<int, std::pair<Eigen::Vector3d, Eigen::Vector3d>>*
+                                       proven) const;
+  // the cup and the lift of the config's grasps
+  SuctionCup Cup() const;
+  LiftParams LiftOf() const;
   // Whether a pile passes every check a published scene must pass; counts a failure in `times`.
   bool Passes(const PileResult& pile, StageTimes* times) const;
   // physics.drop_mode CUT_AND_PASTE: the parts placed at random, no physics, a pure function

@@ -319,16 +319,17 @@ void SceneGenerator::Impl::AddSuctionMeshes(const std::vector<PartType>& part_ty
   const config::BinConfig& bin = config().bin();
   suction = std::make_unique<SuctionScene>();
   for (size_t t = 0; t < part_types.size(); ++t) {
+    part_meshes.push_back(part_types[t].mesh);
     types[t].suction_mesh_id = suction->AddMesh(part_types[t].mesh);
     types[t].center_of_mass_mm =
         ComputeMassProperties(part_types[t].mesh, part_types[t].physics.density_kg_m3,
                               "part " + std::to_string(t))
             .center_of_mass_mm;
   }
-  suction_bin_mesh_id = suction->AddMesh(
-      bin.mesh().empty() ? MakeOpenBinMesh(bin.inner_length_mm(), bin.inner_width_mm(),
-                                           bin.inner_height_mm(), bin.wall_thickness_mm())
-                         : bin_spec.mesh);
+  bin_mesh = bin.mesh().empty() ? MakeOpenBinMesh(bin.inner_length_mm(), bin.inner_width_mm(),
+                                                  bin.inner_height_mm(), bin.wall_thickness_mm())
+                                : bin_spec.mesh;
+  suction_bin_mesh_id = suction->AddMesh(bin_mesh);
 }
 
 void SceneGenerator::Impl::AddEnvironments(std::ostringstream* description) {

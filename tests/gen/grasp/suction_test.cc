@@ -137,5 +137,27 @@ TEST(SuctionTest, CandidatesOnWhatTheCameraSees) {
   EXPECT_TRUE(scene.Candidates(camera, wrong, 7, 1, {0, 0, 10}, cup).empty());
 }
 
+// seen from above, a box half under a slab: the candidates lie on its uncovered half, on its top
+// face, and every one seals; the slab itself is seen whole; an object not placed has none
+TEST(SuctionTest, CandidatesFromAboveOnWhatIsUncovered) {
+  SuctionScene scene;
+  const int box = scene.AddMesh(testing::BoxMesh(Eigen::Vector3f(100, 60, 20)));
+  const int slab = scene.AddMesh(testing::BoxMesh(Eigen::Vector3f(40, 80, 5)));
+  scene.AddObject(box, At(0, 0, 10), 1);
+  scene.AddObject(slab, At(-30, 0, 60), 2);  // over x in [-50, -10]
+  SuctionCup cup;
+  cup.candidates_per_part = 5;
+  const std::vector<SuctionGrasp> grasps = scene.CandidatesFromAbove(1, {0, 0, 10}, cup);
+  ASSERT_EQ(grasps.size(), 5u);
+  for (const SuctionGrasp& g : grasps) {
+    EXPECT_GT(g.point_mm.x(), -10);
+    EXPECT_NEAR(g.point_mm.z(), 20, 1e-3);
+    EXPECT_NEAR(g.normal.z(), 1, 1e-6);
+  }
+  EXPECT_TRUE(grasps.front().approach_clear);
+  EXPECT_EQ(scene.CandidatesFromAbove(2, {-30, 0, 60}, cup).size(), 5u);
+  EXPECT_TRUE(scene.CandidatesFromAbove(3, {0, 0, 0}, cup).empty());
+}
+
 }  // namespace
 }  // namespace stackgen

@@ -11,6 +11,7 @@
 
 #include "gen/annotate/pose.h"
 #include "gen/annotate/rle.h"
+#include "gen/physics/pile.h"
 #include "tests/support/process.h"
 
 namespace stackgen {
@@ -228,6 +229,46 @@ TEST(SceneGeneratorTest, PickSequenceEmptiesTheBin) {
     EXPECT_TRUE(Encoded(generator.Generate(seq, nullptr)) == pipelined[seq]) << "scene " << seq;
   }
   EXPECT_THROW(generator.Finish(state, 9, nullptr), std::invalid_argument);
+}
+
+// picks with proven grasps: each pick takes a part a cup lifted from above when one of the first
+// parts in picking order could be (the proof runs again to the same end from the state before),
+// else the topmost as before; the same states however the piles are reached
+TEST(SceneGeneratorTest, PicksTakeWhereTheProofLifted) {
+  const std::string cache = testing::MakeTempDir("stackgen-cache");
+  LoadedConfig config = DefaultConfig();
+  config.config.mutable_part(0)->set_count(5);
+  config.config.mutable_physics()->set_pick_sequence(true);
+  config::GraspConfig& grasps = *config.config.mutable_grasps();
+  grasps.set_suction(true);
+  grasps.set_prove_per_part(2);
+  grasps.set_prove_parts(3);
+  SceneGenerator generator(config, 0, 3, cache);
+  LiftParams lift;
+  lift.cup_diameter_mm = grasps.cup_diameter_mm();
+  SettledPile state = generator.Settle(0);
+  EXPECT_EQ(state.picked, -1);
+  int proven = 0;
+  for (int level = 1; level < 5; ++level) {
+    const SettledPile next = generator.SettleNext(state);
+    ASSERT_EQ(next.level, level);
+    ASSERT_GE(next.picked, 0);
+    const std::vector<int> order =
+        generator.simulator().PickOrder(state.object_types, state.world_from_object);
+    if (next.picked_proven) {
+      ++proven;
+      const LiftResult again =
+          generator.simulator().Lift(state.object_types, state.world_from_object, next.picked,
+                                     next.picked_point_mm, next.picked_normal, lift);
+      EXPECT_EQ(again.outcome, LiftResult::Outcome::kLifted) << "level " << level;
+    } else {
+      EXPECT_EQ(next.picked, order[0]) << "level " << level;
+    }
+    EXPECT_EQ(generator.Settle(next.first_seq).world_from_object.size(),
+              next.world_from_object.size());
+    state = next;
+  }
+  EXPECT_GT(proven, 0);
 }
 
 // config/cut_and_paste.pbtxt: no physics and no bin: 12 parts at random places over the floor,

@@ -14,6 +14,7 @@
 #include <stackgen/header.hpp>
 #include <stackgen/image.hpp>
 #include <stackgen/instance.hpp>
+#include <stackgen/jaw_grasp.hpp>
 #include <stackgen/suction_grasp.hpp>
 #include <stackgen/labels.hpp>
 #include <stackgen/model.hpp>
@@ -50,7 +51,8 @@ const char* KnownTypeOf(int64_t hash) {
       {resend_request::getHash(), "resend_request"},
       {scene::getHash(), "scene"},
       {status::getHash(), "status"},
-      {suction_grasp::getHash(), "suction_grasp"}};
+      {suction_grasp::getHash(), "suction_grasp"},
+      {jaw_grasp::getHash(), "jaw_grasp"}};
   for (const auto& [type_hash, name] : kTypes) {
     if (type_hash == hash) return name;
   }
@@ -447,36 +449,45 @@ bool ReadInstances(Reader& reader, int32_t* num_instances, std::vector<instance>
   return true;
 }
 
-// num_suction_grasps and the grasps, checked against the bytes that remain and
-// max_suction_grasps
-bool ReadSuctionGrasps(Reader& reader, int32_t* count, std::vector<suction_grasp>* grasps) {
-  if (!reader.Primitives("num_suction_grasps", __int32_t_decode_array, count, 1) ||
-      !reader.Count("num_suction_grasps", *count, internal::StringLayoutOf<suction_grasp>().min_size,
-                    reader.limits().max_suction_grasps, "max_suction_grasps")) {
+// a grasp array: its count (`count_field`), checked against the bytes that remain and
+// max_grasps, then each element (`field`[k]), a struct without variable-length arrays
+template <typename Grasp>
+bool ReadGrasps(Reader& reader, const char* count_field, const char* field, int32_t* count,
+                std::vector<Grasp>* grasps) {
+  if (!reader.Primitives(count_field, __int32_t_decode_array, count, 1) ||
+      !reader.Count(count_field, *count, internal::StringLayoutOf<Grasp>().min_size,
+                    reader.limits().max_grasps, "max_grasps")) {
     return false;
   }
   grasps->resize(static_cast<size_t>(*count));
   for (int32_t k = 0; k < *count; ++k) {
-    const std::string name = "suction_grasps[" + std::to_string(k) + "]";
+    const std::string name = std::string(field) + "[" + std::to_string(k) + "]";
     if (!reader.Struct(name.c_str(), &(*grasps)[static_cast<size_t>(k)])) return false;
   }
   return true;
+}
+
+// both kinds of grasps of a scene or labels message, in their order
+template <typename Message>
+bool ReadAllGrasps(Reader& reader, Message* m) {
+  return ReadGrasps(reader, "num_suction_grasps", "suction_grasps", &m->num_suction_grasps,
+                    &m->suction_grasps) &&
+         ReadGrasps(reader, "num_jaw_grasps", "jaw_grasps", &m->num_jaw_grasps, &m->jaw_grasps);
 }
 
 // the walks of each message type, in the order of its generated _decodeNoHash.
 bool ReadScene(Reader& reader, scene* m) {
   return reader.Struct("header", &m->header) && reader.Struct("camera", &m->camera) &&
          ReadInstances(reader, &m->num_instances, &m->instances) &&
-         ReadSuctionGrasps(reader, &m->num_suction_grasps, &m->suction_grasps) &&
-         ReadImage(reader, "color", &m->color) && ReadImage(reader, "depth", &m->depth) &&
+         ReadAllGrasps(reader, m) && ReadImage(reader, "color", &m->color) &&
+         ReadImage(reader, "depth", &m->depth) &&
          ReadImage(reader, "instance_map", &m->instance_map) &&
          ReadImage(reader, "depth_sensor", &m->depth_sensor);
 }
 
 bool ReadLabels(Reader& reader, labels* m) {
   return reader.Struct("header", &m->header) && reader.Struct("camera", &m->camera) &&
-         ReadInstances(reader, &m->num_instances, &m->instances) &&
-         ReadSuctionGrasps(reader, &m->num_suction_grasps, &m->suction_grasps);
+         ReadInstances(reader, &m->num_instances, &m->instances) && ReadAllGrasps(reader, m);
 }
 
 bool ReadImageMessage(Reader& reader, image* m) { return ReadImage(reader, "image", m); }

@@ -29,8 +29,9 @@ struct DecodeLimits {
   int64_t max_image_pixels = int64_t{64} << 20;
   /// Instances per scene/labels message above this are refused. Default 65535.
   int32_t max_instances = 65535;
-  /// Suction grasps per scene/labels message above this are refused. Default 1,048,576.
-  int32_t max_suction_grasps = 1 << 20;
+  /// Suction grasps, and parallel-jaw grasps, per scene/labels message above this are refused.
+  /// Default 1,048,576 of each.
+  int32_t max_grasps = 1 << 20;
   /// Vertices per model message above this are refused (triangles: twice as many). Default
   /// 4,000,000.
   int32_t max_model_vertices = 4000000;
@@ -98,7 +99,8 @@ bool Refuse(std::string reason, std::string* why);
 /// (268435456)"), and `*out` unchanged. Bytes left over after the message are refused too, and
 /// strings that LCM would not write (no NUL at the end, one inside). Never throws for bad input.
 ///
-/// Images (scene color, depth, instance_map, depth_sensor; an image message): width and height >= 0, width *
+/// Images (scene color, depth, instance_map, depth_sensor; an image message): width and height
+/// >= 0, width *
 /// height <= max_image_pixels, pixel_format and encoding known values; size 0 is accepted as "no
 /// image" (whatever the encoding). With data: width and height > 0, pixel_format and encoding
 /// not INVALID, RAW size == width * height * bytes per pixel (3, 1, 2, 2), PNG and JPEG size <=

@@ -248,68 +248,101 @@ int64_t MaskPixels(const std::string& counts, int64_t image_pixels, std::string*
   return inside;
 }
 
-// The suction grasps: their count, each on a known instance, a pixel of the image, a unit normal,
-// scores in range and a known proof.
-bool CheckSuctionGrasps(const scene& message, const std::set<int32_t>& ids, std::string* why) {
-  if (message.num_suction_grasps < 0 ||
-      static_cast<size_t>(message.num_suction_grasps) != message.suction_grasps.size()) {
-    return Refuse("num_suction_grasps " + std::to_string(message.num_suction_grasps) +
-                      " differs from the " + std::to_string(message.suction_grasps.size()) +
-                      " entries of suction_grasps",
+// The fields both kinds of grasps share: a known instance, a rank, a pixel of the image, lengths
+// that are finite and not negative, a known proof, moved instances that are the scene's.
+template <typename Grasp>
+bool CheckGraspCommon(const Grasp& grasp, const std::string& field, const std::set<int32_t>& ids,
+                      const camera_info& camera, std::string* why) {
+  if (ids.count(grasp.instance_id) == 0) {
+    return Refuse(field + ".instance_id " + std::to_string(grasp.instance_id) +
+                      " is no instance of the scene",
                   why);
+  }
+  if (grasp.rank < 0) return Refuse(field + ".rank " + std::to_string(grasp.rank) + " < 0", why);
+  if (grasp.u < 0 || grasp.v < 0 || grasp.u >= camera.width || grasp.v >= camera.height) {
+    return Refuse(field + ".u, v (" + std::to_string(grasp.u) + ", " + std::to_string(grasp.v) +
+                      ") outside the image",
+                  why);
+  }
+  const std::pair<const char*, double> lengths[4] = {
+      {"clearance_mm", grasp.clearance_mm},
+      {"com_offset_mm", grasp.com_offset_mm},
+      {"proof_swing_deg", grasp.proof_swing_deg},
+      {"proof_neighbours_moved_mm", grasp.proof_neighbours_moved_mm}};
+  for (const auto& [name, value] : lengths) {
+    if (!(std::isfinite(value) && value >= 0)) {
+      return Refuse(field + "." + name + " " + Number(value) + " is not a finite number >= 0",
+                    why);
+    }
+  }
+  if (grasp.proof < suction_grasp::PROOF_NOT_TRIED || grasp.proof > suction_grasp::PROOF_STUCK) {
+    return Refuse(field + ".proof " + std::to_string(grasp.proof) + " is not 0..3", why);
+  }
+  if (grasp.num_moved < 0) {
+    return Refuse(field + ".num_moved " + std::to_string(grasp.num_moved) + " < 0", why);
+  }
+  for (int m = 0; m < std::min(grasp.num_moved, 8); ++m) {
+    if (ids.count(grasp.moved_instance_ids[m]) == 0) {
+      return Refuse(field + ".moved_instance_ids[" + std::to_string(m) + "] " +
+                        std::to_string(grasp.moved_instance_ids[m]) +
+                        " is no instance of the scene",
+                    why);
+    }
+  }
+  return true;
+}
+
+// whether `values` (3) is a unit vector; refuses naming `field` when not
+bool CheckUnit(const double* values, const std::string& field, std::string* why) {
+  if (!CheckFinite(values, 3, field, why)) return false;
+  const double length =
+      std::sqrt(values[0] * values[0] + values[1] * values[1] + values[2] * values[2]);
+  if (std::abs(length - 1) > 1e-3) {
+    return Refuse(field + " has length " + Number(length) + ", not 1", why);
+  }
+  return true;
+}
+
+// The grasps: their counts, each on a known instance, a pixel of the image, unit directions,
+// scores in range and a known proof.
+bool CheckGrasps(const scene& message, const std::set<int32_t>& ids, std::string* why) {
+  const auto count_matches = [&](int32_t count, size_t size, const char* name) {
+    if (count >= 0 && static_cast<size_t>(count) == size) return true;
+    return Refuse(std::string("num_") + name + " " + std::to_string(count) + " differs from the " +
+                      std::to_string(size) + " entries of " + name,
+                  why);
+  };
+  if (!count_matches(message.num_suction_grasps, message.suction_grasps.size(),
+                     "suction_grasps") ||
+      !count_matches(message.num_jaw_grasps, message.jaw_grasps.size(), "jaw_grasps")) {
+    return false;
   }
   for (size_t k = 0; k < message.suction_grasps.size(); ++k) {
     const suction_grasp& grasp = message.suction_grasps[k];
     const std::string field = "suction_grasps[" + std::to_string(k) + "]";
-    if (ids.count(grasp.instance_id) == 0) {
-      return Refuse(field + ".instance_id " + std::to_string(grasp.instance_id) +
-                        " is no instance of the scene",
-                    why);
-    }
-    if (grasp.rank < 0) return Refuse(field + ".rank " + std::to_string(grasp.rank) + " < 0", why);
-    if (!CheckFinite(grasp.point_mm, 3, field + ".point_mm", why) ||
-        !CheckFinite(grasp.normal, 3, field + ".normal", why)) {
+    if (!CheckGraspCommon(grasp, field, ids, message.camera, why) ||
+        !CheckFinite(grasp.point_mm, 3, field + ".point_mm", why) ||
+        !CheckUnit(grasp.normal, field + ".normal", why)) {
       return false;
-    }
-    const double length = std::sqrt(grasp.normal[0] * grasp.normal[0] +
-                                    grasp.normal[1] * grasp.normal[1] +
-                                    grasp.normal[2] * grasp.normal[2]);
-    if (std::abs(length - 1) > 1e-3) {
-      return Refuse(field + ".normal has length " + Number(length) + ", not 1", why);
-    }
-    if (grasp.u < 0 || grasp.v < 0 || grasp.u >= message.camera.width ||
-        grasp.v >= message.camera.height) {
-      return Refuse(field + ".u, v (" + std::to_string(grasp.u) + ", " +
-                        std::to_string(grasp.v) + ") outside the image",
-                    why);
     }
     if (!(grasp.seal >= 0 && grasp.seal <= 1)) {
       return Refuse(field + ".seal " + Number(grasp.seal) + " outside [0, 1]", why);
     }
-    const std::pair<const char*, double> lengths[4] = {
-        {"clearance_mm", grasp.clearance_mm},
-        {"com_offset_mm", grasp.com_offset_mm},
-        {"proof_swing_deg", grasp.proof_swing_deg},
-        {"proof_neighbours_moved_mm", grasp.proof_neighbours_moved_mm}};
-    for (const auto& [name, value] : lengths) {
-      if (!(std::isfinite(value) && value >= 0)) {
-        return Refuse(field + "." + name + " " + Number(value) + " is not a finite number >= 0",
-                      why);
-      }
+  }
+  for (size_t k = 0; k < message.jaw_grasps.size(); ++k) {
+    const jaw_grasp& grasp = message.jaw_grasps[k];
+    const std::string field = "jaw_grasps[" + std::to_string(k) + "]";
+    if (!CheckGraspCommon(grasp, field, ids, message.camera, why) ||
+        !CheckFinite(grasp.point_a_mm, 3, field + ".point_a_mm", why) ||
+        !CheckFinite(grasp.point_b_mm, 3, field + ".point_b_mm", why) ||
+        !CheckUnit(grasp.approach, field + ".approach", why)) {
+      return false;
     }
-    if (grasp.proof < suction_grasp::PROOF_NOT_TRIED || grasp.proof > suction_grasp::PROOF_STUCK) {
-      return Refuse(field + ".proof " + std::to_string(grasp.proof) + " is not 0..3", why);
-    }
-    if (grasp.num_moved < 0) {
-      return Refuse(field + ".num_moved " + std::to_string(grasp.num_moved) + " < 0", why);
-    }
-    for (int m = 0; m < std::min(grasp.num_moved, 8); ++m) {
-      if (ids.count(grasp.moved_instance_ids[m]) == 0) {
-        return Refuse(field + ".moved_instance_ids[" + std::to_string(m) + "] " +
-                          std::to_string(grasp.moved_instance_ids[m]) +
-                          " is no instance of the scene",
-                      why);
-      }
+    if (!(std::isfinite(grasp.width_mm) && grasp.width_mm > 0) ||
+        !(std::isfinite(grasp.cone_margin_deg) && grasp.cone_margin_deg >= 0)) {
+      return Refuse(field + ".width_mm " + Number(grasp.width_mm) + " and cone_margin_deg " +
+                        Number(grasp.cone_margin_deg) + " must be finite, > 0 and >= 0",
+                    why);
     }
   }
   return true;
@@ -361,7 +394,7 @@ bool CheckScene(const scene& message, std::string* why) {
     }
     if (!CheckInstance(object, field, width, height, why)) return false;
   }
-  return CheckSuctionGrasps(message, ids, why);
+  return CheckGrasps(message, ids, why);
 }
 
 }  // namespace stackgen

@@ -26,7 +26,10 @@ written by stackgen-coco: each visible mask tinted in its own colour with its ou
 and its instance id and visible fraction; and its suction grasps (config grasps), each a dot
 with a 15 mm line along the surface's normal: green where the cup seals fully and the tool
 comes in, yellow where it seals but the approach is blocked, red where it does not seal; the
-best of each part ringed in white, a proven one filled (lifted) or crossed (dropped, stuck).
+best of each part ringed in white, a proven one filled (lifted) or crossed (dropped, stuck);
+and its parallel-jaw grasps (grasps.parallel_jaw), each a line between its two contacts with a
+square at each finger, blue where the fingers come in, violet where they are blocked, the best
+thicker, a proven one with a dot (lifted) or a cross at its middle.
 )";
 
 // The error for an annotation of image `image_id` in `json_path`: names it and says `what`.
@@ -128,15 +131,50 @@ int Draw(const std::vector<const nlohmann::json*>& annotations, int64_t image_id
   return drawn;
 }
 
-// Draws the suction grasps of `annotations` (their "stackgen" blocks) over `picture`, projected
-// with the image's camera `camera` (its "stackgen" block's fx, fy, cx, cy); returns how many.
+// the image's camera as stackgen-coco writes it (its "stackgen" block's camera)
+constexpr const char* kIntrinsics[] = {"fx", "fy", "cx", "cy"};
+
+// Draws the suction and parallel-jaw grasps of `annotations` (their "stackgen" blocks) over
+// `picture`, projected with the image's camera `camera` (its "stackgen" block's fx, fy, cx, cy);
+// returns how many.
 int DrawGrasps(const std::vector<const nlohmann::json*>& annotations, const nlohmann::json& camera,
                int64_t image_id, const std::string& json_path, cv::Mat* picture) {
   int drawn = 0;
+  const double fx = camera.at("fx").get<double>(), fy = camera.at("fy").get<double>();
+  const double cx = camera.at("cx").get<double>(), cy = camera.at("cy").get<double>();
+  const auto project = [&](const std::vector<double>& p) {
+    return cv::Point(static_cast<int>(std::lround(fx * p.at(0) / p.at(2) + cx)),
+                     static_cast<int>(std::lround(fy * p.at(1) / p.at(2) + cy)));
+  };
   for (const nlohmann::json* annotation_pointer : annotations) {
     const nlohmann::json& annotation = *annotation_pointer;
     if (!annotation.contains("stackgen")) continue;
-    const nlohmann::json& grasps = annotation["stackgen"].value("suction_grasps", nlohmann::json());
+    // parallel jaws: the closing line between the two contacts, ticks at the fingers
+    const nlohmann::json& jaws =
+        annotation["stackgen"].value("parallel_jaw_grasps", nlohmann::json::array());
+    for (const nlohmann::json& grasp : jaws) {
+      try {
+        const cv::Point a = project(grasp.at("point_a_mm").get<std::vector<double>>());
+        const cv::Point b = project(grasp.at("point_b_mm").get<std::vector<double>>());
+        const bool clear = grasp.at("approach_clear").get<bool>();
+        const cv::Scalar colour = clear ? cv::Scalar(255, 160, 60) : cv::Scalar(200, 120, 200);
+        cv::line(*picture, a, b, colour, grasp.at("rank").get<int>() == 0 ? 2 : 1, cv::LINE_AA);
+        for (const cv::Point& finger : {a, b}) {
+          cv::drawMarker(*picture, finger, colour, cv::MARKER_SQUARE, 5, 1, cv::LINE_AA);
+        }
+        const std::string proof = grasp.value("proof", std::string("not tried"));
+        if (proof == "lifted") cv::circle(*picture, (a + b) / 2, 3, colour, cv::FILLED);
+        if (proof == "dropped" || proof == "stuck") {
+          cv::drawMarker(*picture, (a + b) / 2, colour, cv::MARKER_TILTED_CROSS, 9, 1);
+        }
+      } catch (const nlohmann::json::exception& error) {
+        throw AnnotationError(json_path, image_id, annotation,
+                              std::string("stackgen.parallel_jaw_grasps: ") + error.what());
+      }
+      ++drawn;
+    }
+    const nlohmann::json& grasps =
+        annotation["stackgen"].value("suction_grasps", nlohmann::json::array());
     for (const nlohmann::json& grasp : grasps) {
       try {
         const cv::Point at(grasp.at("u").get<int>(), grasp.at("v").get<int>());
@@ -151,12 +189,7 @@ int DrawGrasps(const std::vector<const nlohmann::json*>& annotations, const nloh
         const double tip[3] = {p.at(0) + 15 * n.at(0), p.at(1) + 15 * n.at(1),
                                p.at(2) + 15 * n.at(2)};
         if (tip[2] > 1) {
-          const cv::Point end(
-              static_cast<int>(std::lround(camera.at("fx").get<double>() * tip[0] / tip[2] +
-                                           camera.at("cx").get<double>())),
-              static_cast<int>(std::lround(camera.at("fy").get<double>() * tip[1] / tip[2] +
-                                           camera.at("cy").get<double>())));
-          cv::line(*picture, at, end, colour, 1, cv::LINE_AA);
+          cv::line(*picture, at, project({tip[0], tip[1], tip[2]}), colour, 1, cv::LINE_AA);
         }
         const std::string proof = grasp.value("proof", std::string("not tried"));
         cv::circle(*picture, at, 3, colour, proof == "lifted" ? cv::FILLED : 1, cv::LINE_AA);
@@ -216,11 +249,15 @@ int Run(int argc, char** argv) {
   const nlohmann::json camera =
       record.contains("stackgen") ? record["stackgen"].value("camera", nlohmann::json())
                                   : nlohmann::json();
-  const int grasps = camera.is_object() ? DrawGrasps(of_image, camera, image_id, json_path, &picture)
-                                        : 0;
+  const bool projects = camera.is_object() && std::all_of(kIntrinsics, kIntrinsics + 4,
+                                                          [&](const char* key) {
+                                                            return camera.contains(key) &&
+                                                                   camera[key].is_number();
+                                                          });
+  const int grasps = projects ? DrawGrasps(of_image, camera, image_id, json_path, &picture) : 0;
   if (!cv::imwrite(out, picture)) throw std::runtime_error(out + ": cannot write");
   std::printf("stackgen-overlay: %s: %d annotations of %s\n", out.c_str(), drawn, path.c_str());
-  if (grasps > 0) std::printf("stackgen-overlay: %d suction grasps drawn\n", grasps);
+  if (grasps > 0) std::printf("stackgen-overlay: %d grasps drawn\n", grasps);
   return 0;
 }
 

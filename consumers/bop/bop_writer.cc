@@ -161,7 +161,7 @@ struct GroundTruths {
   json gt_info = json::array();  // scene_gt_info: boxes and pixel counts
   json coco = json::array();     // scene_gt_coco: the visible ones
   json masks = json::array();    // the full and visible masks' RLEs, for the journal
-  json grasps = json::array();   // scene_grasp: each ground truth's suction grasps (if any)
+  json grasps = json::array();   // scene_grasp: each ground truth's grasps (if any)
   int64_t count = 0;
 };
 
@@ -217,8 +217,8 @@ GroundTruths MakeGroundTruths(const scene& scene, int64_t im_id, const cv::Mat& 
            {"width", camera.width}});
     }
     out.masks.push_back({object.mask_obj_rle, object.mask_visib_rle});
-    if (scene.num_suction_grasps > 0) {
-      out.grasps.push_back(SuctionGraspsJson(scene, object.instance_id));
+    if (scene.num_suction_grasps > 0 || scene.num_jaw_grasps > 0) {
+      out.grasps.push_back(GraspsJson(scene, object.instance_id));
     }
     classes->emplace(object.class_id, object.class_name);
   }
@@ -540,7 +540,9 @@ bool BopWriter::Add(const scene& scene) {
     json record = {{"camera", SceneCamera(camera)},    {"coco", std::move(truths.coco)},
                    {"gt", std::move(truths.gt)},       {"gt_info", std::move(truths.gt_info)},
                    {"masks", std::move(truths.masks)}, {"scene", std::move(record_scene)}};
-    if (scene.num_suction_grasps > 0) record["grasps"] = std::move(truths.grasps);
+    if (scene.num_suction_grasps > 0 || scene.num_jaw_grasps > 0) {
+      record["grasps"] = std::move(truths.grasps);
+    }
     staged.line = record.dump() + "\n";
   } catch (...) {
     for (const std::string& path : staged.files) unlink(path.c_str());

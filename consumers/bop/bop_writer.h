@@ -53,6 +53,11 @@ struct BopWriterOptions {
 ///                                        mm, an organised cloud (PointCloudPly, model_files.h)
 ///   DIR/SPLIT/SCENE_ID/mask/IM_ID_GT_ID.png, mask_visib/IM_ID_GT_ID.png   0/255 masks
 ///   DIR/SPLIT/SCENE_ID/scene_camera.json, scene_gt.json, scene_gt_info.json, scene_gt_coco.json
+///   DIR/SPLIT/SCENE_ID/scene_grasp.json  when the scenes carry grasps (config grasps): per
+///                                        image, one object per ground truth in scene_gt's
+///                                        order, {"suction_grasps": [...],
+///                                        "parallel_jaw_grasps": [...]}, a key where it has
+///                                        grasps of that kind (grasp_records.h)
 ///
 /// Ids (all six digits in file names): obj_id = class_id; a chunk (BOP "scene") holds 1000
 /// consecutive seqs of one generator: SCENE_ID = generator_id * 1000000 + seq / 1000, IM_ID =

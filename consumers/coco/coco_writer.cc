@@ -495,9 +495,9 @@ std::string CocoWriter::AnnotationRecords(const stackgen::scene& scene, int64_t 
     json annotation =
         AnnotationRecord(*instance, AnnotationId(image_id, instance->instance_id), image_id, camera,
                          std::move(segmentation), crowd);
-    // stackgen's own labels beyond COCO's: the suction grasps, when the scene has some
-    json grasps = SuctionGraspsJson(scene, instance->instance_id);
-    if (!grasps.empty()) annotation["stackgen"] = {{"suction_grasps", std::move(grasps)}};
+    // stackgen's own labels beyond COCO's: the instance's grasps, when it has some
+    json grasps = GraspsJson(scene, instance->instance_id);
+    if (!grasps.empty()) annotation["stackgen"] = std::move(grasps);
     if (!annotations.empty()) annotations += ",";
     annotations += annotation.dump();
     if (crowd) {

@@ -1,7 +1,7 @@
 #pragma once
-// A scene's suction grasps (scene.suction_grasps, config grasps) as the dataset writers store
-// them: one JSON array per instance, best first (COCO: the annotation's "stackgen" block; BOP:
-// scene_grasp.json beside scene_gt.json).
+// A scene's grasps (scene.suction_grasps and jaw_grasps, config grasps) as the dataset writers
+// store them: per instance, an object of one JSON array per kind, best first (COCO: the
+// annotation's "stackgen" block; BOP: scene_grasp.json beside scene_gt.json).
 
 #include <cstdint>
 
@@ -17,5 +17,16 @@ namespace stackgen {
 ///    "moved_instance_ids" (at most 8, most moved first), "num_moved"}.
 /// An empty array when it has none.
 nlohmann::json SuctionGraspsJson(const scene& scene, int32_t instance_id);
+
+/// The parallel-jaw grasps of instance `instance_id` in `scene`, ordered by rank: each
+///   {"rank", "point_a_mm", "point_b_mm", "approach" (camera frame), "u", "v", "width_mm",
+///    "cone_margin_deg", "clearance_mm", "approach_clear", "com_offset_mm", "proof" and, when
+///    tried, the proof's fields as for suction}.
+nlohmann::json JawGraspsJson(const scene& scene, int32_t instance_id);
+
+/// Both kinds of grasps of instance `instance_id`: {"suction_grasps": [...],
+/// "parallel_jaw_grasps": [...]}, each key only when the instance has grasps of that kind (an
+/// empty object when it has none at all).
+nlohmann::json GraspsJson(const scene& scene, int32_t instance_id);
 
 }  // namespace stackgen

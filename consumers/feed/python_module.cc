@@ -582,8 +582,8 @@ void BindFunctions(py::module_& m) {
       "Names the program in the stream's warnings on stderr (\"NAME: warning: ...\"); default "
       "\"stackgen\".");
 }
-// the suction grasps (config grasps), one array per field over all of them, each instance's
-// best first
+// the suction and parallel-jaw grasps (config grasps), one array per field over all of each
+// kind, each instance's best first
 void BindSceneGrasps(SceneClass& scene) {
   using namespace stackgen;
   using namespace stackgen::feed;
@@ -620,6 +620,52 @@ void BindSceneGrasps(SceneClass& scene) {
     out["point_mm"] = points;
     out["normal"] = normals;
     out["seal"] = seal;
+    out["clearance_mm"] = clearance;
+    out["approach_clear"] = clear;
+    out["com_offset_mm"] = com_offset;
+    out["proof"] = proof;
+    out["proof_swing_deg"] = swing;
+    out["proof_neighbours_moved_mm"] = moved;
+    return out;
+  });
+  scene.def_property_readonly("jaw_grasps", [](const FeedScene& s) {
+    const std::vector<jaw_grasp>& grasps = s.message().jaw_grasps;
+    const auto n = static_cast<py::ssize_t>(grasps.size());
+    py::array_t<int32_t> instance_ids(n), ranks(n), pixels({n, py::ssize_t{2}});
+    py::array_t<double> points_a({n, py::ssize_t{3}}), points_b({n, py::ssize_t{3}}),
+        approach({n, py::ssize_t{3}}), width(n), margin(n), clearance(n), com_offset(n), swing(n),
+        moved(n);
+    py::array_t<bool> clear(n);
+    py::array_t<int8_t> proof(n);
+    for (py::ssize_t k = 0; k < n; ++k) {
+      const jaw_grasp& g = grasps[static_cast<size_t>(k)];
+      instance_ids.mutable_at(k) = g.instance_id;
+      ranks.mutable_at(k) = g.rank;
+      pixels.mutable_at(k, 0) = g.u;
+      pixels.mutable_at(k, 1) = g.v;
+      for (py::ssize_t c = 0; c < 3; ++c) {
+        points_a.mutable_at(k, c) = g.point_a_mm[c];
+        points_b.mutable_at(k, c) = g.point_b_mm[c];
+        approach.mutable_at(k, c) = g.approach[c];
+      }
+      width.mutable_at(k) = g.width_mm;
+      margin.mutable_at(k) = g.cone_margin_deg;
+      clearance.mutable_at(k) = g.clearance_mm;
+      clear.mutable_at(k) = g.approach_clear;
+      com_offset.mutable_at(k) = g.com_offset_mm;
+      proof.mutable_at(k) = g.proof;
+      swing.mutable_at(k) = g.proof_swing_deg;
+      moved.mutable_at(k) = g.proof_neighbours_moved_mm;
+    }
+    py::dict out;
+    out["instance_id"] = instance_ids;
+    out["rank"] = ranks;
+    out["uv"] = pixels;
+    out["point_a_mm"] = points_a;
+    out["point_b_mm"] = points_b;
+    out["approach"] = approach;
+    out["width_mm"] = width;
+    out["cone_margin_deg"] = margin;
     out["clearance_mm"] = clearance;
     out["approach_clear"] = clear;
     out["com_offset_mm"] = com_offset;

@@ -410,8 +410,9 @@ void ValidateLook(const config::GeneratorConfig& c, const FieldNamer& n) {
                       Number(grasps.prove_per_part()) + " is above grasps.candidates_per_part = " +
                       Number(grasps.candidates_per_part()));
   }
-  if (grasps.prove_per_part() > 0 && !grasps.suction()) {
-    throw ConfigError(n.Where("grasps", "prove_per_part") + ": proofs need grasps.suction true");
+  if (grasps.prove_per_part() > 0 && !grasps.suction() && !grasps.parallel_jaw()) {
+    throw ConfigError(n.Where("grasps", "prove_per_part") +
+                      ": proofs need grasps.suction or grasps.parallel_jaw true");
   }
   if (sensor_3d.baseline_mm() == 0) {
     throw ConfigError(n.Where("sensor_3d", "baseline_mm") +

@@ -24,7 +24,7 @@ namespace {
 // tolerances (contact breaking 0.02 units, default margin 0.04 units), metres above them
 constexpr double kSimPerMm = 0.1;
 constexpr double kGravityMmS2 = 9810.0;
-// Lift: the contacts take up the load for this long before the cup pulls, and the cup holds
+// Lift: the contacts take up the load for this long before the hold pulls, and it holds
 // the part this long at the top, s
 constexpr double kLiftSettleS = 0.1;
 constexpr double kLiftHoldS = 0.3;
@@ -738,12 +738,16 @@ LiftResult PileSimulator::Lift(const std::vector<int>& types,
                                 std::to_string(types.size()) + " types and " +
                                 std::to_string(world_from_object.size()) + " poses");
   }
+  const bool jaws = lift.hold == LiftParams::Hold::kJaws;
   if (!point_mm.allFinite() || !(std::abs(normal.norm() - 1) < 1e-6) ||
       !(lift.cup_diameter_mm > 0) || !(lift.vacuum_kpa >= 0) || !(lift.lift_mm > 0) ||
-      !(lift.lift_speed_mm_s > 0)) {
+      !(lift.lift_speed_mm_s > 0) ||
+      (jaws && (!(std::abs(lift.jaw_axis.norm() - 1) < 1e-6) || !(lift.jaw_grip_force_n > 0) ||
+                !(lift.jaw_friction > 0)))) {
     throw std::invalid_argument(
-        "PileSimulator::Lift: the point must be finite, the normal of unit length, the cup's "
-        "diameter, lift and speed positive and the vacuum not negative");
+        "PileSimulator::Lift: the point must be finite, the normal (and the jaws' axis) of unit "
+        "length, the cup's diameter, the grip, friction, lift and speed positive and the vacuum "
+        "not negative");
   }
   const SimulationParams& params = m.params;
   const double dt = params.rest_time_step_s;
@@ -766,27 +770,46 @@ LiftResult PileSimulator::Lift(const std::vector<int>& types,
   step(kLiftSettleS, [](double) {});
   const std::vector<Eigen::Isometry3d> start = PileWorld::Poses(bodies);
 
-  // the cup: a ball joint at the contact, its world end rising along the normal; it lets go
-  // when an impulse above vacuum x area x dt is needed (kg cm / s: N s x 100)
+  // the hold: a cup's ball joint at the contact, or the jaws' hinge about the closing line
+  // through the point, its world end rising along the pull; it lets go when an impulse above
+  // its force x dt is needed (kg cm / s: N s x 100)
   btRigidBody* held = bodies[static_cast<size_t>(part)];
-  const Eigen::Vector3d pivot_in_body =
-      FromSim(held->getCenterOfMassTransform()).inverse() * point_mm;
-  auto cup = std::make_unique<btPoint2PointConstraint>(*held, ToSim(pivot_in_body));
-  const double area_m2 = M_PI * std::pow(lift.cup_diameter_mm / 2000, 2);
-  const double force_n = lift.vacuum_kpa * 1000 * area_m2;
-  cup->setBreakingImpulseThreshold(static_cast<btScalar>(force_n * dt * 100));
-  cup->setPivotB(ToSim(point_mm));
-  w.world().addConstraint(cup.get(), true);
+  const Eigen::Isometry3d body_from_world = FromSim(held->getCenterOfMassTransform()).inverse();
+  const Eigen::Vector3d pivot_in_body = body_from_world * point_mm;
+  std::unique_ptr<btTypedConstraint> hold;
+  double force_n = 0;
+  if (jaws) {
+    const Eigen::Vector3d axis_in_body = body_from_world.linear() * lift.jaw_axis;
+    hold = std::make_unique<btHingeConstraint>(*held, ToSim(pivot_in_body),
+                                              btVector3(static_cast<btScalar>(axis_in_body.x()),
+                                                        static_cast<btScalar>(axis_in_body.y()),
+                                                        static_cast<btScalar>(axis_in_body.z())));
+    force_n = 2 * lift.jaw_friction * lift.jaw_grip_force_n;
+  } else {
+    hold = std::make_unique<btPoint2PointConstraint>(*held, ToSim(pivot_in_body));
+    const double area_m2 = M_PI * std::pow(lift.cup_diameter_mm / 2000, 2);
+    force_n = lift.vacuum_kpa * 1000 * area_m2;
+  }
+  const auto move_to = [&](const Eigen::Vector3d& world_mm) {
+    if (jaws) {
+      static_cast<btHingeConstraint*>(hold.get())->getBFrame().setOrigin(ToSim(world_mm));
+    } else {
+      static_cast<btPoint2PointConstraint*>(hold.get())->setPivotB(ToSim(world_mm));
+    }
+  };
+  hold->setBreakingImpulseThreshold(static_cast<btScalar>(force_n * dt * 100));
+  move_to(point_mm);
+  w.world().addConstraint(hold.get(), true);
 
-  // the cup's rise: smooth (3 x^2 - 2 x^3), its top speed lift_speed_mm_s, so the part is not
-  // jerked off the cup at the start
+  // the hold's rise: smooth (3 x^2 - 2 x^3), its top speed lift_speed_mm_s, so the part is not
+  // jerked off the hold at the start
   LiftResult result;
   const double lift_s = 1.5 * lift.lift_mm / lift.lift_speed_mm_s;
   bool let_go = false;
   const Eigen::Isometry3d held_start = start[static_cast<size_t>(part)];
   step(lift_s + kLiftHoldS, [&](double t) {
     if (let_go) return;
-    if (!cup->isEnabled()) {
+    if (!hold->isEnabled()) {
       let_go = true;
       return;
     }
@@ -795,9 +818,9 @@ LiftResult PileSimulator::Lift(const std::vector<int>& types,
     const Eigen::AngleAxisd turn(held_start.linear().transpose() * now.linear());
     result.swing_deg = std::max(result.swing_deg, std::abs(turn.angle()) * 180 / M_PI);
     const double x = std::min(t / lift_s, 1.0);
-    cup->setPivotB(ToSim(Eigen::Vector3d(point_mm + x * x * (3 - 2 * x) * lift.lift_mm * normal)));
+    move_to(point_mm + x * x * (3 - 2 * x) * lift.lift_mm * normal);
   });
-  w.world().removeConstraint(cup.get());
+  w.world().removeConstraint(hold.get());
   result.outcome = !let_go                              ? LiftResult::Outcome::kLifted
                    : result.rise_mm >= lift.lift_mm / 5 ? LiftResult::Outcome::kDropped
                                                         : LiftResult::Outcome::kStuck;

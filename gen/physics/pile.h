@@ -115,12 +115,21 @@ struct PileResult {
   double max_penetration_mm = 0;
 };
 
-/// A suction cup lifting one part of a pile (PileSimulator::Lift).
+/// A suction cup or parallel jaws lifting one part of a pile (PileSimulator::Lift).
 struct LiftParams {
+  /// How the part is held: a suction cup (a ball joint at the point, so the part swings under
+  /// it, holding vacuum_kpa x its area) or parallel jaws (a hinge about jaw_axis through the
+  /// point, the midpoint of the two contacts, so the part turns between the fingers, holding
+  /// 2 x jaw_friction x jaw_grip_force_n).
+  enum class Hold { kCup, kJaws };
+  Hold hold = Hold::kCup;
   double cup_diameter_mm = 15;   // the cup's lip diameter, > 0
   double vacuum_kpa = 60;        // the pressure difference it holds with, >= 0
-  double lift_mm = 50;           // how far the cup rises along the normal, > 0
-  double lift_speed_mm_s = 100;  // how fast, > 0
+  Eigen::Vector3d jaw_axis{1, 0, 0};  // kJaws: the closing line's direction, unit
+  double jaw_grip_force_n = 40;       // kJaws: each finger's squeeze, > 0
+  double jaw_friction = 0.5;          // kJaws: finger on part, > 0
+  double lift_mm = 50;           // how far the hold rises along the pull direction, > 0
+  double lift_speed_mm_s = 100;  // its top speed, > 0
 };
 
 /// What lifting a part did.
@@ -223,16 +232,16 @@ class PileSimulator {
   std::vector<int> PickOrder(const std::vector<int>& types,
                              const std::vector<Eigen::Isometry3d>& world_from_object) const;
 
-  /// Lifts part `part` of a pile at rest (types and mesh frames as for Resettle) by a suction cup
-  /// at `point_mm` on its surface, pulled out along the outward unit `normal` (world, mm), in
-  /// the pile's own world at rest (holding friction, rest_time_step_s): after 0.1 s for the
-  /// contacts to take up the load, the cup (a ball joint at the point, so the part swings
-  /// under it) rises lift_mm smoothly (3 x^2 - 2 x^3 over 1.5 lift_mm / lift_speed_mm_s: its top
-  /// speed lift_speed_mm_s) and holds 0.3 s; it lets go when the force it
-  /// needs exceeds vacuum_kpa x its area (Bullet's breaking impulse). The other parts move as
+  /// Lifts part `part` of a pile at rest (types and mesh frames as for Resettle) held at
+  /// `point_mm` (a suction cup's contact, or the middle between two jaws' contacts) and pulled
+  /// out along the unit `normal` (world, mm), in the pile's own world at rest (holding friction,
+  /// rest_time_step_s): after 0.1 s for the contacts to take up the load, the hold (see
+  /// LiftParams::Hold) rises lift_mm smoothly (3 x^2 - 2 x^3 over 1.5 lift_mm /
+  /// lift_speed_mm_s: its top speed lift_speed_mm_s) and holds 0.3 s; it lets go when the force
+  /// it needs exceeds what it holds with (Bullet's breaking impulse). The other parts move as
   /// the lift pushes and frees them. Pure function of the inputs. Throws std::invalid_argument
-  /// for a part index out of range, one pose per type missing, a normal not of unit length or
-  /// parameters out of range.
+  /// for a part index out of range, one pose per type missing, a normal (or jaw axis) not of
+  /// unit length or parameters out of range.
   LiftResult Lift(const std::vector<int>& types,
                   const std::vector<Eigen::Isometry3d>& world_from_object, int part,
                   const Eigen::Vector3d& point_mm, const Eigen::Vector3d& normal,

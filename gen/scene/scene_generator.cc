@@ -480,11 +480,23 @@ SuctionCup SceneGenerator::Impl::Cup() const {
   return cup;
 }
 
+JawGripper SceneGenerator::Impl::Gripper() const {
+  const config::GraspConfig& grasps = config().grasps();
+  JawGripper gripper;
+  gripper.max_width_mm = grasps.jaw_max_width_mm();
+  gripper.finger_width_mm = grasps.jaw_finger_width_mm();
+  gripper.friction = grasps.jaw_friction();
+  gripper.approach_mm = grasps.approach_mm();
+  return gripper;
+}
+
 LiftParams SceneGenerator::Impl::LiftOf() const {
   const config::GraspConfig& grasps = config().grasps();
   LiftParams lift;
   lift.cup_diameter_mm = grasps.cup_diameter_mm();
   lift.vacuum_kpa = grasps.vacuum_kpa();
+  lift.jaw_grip_force_n = grasps.jaw_grip_force_n();
+  lift.jaw_friction = grasps.jaw_friction();
   lift.lift_mm = grasps.lift_mm();
   lift.lift_speed_mm_s = grasps.lift_speed_mm_s();
   return lift;
@@ -499,7 +511,7 @@ std::vector<int> SceneGenerator::Impl::ProvenPickOrder(
 
   // the pile for rays (objects: part index + 1; the bin 0), its own: picks run on any physics
   // thread
-  SuctionScene scene;
+  GraspScene scene;
   std::vector<int> mesh_of;
   for (const TriangleMesh& mesh : part_meshes) mesh_of.push_back(scene.AddMesh(mesh));
   scene.AddObject(scene.AddMesh(bin_mesh), Eigen::Isometry3d::Identity(), 0);
@@ -508,8 +520,8 @@ std::vector<int> SceneGenerator::Impl::ProvenPickOrder(
                     state.world_from_object[i], static_cast<int>(i) + 1);
   }
 
-  // the first prove_parts parts from the top: each whose best grasps from above (clear ones)
-  // lift it goes first, in the same order
+  // the first prove_parts parts from the top: each whose best suction grasps from above (clear
+  // ones) lift it goes first, in the same order
   std::vector<int> first, rest;
   for (size_t k = 0; k < order.size(); ++k) {
     const int part = order[k];
@@ -519,7 +531,8 @@ std::vector<int> SceneGenerator::Impl::ProvenPickOrder(
           state.world_from_object[static_cast<size_t>(part)] *
           types[static_cast<size_t>(state.object_types[static_cast<size_t>(part)])]
               .center_of_mass_mm;
-      const std::vector<SuctionGrasp> found = scene.CandidatesFromAbove(part + 1, com, cup);
+      const std::vector<SuctionGrasp> found = SuctionGrasps(
+          scene, scene.PointsFromAbove(part + 1, cup.candidates_per_part), part + 1, com, cup);
       for (size_t g = 0; g < found.size() && static_cast<int>(g) < grasps.prove_per_part(); ++g) {
         if (!found[g].approach_clear) break;
         const LiftResult result = simulator->Lift(state.object_types, state.world_from_object,
@@ -537,24 +550,82 @@ std::vector<int> SceneGenerator::Impl::ProvenPickOrder(
   return first;
 }
 
-void SceneGenerator::Impl::LabelSuctionGrasps(const SettledPile& settled,
-                                              const CameraModel& camera,
-                                              const cv::Mat& instance_map, scene* out) const {
+namespace {
+
+// a world-frame point or direction of a grasp as a message's camera-frame array
+void ToCameraFrame(const Eigen::Vector3d& world, const Eigen::Isometry3d& camera_from_world,
+                   bool direction, double* out) {
+  const Eigen::Vector3d camera =
+      direction ? Eigen::Vector3d(camera_from_world.linear() * world) : camera_from_world * world;
+  for (int k = 0; k < 3; ++k) out[k] = camera[k];
+}
+
+// a camera-frame array of a message as a world-frame point or direction
+Eigen::Vector3d ToWorldFrame(const double* camera, const Eigen::Isometry3d& world_from_camera,
+                             bool direction) {
+  const Eigen::Vector3d value(camera[0], camera[1], camera[2]);
+  return direction ? Eigen::Vector3d(world_from_camera.linear() * value)
+                   : Eigen::Vector3d(world_from_camera * value);
+}
+
+// what a lift did, into a grasp message's proof fields; object_of names the parts (labelled
+// ones below kDistractorObject)
+template <typename Grasp>
+void RecordProof(const LiftResult& result, const std::vector<int>& object_of, Grasp* grasp) {
+  grasp->proof = result.outcome == LiftResult::Outcome::kLifted    ? suction_grasp::PROOF_LIFTED
+                 : result.outcome == LiftResult::Outcome::kDropped ? suction_grasp::PROOF_DROPPED
+                                                                   : suction_grasp::PROOF_STUCK;
+  grasp->proof_swing_deg = result.swing_deg;
+  // the labelled parts that moved more than 1 mm, most first
+  std::vector<std::pair<double, int32_t>> moved;
+  double most = 0;
+  for (size_t i = 0; i < result.moved_mm.size(); ++i) {
+    most = std::max(most, result.moved_mm[i]);
+    if (result.moved_mm[i] > 1 && object_of[i] < kDistractorObject) {
+      moved.emplace_back(-result.moved_mm[i], object_of[i]);
+    }
+  }
+  std::sort(moved.begin(), moved.end());
+  grasp->proof_neighbours_moved_mm = most;
+  grasp->num_moved = static_cast<int32_t>(moved.size());
+  for (size_t m = 0; m < moved.size() && m < 8; ++m) {
+    grasp->moved_instance_ids[m] = moved[m].second;
+  }
+}
+
+// the grasps of `instance_id` among `all`, by rank
+template <typename Grasp>
+std::vector<Grasp*> GraspsOf(std::vector<Grasp>& all, int instance_id) {
+  std::vector<Grasp*> own;
+  for (Grasp& grasp : all) {
+    if (grasp.instance_id == instance_id) own.push_back(&grasp);
+  }
+  std::sort(own.begin(), own.end(),
+            [](const Grasp* a, const Grasp* b) { return a->rank < b->rank; });
+  return own;
+}
+
+}  // namespace
+
+void SceneGenerator::Impl::LabelGrasps(const SettledPile& settled, const CameraModel& camera,
+                                       const cv::Mat& instance_map, scene* out) const {
   const config::GraspConfig& grasps = config().grasps();
   const SuctionCup cup = Cup();
+  const JawGripper gripper = Gripper();
 
   // the scene for rays: the bin (object 0), the parts by instance id (distractors above them)
-  suction->ClearObjects();
-  suction->AddObject(suction_bin_mesh_id, Eigen::Isometry3d::Identity(), 0);
+  grasp_scene->ClearObjects();
+  grasp_scene->AddObject(grasp_bin_mesh_id, Eigen::Isometry3d::Identity(), 0);
   std::vector<int> object_of(settled.world_from_object.size());
   int next_instance = 1;
   for (size_t i = 0; i < settled.world_from_object.size(); ++i) {
     const TypeInScene& type = types[settled.object_types[i]];
     object_of[i] = type.class_id > 0 ? next_instance++ : kDistractorObject + static_cast<int>(i);
-    suction->AddObject(type.suction_mesh_id, settled.world_from_object[i], object_of[i]);
+    grasp_scene->AddObject(type.grasp_mesh_id, settled.world_from_object[i], object_of[i]);
   }
 
-  // each annotated instance's grasps, best first, in the camera frame
+  // each annotated instance's grasps from the points the camera sees, best first, in the
+  // camera frame
   const Eigen::Isometry3d camera_from_world = camera.world_from_camera.inverse();
   for (const instance& labelled : out->instances) {
     if (!labelled.annotated) continue;
@@ -563,86 +634,103 @@ void SceneGenerator::Impl::LabelSuctionGrasps(const SettledPile& settled,
     const size_t i = static_cast<size_t>(part - object_of.begin());
     const Eigen::Vector3d com =
         settled.world_from_object[i] * types[settled.object_types[i]].center_of_mass_mm;
-    const std::vector<SuctionGrasp> found = suction->Candidates(
-        camera, instance_map, labelled.instance_id, labelled.instance_id, com, cup);
-    for (size_t rank = 0; rank < found.size(); ++rank) {
-      const SuctionGrasp& grasp = found[rank];
-      suction_grasp message{};
-      message.instance_id = labelled.instance_id;
-      message.rank = static_cast<int32_t>(rank);
-      const Eigen::Vector3d point = camera_from_world * grasp.point_mm;
-      const Eigen::Vector3d normal = camera_from_world.linear() * grasp.normal;
-      for (int k = 0; k < 3; ++k) {
-        message.point_mm[k] = point[k];
-        message.normal[k] = normal[k];
+    const std::vector<SurfacePoint> contacts =
+        grasp_scene->SeenPoints(camera, instance_map, labelled.instance_id, labelled.instance_id,
+                                grasps.candidates_per_part());
+    if (grasps.suction()) {
+      const std::vector<SuctionGrasp> found =
+          SuctionGrasps(*grasp_scene, contacts, labelled.instance_id, com, cup);
+      for (size_t rank = 0; rank < found.size(); ++rank) {
+        const SuctionGrasp& grasp = found[rank];
+        suction_grasp message{};
+        message.instance_id = labelled.instance_id;
+        message.rank = static_cast<int32_t>(rank);
+        ToCameraFrame(grasp.point_mm, camera_from_world, false, message.point_mm);
+        ToCameraFrame(grasp.normal, camera_from_world, true, message.normal);
+        message.u = grasp.u;
+        message.v = grasp.v;
+        message.seal = grasp.seal;
+        message.clearance_mm = grasp.clearance_mm;
+        message.approach_clear = grasp.approach_clear;
+        message.com_offset_mm = grasp.com_offset_mm;
+        message.proof = suction_grasp::PROOF_NOT_TRIED;
+        out->suction_grasps.push_back(message);
       }
-      message.u = grasp.u;
-      message.v = grasp.v;
-      message.seal = grasp.seal;
-      message.clearance_mm = grasp.clearance_mm;
-      message.approach_clear = grasp.approach_clear;
-      message.com_offset_mm = grasp.com_offset_mm;
-      message.proof = suction_grasp::PROOF_NOT_TRIED;
-      out->suction_grasps.push_back(message);
+    }
+    if (grasps.parallel_jaw()) {
+      const std::vector<JawGrasp> found =
+          JawGrasps(*grasp_scene, contacts, labelled.instance_id, com,
+                    camera.world_from_camera.translation(), gripper);
+      for (size_t rank = 0; rank < found.size(); ++rank) {
+        const JawGrasp& grasp = found[rank];
+        jaw_grasp message{};
+        message.instance_id = labelled.instance_id;
+        message.rank = static_cast<int32_t>(rank);
+        ToCameraFrame(grasp.point_a_mm, camera_from_world, false, message.point_a_mm);
+        ToCameraFrame(grasp.point_b_mm, camera_from_world, false, message.point_b_mm);
+        ToCameraFrame(grasp.approach, camera_from_world, true, message.approach);
+        message.u = grasp.u;
+        message.v = grasp.v;
+        message.width_mm = grasp.width_mm;
+        message.cone_margin_deg = grasp.cone_margin_deg;
+        message.clearance_mm = grasp.clearance_mm;
+        message.approach_clear = grasp.approach_clear;
+        message.com_offset_mm = grasp.com_offset_mm;
+        message.proof = suction_grasp::PROOF_NOT_TRIED;
+        out->jaw_grasps.push_back(message);
+      }
     }
   }
   out->num_suction_grasps = static_cast<int32_t>(out->suction_grasps.size());
-  if (grasps.prove_per_part() > 0) ProveSuctionGrasps(settled, object_of, camera, out);
+  out->num_jaw_grasps = static_cast<int32_t>(out->jaw_grasps.size());
+  if (grasps.prove_per_part() > 0) ProveGrasps(settled, object_of, camera, out);
 }
 
-void SceneGenerator::Impl::ProveSuctionGrasps(const SettledPile& settled,
-                                              const std::vector<int>& object_of,
-                                              const CameraModel& camera, scene* out) const {
+void SceneGenerator::Impl::ProveGrasps(const SettledPile& settled,
+                                       const std::vector<int>& object_of,
+                                       const CameraModel& camera, scene* out) const {
   const config::GraspConfig& grasps = config().grasps();
-  const LiftParams lift = LiftOf();
-
-  // the parts from the top down (as a robot picks), those whose best grasp is clear
   const std::vector<int> order =
       simulator->PickOrder(settled.object_types, settled.world_from_object);
+  const Eigen::Isometry3d& world_from_camera = camera.world_from_camera;
+  const auto lift = [&](int part, const Eigen::Vector3d& point, const Eigen::Vector3d& pull,
+                        const LiftParams& params) {
+    return simulator->Lift(settled.object_types, settled.world_from_object, part, point,
+                           pull.normalized(), params);
+  };
+
+  // each kind: the parts from the top down (as a robot picks) whose best grasp of the kind is
+  // clear, their best grasps lifted in the pile as it was published
   int proven_parts = 0;
   for (const int part : order) {
     if (proven_parts >= grasps.prove_parts()) break;
-    const int instance_id = object_of[static_cast<size_t>(part)];
-    std::vector<suction_grasp*> own;
-    for (suction_grasp& grasp : out->suction_grasps) {
-      if (grasp.instance_id == instance_id) own.push_back(&grasp);
-    }
-    std::sort(own.begin(), own.end(),
-              [](const suction_grasp* a, const suction_grasp* b) { return a->rank < b->rank; });
+    std::vector<suction_grasp*> own = GraspsOf(out->suction_grasps, object_of[part]);
     if (own.empty() || !own.front()->approach_clear) continue;
     ++proven_parts;
-
-    // its best grasps lifted, each in the pile as it was published
+    const LiftParams cup = LiftOf();
     for (size_t k = 0; k < own.size() && static_cast<int>(k) < grasps.prove_per_part(); ++k) {
       suction_grasp& grasp = *own[k];
-      const Eigen::Vector3d point =
-          camera.world_from_camera *
-          Eigen::Vector3d(grasp.point_mm[0], grasp.point_mm[1], grasp.point_mm[2]);
-      const Eigen::Vector3d normal =
-          (camera.world_from_camera.linear() *
-           Eigen::Vector3d(grasp.normal[0], grasp.normal[1], grasp.normal[2]))
-              .normalized();
-      const LiftResult result = simulator->Lift(settled.object_types, settled.world_from_object,
-                                                part, point, normal, lift);
-      grasp.proof = result.outcome == LiftResult::Outcome::kLifted    ? suction_grasp::PROOF_LIFTED
-                    : result.outcome == LiftResult::Outcome::kDropped ? suction_grasp::PROOF_DROPPED
-                                                                      : suction_grasp::PROOF_STUCK;
-      grasp.proof_swing_deg = result.swing_deg;
-      // the labelled parts that moved more than 1 mm, most first
-      std::vector<std::pair<double, int32_t>> moved;
-      double most = 0;
-      for (size_t i = 0; i < result.moved_mm.size(); ++i) {
-        most = std::max(most, result.moved_mm[i]);
-        if (result.moved_mm[i] > 1 && object_of[i] < kDistractorObject) {
-          moved.emplace_back(-result.moved_mm[i], object_of[i]);
-        }
-      }
-      std::sort(moved.begin(), moved.end());
-      grasp.proof_neighbours_moved_mm = most;
-      grasp.num_moved = static_cast<int32_t>(moved.size());
-      for (size_t m = 0; m < moved.size() && m < 8; ++m) {
-        grasp.moved_instance_ids[m] = moved[m].second;
-      }
+      RecordProof(lift(part, ToWorldFrame(grasp.point_mm, world_from_camera, false),
+                       ToWorldFrame(grasp.normal, world_from_camera, true), cup),
+                  object_of, &grasp);
+    }
+  }
+  proven_parts = 0;
+  for (const int part : order) {
+    if (proven_parts >= grasps.prove_parts()) break;
+    std::vector<jaw_grasp*> own = GraspsOf(out->jaw_grasps, object_of[part]);
+    if (own.empty() || !own.front()->approach_clear) continue;
+    ++proven_parts;
+    for (size_t k = 0; k < own.size() && static_cast<int>(k) < grasps.prove_per_part(); ++k) {
+      jaw_grasp& grasp = *own[k];
+      const Eigen::Vector3d a = ToWorldFrame(grasp.point_a_mm, world_from_camera, false);
+      const Eigen::Vector3d b = ToWorldFrame(grasp.point_b_mm, world_from_camera, false);
+      LiftParams jaws = LiftOf();
+      jaws.hold = LiftParams::Hold::kJaws;
+      jaws.jaw_axis = (b - a).normalized();
+      RecordProof(lift(part, (a + b) / 2, -ToWorldFrame(grasp.approach, world_from_camera, true),
+                       jaws),
+                  object_of, &grasp);
     }
   }
 }
@@ -745,8 +833,8 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
                      config.annotation().occlusion_rule() == config::AnnotationConfig::IGNORE,
                      config.annotation().min_visible_px());
   out.num_instances = static_cast<int32_t>(out.instances.size());
-  if (config.grasps().suction()) {
-    impl_->LabelSuctionGrasps(settled, camera, rendered.instance, &out);
+  if (config.grasps().suction() || config.grasps().parallel_jaw()) {
+    impl_->LabelGrasps(settled, camera, rendered.instance, &out);
   }
   local.annotate_ms = MillisecondsSince(start);
 
@@ -815,6 +903,8 @@ labels LabelsOf(const scene& scene) {
   out.instances = scene.instances;
   out.num_suction_grasps = scene.num_suction_grasps;
   out.suction_grasps = scene.suction_grasps;
+  out.num_jaw_grasps = scene.num_jaw_grasps;
+  out.jaw_grasps = scene.jaw_grasps;
   return out;
 }
 

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "gen/annotate/labels.h"
+#include "gen/grasp/parallel_jaw.h"
 #include "gen/grasp/suction.h"
 #include "gen/physics/pile.h"
 #include "gen/randomize/background.h"
@@ -40,8 +41,8 @@ struct TypeInScene {
   SurfaceDetail detail;  // physically based: its procedural detail
   // class id among the labelled types (1, 2, ... by first class_name), 0 = not labelled
   int class_id = 0;
-  // grasps.suction: its mesh among the suction scene's, and its centre of mass (object frame)
-  int suction_mesh_id = -1;
+  // grasps: its mesh among the grasp scene's, and its centre of mass (object frame)
+  int grasp_mesh_id = -1;
   Eigen::Vector3d center_of_mass_mm = Eigen::Vector3d::Zero();
 };
 
@@ -61,10 +62,10 @@ struct SceneGenerator::Impl {
   // surroundings.table_probability: the table's quad (-1: none) and height, mm
   int floor_mesh_id = -1;
   double floor_z_mm = 0;
-  // grasps.suction: the scene's meshes for rays (the parts' and the bin's), used by Render only
-  std::unique_ptr<SuctionScene> suction;
-  int suction_bin_mesh_id = -1;
-  // grasps.suction: the meshes again, for the picks' own scenes (picks run on physics threads)
+  // grasps: the scene's meshes for rays (the parts' and the bin's), used by Render only
+  std::unique_ptr<GraspScene> grasp_scene;
+  int grasp_bin_mesh_id = -1;
+  // grasps: the meshes again, for the picks' own scenes (picks run on physics threads)
   std::vector<TriangleMesh> part_meshes;
   TriangleMesh bin_mesh;
   // physically based shading: the environments a scene draws from (renderer environment ids)
@@ -93,8 +94,9 @@ struct SceneGenerator::Impl {
   std::vector<int> ProvenPickOrder(const SettledPile& state, const std::vector<int>& order,
                                    std::map<int, std::pair<Eigen::Vector3d, Eigen::Vector3d>>*
                                        proven) const;
-  // the cup and the lift of the config's grasps
+  // the cup, the gripper and the lift of the config's grasps
   SuctionCup Cup() const;
+  JawGripper Gripper() const;
   LiftParams LiftOf() const;
   // Whether a pile passes every check a published scene must pass; counts a failure in `times`.
   bool Passes(const PileResult& pile, StageTimes* times) const;
@@ -118,18 +120,19 @@ struct SceneGenerator::Impl {
   void AddPartTypes(const std::vector<PartType>& part_types,
                     const std::vector<std::string>& size_texts, std::ostringstream* description);
   void AddBinAndTable(const BinSpec& bin_spec);
-  // grasps.suction: the meshes of the parts and the bin for the grasps' rays
-  void AddSuctionMeshes(const std::vector<PartType>& part_types, const BinSpec& bin_spec);
-  // grasps.suction: the ranked grasps of every annotated instance of `out` (its instances
-  // labelled from `instance_map`, ids given in AddParts' order), seen by `camera`, appended to
-  // out->suction_grasps. Not thread-safe (one suction scene), as Render.
-  void LabelSuctionGrasps(const SettledPile& settled, const CameraModel& camera,
-                          const cv::Mat& instance_map, scene* out) const;
-  // grasps.prove_per_part: lifts the best grasps of the topmost parts (PickOrder) whose best
-  // grasp is clear in the pile's own physics and records what happened in their messages;
-  // object_of: each part's object (its instance id; distractors above every instance id)
-  void ProveSuctionGrasps(const SettledPile& settled, const std::vector<int>& object_of,
-                          const CameraModel& camera, scene* out) const;
+  // grasps (suction or parallel_jaw): the meshes of the parts and the bin for the grasps' rays
+  void AddGraspMeshes(const std::vector<PartType>& part_types, const BinSpec& bin_spec);
+  // grasps: the ranked grasps of every annotated instance of `out` (its instances labelled
+  // from `instance_map`, ids given in AddParts' order), seen by `camera`, appended to
+  // out->suction_grasps and out->jaw_grasps. Not thread-safe (one grasp scene), as Render.
+  void LabelGrasps(const SettledPile& settled, const CameraModel& camera,
+                   const cv::Mat& instance_map, scene* out) const;
+  // grasps.prove_per_part: lifts the best grasps of each kind of the topmost parts (PickOrder)
+  // whose best grasp of that kind is clear in the pile's own physics and records what happened
+  // in their messages; object_of: each part's object (its instance id; distractors above every
+  // instance id)
+  void ProveGrasps(const SettledPile& settled, const std::vector<int>& object_of,
+                   const CameraModel& camera, scene* out) const;
   void AddEnvironments(std::ostringstream* description);
 
   // the camera's intrinsics from the config (a preset is resolved when the config is parsed).

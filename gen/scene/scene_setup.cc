@@ -314,13 +314,13 @@ void SceneGenerator::Impl::AddBinAndTable(const BinSpec& bin_spec) {
   }
 }
 
-void SceneGenerator::Impl::AddSuctionMeshes(const std::vector<PartType>& part_types,
-                                            const BinSpec& bin_spec) {
+void SceneGenerator::Impl::AddGraspMeshes(const std::vector<PartType>& part_types,
+                                          const BinSpec& bin_spec) {
   const config::BinConfig& bin = config().bin();
-  suction = std::make_unique<SuctionScene>();
+  grasp_scene = std::make_unique<GraspScene>();
   for (size_t t = 0; t < part_types.size(); ++t) {
     part_meshes.push_back(part_types[t].mesh);
-    types[t].suction_mesh_id = suction->AddMesh(part_types[t].mesh);
+    types[t].grasp_mesh_id = grasp_scene->AddMesh(part_types[t].mesh);
     types[t].center_of_mass_mm =
         ComputeMassProperties(part_types[t].mesh, part_types[t].physics.density_kg_m3,
                               "part " + std::to_string(t))
@@ -329,7 +329,7 @@ void SceneGenerator::Impl::AddSuctionMeshes(const std::vector<PartType>& part_ty
   bin_mesh = bin.mesh().empty() ? MakeOpenBinMesh(bin.inner_length_mm(), bin.inner_width_mm(),
                                                   bin.inner_height_mm(), bin.wall_thickness_mm())
                                 : bin_spec.mesh;
-  suction_bin_mesh_id = suction->AddMesh(bin_mesh);
+  grasp_bin_mesh_id = grasp_scene->AddMesh(bin_mesh);
 }
 
 void SceneGenerator::Impl::AddEnvironments(std::ostringstream* description) {
@@ -389,7 +389,9 @@ SceneGenerator::SceneGenerator(const LoadedConfig& config, int32_t generator_id,
   std::ostringstream description;
   impl_->AddPartTypes(types, size_texts, &description);
   impl_->AddBinAndTable(bin_spec);
-  if (config.config.grasps().suction()) impl_->AddSuctionMeshes(types, bin_spec);
+  if (config.config.grasps().suction() || config.config.grasps().parallel_jaw()) {
+    impl_->AddGraspMeshes(types, bin_spec);
+  }
   const config::PhysicsConfig& physics = config.config.physics();
   if (physics.drop_mode() == config::PhysicsConfig::CUT_AND_PASTE) {
     description << "physics: none (CUT_AND_PASTE: parts placed as drawn)\n";

@@ -181,11 +181,16 @@ size_t NumSuctionGraspsOffset(const scene& s) {
   for (const instance& i : s.instances) offset += static_cast<size_t>(i._getEncodedSizeNoHash());
   return offset;
 }
-size_t ColorOffset(const scene& s) {
+size_t NumJawGraspsOffset(const scene& s) {
   size_t offset = NumSuctionGraspsOffset(s) + 4;
   for (const suction_grasp& g : s.suction_grasps) {
     offset += static_cast<size_t>(g._getEncodedSizeNoHash());
   }
+  return offset;
+}
+size_t ColorOffset(const scene& s) {
+  size_t offset = NumJawGraspsOffset(s) + 4;
+  for (const jaw_grasp& g : s.jaw_grasps) offset += static_cast<size_t>(g._getEncodedSizeNoHash());
   return offset;
 }
 constexpr size_t kImageWidth = 0, kImageHeight = 4, kImagePixelFormat = 8, kImageSize = 10;
@@ -472,6 +477,8 @@ TEST(BoundedDecodeTest, CorruptCountsRefusedWithinAddressLimit) {
        "num_suction_grasps 2147483647 needs at least"},
       {"num_suction_grasps -3", [&](auto* b) { PutInt32(b, NumSuctionGraspsOffset(s), -3); },
        "num_suction_grasps -3 is negative"},
+      {"num_jaw_grasps INT32_MAX", [&](auto* b) { PutInt32(b, NumJawGraspsOffset(s), INT32_MAX); },
+       "num_jaw_grasps 2147483647 needs at least"},
       {"color.size INT32_MAX", [&](auto* b) { PutInt32(b, color + kImageSize, INT32_MAX); },
        "color.size 2147483647 needs 2147483647 bytes"},
       {"color.size -1", [&](auto* b) { PutInt32(b, color + kImageSize, -1); },

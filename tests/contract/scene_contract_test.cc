@@ -50,7 +50,8 @@ TEST(SceneContractTest, CheckSceneNamesTheField) {
             if (event.channel == kSceneChannel) scenes.push_back(DecodeLogEvent<scene>(event));
           });
   ASSERT_EQ(scenes.size(), 4u);
-  ASSERT_GT(scenes[0].num_suction_grasps, 2) << "the fixture has grasps";
+  ASSERT_GT(scenes[0].num_suction_grasps, 2) << "the fixture has suction grasps";
+  ASSERT_GT(scenes[0].num_jaw_grasps, 0) << "the fixture has parallel-jaw grasps";
   ASSERT_GT(scenes[0].depth_sensor.size, 0) << "the fixture has a 3D camera's depth";
   std::string why;
   for (const scene& message : scenes) EXPECT_TRUE(CheckScene(message, &why)) << why;
@@ -73,13 +74,18 @@ TEST(SceneContractTest, CheckSceneNamesTheField) {
       {"depth.pixel_format", [](scene& s) { s.depth.pixel_format = image::PIXEL_RGB8; }},
       {"depth_sensor.pixel_format",
        [](scene& s) { s.depth_sensor.pixel_format = image::PIXEL_INSTANCE16; }},
-      {"suction_grasps[0].instance_id 999", [](scene& s) { s.suction_grasps[0].instance_id = 999; }},
+      {"suction_grasps[0].instance_id 999",
+       [](scene& s) { s.suction_grasps[0].instance_id = 999; }},
       {"suction_grasps[1].normal has length",
        [](scene& s) { s.suction_grasps[1].normal[0] += 0.1; }},
       {"suction_grasps[0].seal 1.5", [](scene& s) { s.suction_grasps[0].seal = 1.5; }},
       {"suction_grasps[2].u, v", [](scene& s) { s.suction_grasps[2].v = s.camera.height; }},
       {"suction_grasps[0].proof 7", [](scene& s) { s.suction_grasps[0].proof = 7; }},
       {"num_suction_grasps", [](scene& s) { s.num_suction_grasps += 1; }},
+      {"jaw_grasps[0].instance_id 999", [](scene& s) { s.jaw_grasps[0].instance_id = 999; }},
+      {"jaw_grasps[0].approach has length", [](scene& s) { s.jaw_grasps[0].approach[2] *= 2; }},
+      {"jaw_grasps[0].width_mm -1", [](scene& s) { s.jaw_grasps[0].width_mm = -1; }},
+      {"num_jaw_grasps", [](scene& s) { s.num_jaw_grasps = -1; }},
       {"instance_map.data: ", [](scene& s) { s.instance_map.data[1] ^= 0xff; }},
       {"color.size 1", [](scene& s) { s.color.size = 1; }},
       {"instances[1].class_name is empty", [](scene& s) { s.instances[1].class_name.clear(); }},

@@ -59,6 +59,11 @@ class Scene:
     # approach_clear, com_offset_mm, proof (0 not tried, 1 lifted, 2 dropped, 3 stuck),
     # proof_swing_deg, proof_neighbours_moved_mm), each instance's best first
     suction_grasps: Dict[str, npt.NDArray[Any]]
+    # config grasps.parallel_jaw: every parallel-jaw grasp (instance_id, rank, uv, point_a_mm,
+    # point_b_mm and approach (G, 3) in the camera frame, width_mm, cone_margin_deg,
+    # clearance_mm, approach_clear, com_offset_mm, proof, proof_swing_deg,
+    # proof_neighbours_moved_mm)
+    jaw_grasps: Dict[str, npt.NDArray[Any]]
     ignored: npt.NDArray[np.bool_]
     # added by stackgen/__init__.py
     rgb: Optional[npt.NDArray[np.uint8]]

@@ -248,7 +248,10 @@ TEST(BopWriterTest, GraspsBesideTheGroundTruths) {
       for (const suction_grasp& grasp : s.suction_grasps) {
         if (grasp.instance_id == ids[g]) own.push_back(&grasp);
       }
-      const json& stored = grasps[im][g];
+      size_t jaws = 0;
+      for (const jaw_grasp& grasp : s.jaw_grasps) jaws += grasp.instance_id == ids[g];
+      EXPECT_EQ(grasps[im][g].value("parallel_jaw_grasps", json::array()).size(), jaws);
+      const json& stored = grasps[im][g].value("suction_grasps", json::array());
       ASSERT_EQ(stored.size(), own.size()) << im << " gt " << g;
       for (const suction_grasp* grasp : own) {
         const json& record = stored.at(static_cast<size_t>(grasp->rank));

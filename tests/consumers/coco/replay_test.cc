@@ -74,7 +74,7 @@ void ExpectMatchesLog(const json& dataset, const std::vector<scene>& scenes) {
         &annotation;
   }
 
-  size_t expected_annotations = 0, with_grasps = 0, proven = 0;
+  size_t expected_annotations = 0, with_grasps = 0, with_jaws = 0, proven = 0;
   for (const scene& logged : scenes) {
     // the image: its id is generator_id * 1e8 + seq + 1 (consumers/coco/coco_writer.h)
     const int64_t id = int64_t{logged.header.generator_id} * 100000000 + logged.header.seq + 1;
@@ -101,16 +101,27 @@ void ExpectMatchesLog(const json& dataset, const std::vector<scene>& scenes) {
       EXPECT_EQ(annotation["segmentation"]["counts"], object.mask_visib_rle);
       EXPECT_EQ(annotation["bbox"],
                 json(std::vector<int>(object.bbox_visib, object.bbox_visib + 4)));
-      // its suction grasps (annotated instances only) in the "stackgen" block, by rank, each
-      // the log's
+      // its grasps (annotated instances only) in the "stackgen" block, by rank, each the log's
       std::vector<const suction_grasp*> grasps;
       for (const suction_grasp& grasp : logged.suction_grasps) {
         if (grasp.instance_id == object.instance_id) grasps.push_back(&grasp);
       }
-      if (grasps.empty()) {
+      size_t jaws = 0;
+      for (const jaw_grasp& grasp : logged.jaw_grasps) {
+        if (grasp.instance_id != object.instance_id) continue;
+        ++jaws;
+        const json& record = annotation["stackgen"]["parallel_jaw_grasps"].at(
+            static_cast<size_t>(grasp.rank));
+        EXPECT_EQ(record["width_mm"], grasp.width_mm);
+        EXPECT_EQ(record["point_b_mm"],
+                  json(std::vector<double>(grasp.point_b_mm, grasp.point_b_mm + 3)));
+      }
+      if (jaws > 0) EXPECT_EQ(annotation["stackgen"]["parallel_jaw_grasps"].size(), jaws);
+      if (grasps.empty() && jaws == 0) {
         EXPECT_FALSE(annotation.contains("stackgen"));
         continue;
       }
+      if (grasps.empty()) continue;
       const json& stored = annotation["stackgen"]["suction_grasps"];
       ASSERT_EQ(stored.size(), grasps.size());
       for (const suction_grasp* grasp : grasps) {
@@ -131,10 +142,12 @@ void ExpectMatchesLog(const json& dataset, const std::vector<scene>& scenes) {
       proven += grasp.proof != suction_grasp::PROOF_NOT_TRIED;
       with_grasps += grasp.rank == 0;
     }
+    for (const jaw_grasp& grasp : logged.jaw_grasps) with_jaws += grasp.rank == 0;
   }
   EXPECT_EQ(dataset["annotations"].size(), expected_annotations);
   // the fixture's config labels grasps and proves the top part's best one in every scene
   EXPECT_GT(with_grasps, scenes.size());
+  EXPECT_GT(with_jaws, scenes.size());
   EXPECT_EQ(proven, scenes.size());
 }
 

@@ -103,8 +103,9 @@ def test_stream_equals_what_stackgen_coco_stores(tmp_path, processes):
 
 # a 3D camera's depth reaches the learner beside the exact one: holes where the exact depth has
 # a surface, and its organised point cloud is the back-projection of each pixel, NaN at holes;
-# and the suction grasps (the tiny config has both): on annotated instances, each one's best
-# first, unit normals facing the camera, one proof per scene
+# and the grasps (the tiny config has both): suction on annotated instances, each one's best
+# first, unit normals facing the camera, one proof per scene; parallel jaws no wider than they
+# open, coming in perpendicular to the closing line, inside the friction cones
 def test_stream_carries_depth_sensor_and_grasps(tmp_path, processes):
     url, count = free_url(), 2
     with stackgen.Stream(url, reliable=True, count=count, timeout=60, depth=True) as stream:
@@ -147,6 +148,14 @@ def test_stream_carries_depth_sensor_and_grasps(tmp_path, processes):
         u, v = grasps["uv"][:, 0], grasps["uv"][:, 1]
         assert np.array_equal(scene.instance_map[v, u], grasps["instance_id"])
         assert (grasps["proof"] != 0).sum() == 1
+        jaws = scene.jaw_grasps
+        assert len(jaws["rank"]) > 0
+        assert set(jaws["instance_id"].tolist()) <= annotated
+        width = np.linalg.norm(jaws["point_b_mm"] - jaws["point_a_mm"], axis=1)
+        assert np.allclose(width, jaws["width_mm"]) and np.all(width <= 80 + 1e-6)
+        closing = (jaws["point_b_mm"] - jaws["point_a_mm"]) / width[:, None]
+        assert np.all(np.abs(np.sum(closing * jaws["approach"], axis=1)) < 1e-6)
+        assert np.all(jaws["cone_margin_deg"] > 0)
 
 
 # a reliable stream that drops 30 % of what it receives (and a generator that drops 10 % of the

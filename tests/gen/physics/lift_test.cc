@@ -1,7 +1,8 @@
-// PileSimulator::Lift (gen/physics/pile.cc): a suction cup lifting a part in the pile's own
-// world. A lone bar lifted at its middle comes out, level; held off its centre it swings; a bar
-// pinned under two steel blocks stays in the pile when the cup cannot hold their weight, and
-// the record says which parts moved.
+// PileSimulator::Lift (gen/physics/pile.cc): a suction cup or jaws lifting a part in the pile's
+// own world. A lone bar lifted at its middle comes out, level; held off its centre it swings; a
+// bar pinned under two steel blocks stays in the pile when the cup cannot hold their weight, and
+// the record says which parts moved; jaws lift it across its width, and let go when they
+// squeeze too little.
 #include <gtest/gtest.h>
 
 #include <vector>
@@ -72,6 +73,27 @@ TEST(LiftTest, BarPinnedUnderTwoBlocksStaysAndTheBlocksMove) {
   EXPECT_GT(strong.moved_mm[1], 10);
   EXPECT_GT(strong.moved_mm[2], 10);
   EXPECT_LT(strong.moved_mm[3], 1) << "the bar beside them";
+}
+
+// jaws closed across the bar's width (y) at its middle lift it level; at 40 mm from its middle
+// it turns about the closing line until its centre hangs below; squeezed with 0.2 N a finger
+// (0.2 N of friction against its 0.53 N) it stays
+TEST(LiftTest, JawsLiftAcrossTheBar) {
+  const PileSimulator simulator = BarAndBlocks();
+  LiftParams jaws;
+  jaws.hold = LiftParams::Hold::kJaws;
+  jaws.jaw_axis = Eigen::Vector3d::UnitY();
+  const LiftResult middle = simulator.Lift({0}, {At(0, 0, 5)}, 0, {0, 0, 5}, kUp, jaws);
+  EXPECT_EQ(middle.outcome, LiftResult::Outcome::kLifted);
+  EXPECT_NEAR(middle.rise_mm, jaws.lift_mm, 2);
+  EXPECT_LT(middle.swing_deg, 2);
+  const LiftResult end = simulator.Lift({0}, {At(0, 0, 5)}, 0, {40, 0, 5}, kUp, jaws);
+  EXPECT_EQ(end.outcome, LiftResult::Outcome::kLifted);
+  EXPECT_GT(end.swing_deg, 30);
+  LiftParams weak = jaws;
+  weak.jaw_grip_force_n = 0.2;
+  EXPECT_EQ(simulator.Lift({0}, {At(0, 0, 5)}, 0, {0, 0, 5}, kUp, weak).outcome,
+            LiftResult::Outcome::kStuck);
 }
 
 }  // namespace

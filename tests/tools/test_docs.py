@@ -144,6 +144,7 @@ PROGRAMS = {
     "`tools/coco-to-yolo`": [os.path.join(SOURCE, "tools", "coco-to-yolo")],
     "`stackgen-view`": [os.path.join(BIN, "stackgen-view")],
     "`stackgen-overlay`": [os.path.join(BIN, "stackgen-overlay")],
+    "`stackgen-monitor`": [os.path.join(BIN, "stackgen-monitor")],
     "Stock LCM tools: `tools/spy`, `tools/record`, replay": [os.path.join(SOURCE, "tools", "record")],
 }
 FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")

@@ -1,0 +1,101 @@
+#pragma once
+
+// stackgen-monitor's page (/): plain HTML and a little script that reads /status.json every
+// 2 s and draws each process's state, its rate over the last minutes, and a warning for a
+// process gone quiet (not heard for 5 s without saying its run ended).
+
+namespace stackgen {
+
+inline constexpr const char kMonitorPage[] = R"html(<!DOCTYPE html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<title>stackgen monitor</title>
+<style>
+  body { font-family: sans-serif; margin: 1.5em; color: #222; }
+  h1 { font-size: 1.3em; }
+  table { border-collapse: collapse; }
+  th, td { padding: 0.3em 0.7em; border-bottom: 1px solid #ddd; text-align: right; }
+  th:first-child, td:first-child, td.name { text-align: left; }
+  tr.quiet td { background: #fdd; }
+  #warnings p { background: #fdd; padding: 0.4em; margin: 0.2em 0; }
+  canvas { vertical-align: middle; }
+  .small { color: #777; font-size: 0.85em; }
+</style>
+</head>
+<body>
+<h1>stackgen monitor</h1>
+<div id="warnings"></div>
+<table>
+<thead><tr><th>process</th><th>name</th><th>state</th><th>scenes</th><th>scenes/s</th>
+<th>rate, last minutes</th><th>physics ms</th><th>render ms</th><th>lost</th><th>resent</th>
+<th>held back s</th><th>refused</th><th>heard</th></tr></thead>
+<tbody id="rows"></tbody>
+</table>
+<p class="small" id="monitor"></p>
+<script>
+const history = {};
+const states = ["running", "ended", "stopped"];
+function cell(text, cls) {
+  const td = document.createElement("td");
+  td.textContent = text;
+  if (cls) td.className = cls;
+  return td;
+}
+function sparkline(values) {
+  const canvas = document.createElement("canvas");
+  canvas.width = 120; canvas.height = 24;
+  const g = canvas.getContext("2d");
+  const top = Math.max(1e-9, ...values);
+  g.strokeStyle = "#36c";
+  g.beginPath();
+  values.forEach((v, i) => {
+    const x = i * canvas.width / 60, y = canvas.height - 2 - v / top * (canvas.height - 4);
+    if (i === 0) g.moveTo(x, y); else g.lineTo(x, y);
+  });
+  g.stroke();
+  return canvas;
+}
+async function refresh() {
+  let data;
+  try {
+    data = await (await fetch("status.json", {cache: "no-store"})).json();
+  } catch (e) {
+    document.getElementById("warnings").innerHTML = "<p>the monitor does not answer</p>";
+    return;
+  }
+  const rows = document.getElementById("rows");
+  rows.innerHTML = "";
+  const warnings = [];
+  for (const p of data.processes) {
+    const h = history[p.name] = (history[p.name] || []).concat([p.rate_hz]).slice(-60);
+    const tr = document.createElement("tr");
+    if (p.quiet) {
+      tr.className = "quiet";
+      warnings.push(p.name + " has not been heard for " + p.age_s.toFixed(0) + " s");
+    }
+    if (p.lost > 0) warnings.push(p.name + " is missing " + p.lost + " scenes");
+    tr.append(cell(p.process), cell(p.name, "name"),
+              cell(p.quiet ? "quiet" : (p.generator_id >= 0 ? states[p.run_state] : "running")),
+              cell(p.scenes), cell(p.rate_hz.toFixed(2)));
+    const spark = document.createElement("td");
+    spark.append(sparkline(h));
+    tr.append(spark, cell(p.stage_ms.physics.toFixed(0)), cell(p.stage_ms.render.toFixed(0)),
+              cell(p.lost), cell(p.resent), cell(p.held_back_s.toFixed(1)), cell(p.refused),
+              cell(p.age_s.toFixed(1) + " s ago"));
+    rows.append(tr);
+  }
+  document.getElementById("warnings").innerHTML =
+      warnings.map(w => "<p>" + w.replace(/[<>&]/g, "") + "</p>").join("");
+  document.getElementById("monitor").textContent =
+      data.processes.length + " processes; the monitor heard " + data.monitor.status_messages +
+      " statuses, refused " + data.monitor.refused + " messages. Metrics for Prometheus: /metrics";
+}
+refresh();
+setInterval(refresh, 2000);
+</script>
+</body>
+</html>
+)html";
+
+}  // namespace stackgen

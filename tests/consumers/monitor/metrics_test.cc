@@ -1,0 +1,119 @@
+// stackgen-monitor's metrics (consumers/monitor/metrics.cc): the Prometheus text of a generator
+// and a consumer, label values escaped, quiet processes marked, the table bounded.
+#include "consumers/monitor/metrics.h"
+
+#include <string>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+namespace stackgen {
+namespace {
+
+status Generator() {
+  status s{};
+  s.header.generator_id = 3;
+  s.header.seq = -1;
+  s.process = "stackgen";
+  s.name = "stackgen/3@host:42";
+  s.next_seq = 17;
+  s.scenes_held = -1;
+  s.scenes = 17;
+  s.scenes_rejected = 2;
+  s.rate_hz = 1.5;
+  s.physics_ms = 250;
+  s.render_ms = 80;
+  s.resent = 4;
+  s.held_back_s = 1.25;
+  s.reliable_consumers = 1;
+  s.refused_forged = 7;
+  return s;
+}
+
+status Writer() {
+  status s{};
+  s.header.generator_id = -1;
+  s.header.seq = -1;
+  s.process = "stackgen-coco";
+  s.name = "stackgen-coco@host:/data/\"new\"\\set";
+  s.next_seq = -1;
+  s.scenes_held = 12;
+  s.scenes = 10;
+  s.received = 13;
+  s.duplicates = 1;
+  s.lost = 2;
+  return s;
+}
+
+// each counter and gauge of a generator and a writer, with the labels that say who it is: the
+// generator's id on generators only, a writer's odd name escaped; stage times in seconds
+TEST(MonitorMetricsTest, GeneratorAndWriterAsPrometheusText) {
+  ProcessTable table;
+  table.Update(Generator(), 10.0);
+  table.Update(Writer(), 11.0);
+  MonitorCounters counters;
+  counters.status_messages = 5;
+  counters.refused_unsigned = 3;
+  const std::string text = PrometheusText(table, counters, 12.0);
+  const std::string g = "{process=\"stackgen\",name=\"stackgen/3@host:42\",generator_id=\"3\"";
+  const std::string w =
+      "{process=\"stackgen-coco\",name=\"stackgen-coco@host:/data/\\\"new\\\"\\\\set\"";
+  for (const std::string& line :
+       {"stackgen_scenes_total" + g + "} 17", "stackgen_redraws_total" + g + "} 2",
+        "stackgen_next_seq" + g + "} 17", "stackgen_resent_total" + g + "} 4",
+        "stackgen_held_back_seconds_total" + g + "} 1.25",
+        "stackgen_stage_seconds" + g + ",stage=\"physics\"} 0.25",
+        "stackgen_refused_total" + g + ",reason=\"forged\"} 7",
+        "stackgen_last_heard_seconds" + g + "} 2", "stackgen_scenes_total" + w + "} 10",
+        "stackgen_scenes_held" + w + "} 12", "stackgen_received_total" + w + "} 13",
+        "stackgen_lost" + w + "} 2", std::string("stackgen_monitor_status_messages_total 5"),
+        std::string("stackgen_monitor_refused_total{reason=\"unsigned\"} 3"),
+        std::string("# TYPE stackgen_scenes_total counter"),
+        std::string("# TYPE stackgen_lost gauge")}) {
+    EXPECT_NE(text.find(line + "\n"), std::string::npos) << line << "\n" << text;
+  }
+  // a generator's own families are not a writer's, nor the other way round
+  EXPECT_EQ(text.find("stackgen_next_seq" + w), std::string::npos);
+  EXPECT_EQ(text.find("stackgen_lost" + g), std::string::npos);
+}
+
+// a process not heard for more than 5 s is quiet, unless it said its run ended; the page's JSON
+// says the same
+TEST(MonitorMetricsTest, QuietAfterFiveSecondsUnlessEnded) {
+  ProcessTable table;
+  status ended = Generator();
+  ended.name = "stackgen/4@host:43";
+  ended.run_state = 1;
+  table.Update(Generator(), 0.0);
+  table.Update(ended, 0.0);
+  table.Update(Writer(), 5.5);
+  const std::string text = PrometheusText(table, MonitorCounters{}, 6.0);
+  EXPECT_NE(text.find("stackgen_quiet{process=\"stackgen\",name=\"stackgen/3@host:42\","
+                      "generator_id=\"3\"} 1\n"),
+            std::string::npos);
+  EXPECT_NE(text.find("stackgen_quiet{process=\"stackgen\",name=\"stackgen/4@host:43\","
+                      "generator_id=\"3\"} 0\n"),
+            std::string::npos);
+  const nlohmann::json json = nlohmann::json::parse(StatusJson(table, MonitorCounters{}, 6.0));
+  ASSERT_EQ(json["processes"].size(), 3u);
+  int quiet = 0;
+  for (const auto& process : json["processes"]) quiet += process["quiet"].get<bool>();
+  EXPECT_EQ(quiet, 1);
+}
+
+// a stranger who varies the name cannot grow the table: past 1024 names the one heard least
+// recently goes
+TEST(MonitorMetricsTest, TableIsBounded) {
+  ProcessTable table;
+  status s = Writer();
+  for (int k = 0; k < 3000; ++k) {
+    s.name = "forged/" + std::to_string(k);
+    table.Update(s, k);
+  }
+  EXPECT_EQ(table.entries().size(), ProcessTable::kMaxProcesses);
+  EXPECT_EQ(table.entries().count("forged/0"), 0u);
+  EXPECT_EQ(table.entries().count("forged/2999"), 1u);
+}
+
+}  // namespace
+}  // namespace stackgen

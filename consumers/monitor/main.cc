@@ -1,14 +1,21 @@
 // stackgen-monitor: watches a run the way operators watch services. Listens to STACKGEN_STATUS
-// (a best-effort listener: it sends nothing but the bus key's liveness answers and never holds
-// anyone back) and serves, over HTTP on this host by default:
+// and the scenes (a best-effort consumer: it sends no credits and never holds anyone back; its
+// own status goes out like any consumer's) and serves, over HTTP on this host by default:
 //   /metrics      the Prometheus text format: each generator's and consumer's counters
 //   /status.json  the same for the page
-//   /             a live page: each process's state and rate, warnings for quiet ones
+//   /latest.jpg   the latest scenes as a contact sheet, their labels drawn
+//   /             a live page: each process's state and rate, warnings for quiet ones, the sheet
 //   /healthz      "ok" while it runs (a Kubernetes probe)
+#include <unistd.h>
+
 #include <csignal>
 #include <cstdio>
+#include <deque>
 #include <mutex>
 #include <string>
+#include <vector>
+
+#include <opencv2/imgcodecs.hpp>
 
 #include "bus/bus.h"
 #include "bus/channels.h"
@@ -17,12 +24,22 @@
 #include "consumers/monitor/http_server.h"
 #include "consumers/monitor/metrics.h"
 #include "consumers/monitor/page.h"
+#include "consumers/view/contact_sheet.h"
+#include "contract/scene_contract.h"
 #include "session/consumer.h"
 
 namespace {
 
 constexpr const char* kProgram = "stackgen-monitor";
 constexpr int kDefaultPort = 9712;
+// the latest scenes kept for the sheet, its columns and tile width, and how often it is drawn
+// again at most (seconds)
+constexpr size_t kLatestScenes = 6;
+constexpr int kSheetColumns = 3;
+constexpr int kTileWidth = 320;
+constexpr double kSheetEveryS = 1.0;
+// scenes the bus keeps waiting for the monitor (a best-effort consumer drops the rest)
+constexpr int kQueueCapacity = 4;
 
 struct Flags {
   std::string lcm_url;
@@ -39,15 +56,17 @@ void PrintHelp() {
       "Usage: %s [--port N] [--bind ADDRESS] [--lcm-url URL] [--bus-key-file FILE | --open-bus]\n"
       "       [--replay] [--fault-drop F]\n"
       "\n"
-      "Watches a run: listens to %s and serves over HTTP\n"
+      "Watches a run: listens to %s and the scenes, and serves over HTTP\n"
       "  /metrics      every generator's and consumer's counters in the Prometheus text format\n"
       "                (scenes, redraws, resends, held-back seconds, stage seconds, lost,\n"
       "                refused messages by reason, seconds since last heard, quiet or not)\n"
       "  /status.json  the same for the page\n"
-      "  /             a live page: each process's state and rate, quiet ones marked\n"
+      "  /latest.jpg   the latest 6 scenes as a contact sheet, their labels drawn\n"
+      "  /             a live page: each process's state and rate, quiet ones marked, and the\n"
+      "                latest scenes\n"
       "  /healthz      ok while it runs\n"
-      "It never holds a generator back (it takes no scenes and sends no credits). Runs until\n"
-      "SIGINT or SIGTERM.\n"
+      "A best-effort consumer: it never holds a generator back (no credits); its own counters go\n"
+      "out on %s like any consumer's. Runs until SIGINT or SIGTERM.\n"
       "\n"
       "Options:\n"
       "  --port N            the port, 0..65535 (default %d; 0: one the system picks, printed)\n"
@@ -61,7 +80,7 @@ void PrintHelp() {
       "  --help              print this help and exit\n"
       "\n"
       "Exit status: 0 stopped by a signal, 1 error, 2 bad command line.\n",
-      kProgram, stackgen::kStatusChannel, kDefaultPort);
+      kProgram, stackgen::kStatusChannel, stackgen::kStatusChannel, kDefaultPort);
 }
 
 volatile std::sig_atomic_t stop_requested = 0;
@@ -81,13 +100,25 @@ int main(int argc, char** argv) {
   parser.ParseOrExit(argc, argv, PrintHelp);
   try {
     stackgen::StopOnSignals(RequestStop);
-    stackgen::Bus bus(stackgen::ResolveLcmUrl(flags.lcm_url),
-                      stackgen::ConsumerBusOptions(flags.fault_drop, flags.bus_key_file,
-                                                   flags.open_bus, flags.replay, 0x30));
-    // the table, filled on this thread, read on the server's
+    stackgen::ConsumerSessionOptions options;
+    options.process = kProgram;
+    options.name = std::string(kProgram) + "/" + std::to_string(getpid());
+    stackgen::ConsumerSession session(
+        std::make_unique<stackgen::Bus>(
+            stackgen::ResolveLcmUrl(flags.lcm_url),
+            stackgen::ConsumerBusOptions(flags.fault_drop, flags.bus_key_file, flags.open_bus,
+                                         flags.replay, 0x30)),
+        options);
+    stackgen::Bus& bus = session.bus();
+    // the table and the latest scenes, filled on this thread, read on the server's
     std::mutex mutex;
     stackgen::ProcessTable table;
     stackgen::MonitorCounters counters;
+    std::deque<stackgen::scene> latest;
+    std::vector<uchar> sheet_jpeg;
+    double sheet_drawn_s = -1e9;
+    bool sheet_stale = false;
+    int64_t scenes_heard = 0;
     const stackgen::Clock& clock = stackgen::SteadyClock();
     const auto start = clock.Now();
     const auto now_s = [&] { return std::chrono::duration<double>(clock.Now() - start).count(); };
@@ -103,7 +134,45 @@ int main(int argc, char** argv) {
           const std::lock_guard<std::mutex> lock(mutex);
           ++counters.bad_messages;
         });
-    bus.state().WatchKeys({stackgen::kStatusChannel, stackgen::kConfigChannel});
+    // the scenes: checked as every consumer checks them, the latest few kept for the sheet
+    const stackgen::Subscription scenes = session.SubscribeScenes(
+        stackgen::kSceneChannel,
+        [&](const stackgen::scene& message) {
+          std::string why;
+          if (!stackgen::CheckScene(message, &why)) {
+            session.Refuse(message.header.generator_id, message.header.seq);
+            return;
+          }
+          if (!session.Fresh(message.header.generator_id, message.header.seq)) return;
+          const std::lock_guard<std::mutex> lock(mutex);
+          latest.push_back(message);
+          if (latest.size() > kLatestScenes) latest.pop_front();
+          sheet_stale = true;
+          ++scenes_heard;
+        },
+        kQueueCapacity,
+        [&](const std::string&) {
+          const std::lock_guard<std::mutex> lock(mutex);
+          ++counters.bad_messages;
+        });
+    session.WatchGeneratorKeys();
+    bus.state().WatchKeys({stackgen::kStatusChannel});
+    // the sheet of the latest scenes, drawn again at most once a second (under `mutex`)
+    const auto sheet = [&]() -> const std::vector<uchar>& {
+      if (sheet_stale && now_s() - sheet_drawn_s >= kSheetEveryS) {
+        std::vector<stackgen::sheet::Tile> tiles;
+        for (auto it = latest.rbegin(); it != latest.rend(); ++it) {
+          const stackgen::sheet::SceneView view = stackgen::sheet::ViewOfMessage(*it);
+          tiles.push_back({stackgen::sheet::RenderTile(view, kTileWidth), view.caption});
+        }
+        const cv::Mat drawn = stackgen::sheet::ComposeSheet(tiles, kSheetColumns, kTileWidth,
+                                                            false);
+        cv::imencode(".jpg", drawn, sheet_jpeg, {cv::IMWRITE_JPEG_QUALITY, 85});
+        sheet_drawn_s = now_s();
+        sheet_stale = false;
+      }
+      return sheet_jpeg;
+    };
 
     stackgen::HttpServer server(flags.bind, flags.port, [&](const std::string&,
                                                             const std::string& path) {
@@ -117,25 +186,37 @@ int main(int argc, char** argv) {
                                       stackgen::StatusJson(table, counters, now_s())};
       }
       if (path == "/healthz") return stackgen::HttpResponse{200, "text/plain", "ok\n"};
+      if (path == "/latest.jpg") {
+        if (latest.empty()) return stackgen::HttpResponse{404, "text/plain", "no scene yet\n"};
+        const std::vector<uchar>& jpeg = sheet();
+        return stackgen::HttpResponse{200, "image/jpeg", std::string(jpeg.begin(), jpeg.end())};
+      }
       if (path == "/") {
         return stackgen::HttpResponse{200, "text/html; charset=utf-8", stackgen::kMonitorPage};
       }
       return stackgen::HttpResponse{404, "text/plain", "not found: " + path + "\n"};
     });
-    std::printf("%s: serving http://%s:%d/ (metrics at /metrics), listening on %s channel %s\n",
+    std::printf("%s: serving http://%s:%d/ (metrics at /metrics), listening on %s channels %s "
+                "and %s\n",
                 kProgram, flags.bind.c_str(), server.port(), bus.url().c_str(),
-                stackgen::kStatusChannel);
+                stackgen::kStatusChannel, stackgen::kSceneChannel);
     std::fflush(stdout);
 
     while (!stop_requested) {
       bus.HandleFor(100);
-      const stackgen::AuthCounters refused = bus.state().auth_counters();
-      const std::lock_guard<std::mutex> lock(mutex);
-      counters.refused_unsigned = refused.unsigned_messages;
-      counters.refused_forged = refused.forged;
-      counters.refused_replayed = refused.replayed;
-      counters.refused_relayed = refused.relayed;
+      int64_t held = 0;
+      {
+        const stackgen::AuthCounters refused = bus.state().auth_counters();
+        const std::lock_guard<std::mutex> lock(mutex);
+        counters.refused_unsigned = refused.unsigned_messages;
+        counters.refused_forged = refused.forged;
+        counters.refused_replayed = refused.replayed;
+        counters.refused_relayed = refused.relayed;
+        held = scenes_heard;
+      }
+      session.Service(held, held);
     }
+    session.Leave(scenes_heard, scenes_heard);
     std::printf("%s: stopped; heard %lld statuses of %zu processes\n", kProgram,
                 static_cast<long long>(counters.status_messages), table.entries().size());
     return 0;

@@ -71,7 +71,11 @@ void ProcessTable::Update(const status& message, double now_s) {
     }
     entries_.erase(oldest);
   }
-  entries_[message.name] = Entry{message, now_s};
+  Entry& entry = entries_[message.name];
+  entry.latest = message;
+  entry.heard_s = now_s;
+  entry.rate_hz.push_back(message.rate_hz);
+  if (entry.rate_hz.size() > kRateHistory) entry.rate_hz.pop_front();
 }
 
 std::string PrometheusText(const ProcessTable& table, const MonitorCounters& counters,
@@ -204,6 +208,7 @@ std::string StatusJson(const ProcessTable& table, const MonitorCounters& counter
         {"generator_id", s.header.generator_id},
         {"scenes", s.scenes},
         {"rate_hz", s.rate_hz},
+        {"rate_history", std::vector<double>(entry.rate_hz.begin(), entry.rate_hz.end())},
         {"stage_ms",
          {{"physics", s.physics_ms},
           {"render", s.render_ms},

@@ -5,6 +5,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <string>
 
@@ -32,9 +33,13 @@ class ProcessTable {
   /// Keeps `message` as its process's latest, heard at `now_s` (any monotonic clock, seconds).
   void Update(const status& message, double now_s);
 
+  /// Rates kept per process for the page's sparkline: the last this many statuses' rate_hz.
+  static constexpr size_t kRateHistory = 120;
+
   struct Entry {
     status latest;
-    double heard_s = 0;  // when it was last heard
+    double heard_s = 0;             // when it was last heard
+    std::deque<double> rate_hz;     // its last kRateHistory rates, oldest first
   };
   const std::map<std::string, Entry>& entries() const { return entries_; }
 
@@ -55,8 +60,8 @@ std::string PrometheusText(const ProcessTable& table, const MonitorCounters& cou
                            double now_s);
 
 /// The table as JSON for the page (an array of objects, one per process, by name: process,
-/// name, generator_id, scenes, rate_hz, the stage times, lost, resent, held_back_s, refused,
-/// run_state, age_s, quiet), and the monitor's counters.
+/// name, generator_id, scenes, rate_hz, rate_history, the stage times, lost, resent,
+/// held_back_s, refused, run_state, age_s, quiet), and the monitor's counters.
 std::string StatusJson(const ProcessTable& table, const MonitorCounters& counters, double now_s);
 
 }  // namespace stackgen

@@ -2,7 +2,8 @@
 
 // stackgen-monitor's page (/): plain HTML and a little script that reads /status.json every
 // 2 s and draws each process's state, its rate over the last minutes, and a warning for a
-// process gone quiet (not heard for 5 s without saying its run ended).
+// process gone quiet (not heard for 5 s without saying its run ended); and under it the latest
+// scenes (/latest.jpg), fetched again every 4 s.
 
 namespace stackgen {
 
@@ -12,11 +13,12 @@ inline constexpr const char kMonitorPage[] = R"html(<!DOCTYPE html>
 <meta charset="utf-8">
 <title>stackgen monitor</title>
 <style>
-  body { font-family: sans-serif; margin: 1.5em; color: #222; }
+  body { font-family: sans-serif; font-size: 14px; margin: 1.2em; color: #222; }
   h1 { font-size: 1.3em; }
   table { border-collapse: collapse; }
-  th, td { padding: 0.3em 0.7em; border-bottom: 1px solid #ddd; text-align: right; }
-  th:first-child, td:first-child, td.name { text-align: left; }
+  th, td { padding: 0.25em 0.5em; border-bottom: 1px solid #ddd; text-align: right; }
+  th:nth-child(-n+3), td:nth-child(-n+3) { text-align: left; }
+  td.name { max-width: 18em; overflow-wrap: anywhere; }
   tr.quiet td { background: #fdd; }
   #warnings p { background: #fdd; padding: 0.4em; margin: 0.2em 0; }
   canvas { vertical-align: middle; }
@@ -28,13 +30,14 @@ inline constexpr const char kMonitorPage[] = R"html(<!DOCTYPE html>
 <div id="warnings"></div>
 <table>
 <thead><tr><th>process</th><th>name</th><th>state</th><th>scenes</th><th>scenes/s</th>
-<th>rate, last minutes</th><th>physics ms</th><th>render ms</th><th>lost</th><th>resent</th>
+<th>rate, last 2 min</th><th>physics ms</th><th>render ms</th><th>lost</th><th>resent</th>
 <th>held back s</th><th>refused</th><th>heard</th></tr></thead>
 <tbody id="rows"></tbody>
 </table>
 <p class="small" id="monitor"></p>
+<h2 style="font-size: 1.1em">latest scenes</h2>
+<img id="sheet" alt="no scene yet" src="latest.jpg">
 <script>
-const history = {};
 const states = ["running", "ended", "stopped"];
 function cell(text, cls) {
   const td = document.createElement("td");
@@ -50,7 +53,7 @@ function sparkline(values) {
   g.strokeStyle = "#36c";
   g.beginPath();
   values.forEach((v, i) => {
-    const x = i * canvas.width / 60, y = canvas.height - 2 - v / top * (canvas.height - 4);
+    const x = i * canvas.width / 120, y = canvas.height - 2 - v / top * (canvas.height - 4);
     if (i === 0) g.moveTo(x, y); else g.lineTo(x, y);
   });
   g.stroke();
@@ -68,7 +71,6 @@ async function refresh() {
   rows.innerHTML = "";
   const warnings = [];
   for (const p of data.processes) {
-    const h = history[p.name] = (history[p.name] || []).concat([p.rate_hz]).slice(-60);
     const tr = document.createElement("tr");
     if (p.quiet) {
       tr.className = "quiet";
@@ -79,7 +81,7 @@ async function refresh() {
               cell(p.quiet ? "quiet" : (p.generator_id >= 0 ? states[p.run_state] : "running")),
               cell(p.scenes), cell(p.rate_hz.toFixed(2)));
     const spark = document.createElement("td");
-    spark.append(sparkline(h));
+    spark.append(sparkline(p.rate_history));
     tr.append(spark, cell(p.stage_ms.physics.toFixed(0)), cell(p.stage_ms.render.toFixed(0)),
               cell(p.lost), cell(p.resent), cell(p.held_back_s.toFixed(1)), cell(p.refused),
               cell(p.age_s.toFixed(1) + " s ago"));
@@ -93,6 +95,9 @@ async function refresh() {
 }
 refresh();
 setInterval(refresh, 2000);
+setInterval(() => {
+  document.getElementById("sheet").src = "latest.jpg?t=" + Date.now();
+}, 4000);
 </script>
 </body>
 </html>

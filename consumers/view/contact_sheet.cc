@@ -11,9 +11,17 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "contract/rle.h"
+#include "contract/scene_contract.h"
+
 namespace stackgen {
 namespace sheet {
 namespace {
+
+// bus scenes: at most this many instances, and this many bytes of decoded masks
+constexpr int kMaxInstances = 999;
+constexpr int64_t kMaxMaskBytes = int64_t{1} << 30;
+
 
 namespace fs = std::filesystem;
 
@@ -90,6 +98,17 @@ void DrawLegend(cv::Mat& sheet, bool bop) {
 }
 
 }  // namespace
+
+cv::Mat RleMask(const std::string& counts, int height, int width) {
+  if (height < 0 || width < 0) {
+    throw std::runtime_error("negative mask size " + std::to_string(height) + " x " +
+                             std::to_string(width));
+  }
+  cv::Mat mask = cv::Mat::zeros(height, width, CV_8UC1);
+  DecodeRleInto(counts, height, width, mask.data);
+  mask *= 255;
+  return mask;
+}
 
 // "ann", "ign", "drop" counts; the dropped count only where it is known
 std::string CountsText(const std::vector<InstanceView>& instances, bool dropped_known) {
@@ -221,6 +240,67 @@ void WritePng(const cv::Mat& sheet, const std::string& path) {
     throw std::runtime_error("--out " + path + ": cannot rename " + temporary + ": " +
                              error.message());
   }
+}
+
+SceneView ViewOfMessage(const scene& message) {
+  // the contract every consumer checks (contract/scene_contract.h): sizes, encodings and file
+  // headers, instances, masks and their pixel counts
+  std::string why;
+  if (!CheckScene(message, &why)) throw std::runtime_error(why);
+  const int width = message.camera.width;
+  const int height = message.camera.height;
+  if (width > 8192 || height > 8192) {
+    throw std::runtime_error("camera.width x camera.height " + std::to_string(width) + " x " +
+                             std::to_string(height) + " outside 1..8192");
+  }
+  // the colour image
+  const image& color = message.color;
+  SceneView scene;
+  const bool rgb = color.pixel_format == image::PIXEL_RGB8;
+  if (color.encoding == image::ENCODING_RAW) {
+    const cv::Mat pixels(height, width, rgb ? CV_8UC3 : CV_8UC1,
+                         const_cast<uint8_t*>(color.data.data()));
+    cv::cvtColor(pixels, scene.image, rgb ? cv::COLOR_RGB2BGR : cv::COLOR_GRAY2BGR);
+  } else {
+    // PNG or JPEG, whose header CheckScene found to declare the camera's size
+    scene.image = cv::imdecode(color.data, cv::IMREAD_COLOR);
+    if (scene.image.empty()) throw std::runtime_error("color.data does not decode");
+    if (scene.image.cols != width || scene.image.rows != height) {
+      throw std::runtime_error("color.data holds a " + std::to_string(scene.image.cols) + " x " +
+                               std::to_string(scene.image.rows) + " image, the camera is " +
+                               std::to_string(width) + " x " + std::to_string(height));
+    }
+  }
+
+  // each instance's mask is decoded at full size: bound what that may take
+  if (message.num_instances > kMaxInstances ||
+      static_cast<int64_t>(message.num_instances) * width * height > kMaxMaskBytes) {
+    throw std::runtime_error("num_instances " + std::to_string(message.num_instances) + " of " +
+                             std::to_string(width) + " x " + std::to_string(height) +
+                             " masks exceeds the limit (at most " + std::to_string(kMaxInstances) +
+                             " instances and " + std::to_string(kMaxMaskBytes >> 20) +
+                             " MiB of masks)");
+  }
+  for (size_t k = 0; k < message.instances.size(); ++k) {
+    const instance& instance = message.instances[k];
+    const std::string field = "instances[" + std::to_string(k) + "]";
+    InstanceView view;
+    try {
+      view.mask = RleMask(instance.mask_visib_rle, height, width);
+    } catch (const std::exception& error) {
+      throw std::runtime_error(field + ".mask_visib_rle: " + error.what());
+    }
+    if (instance.px_count_visib == 0) continue;  // nothing to outline
+    view.label = instance.annotated ? Label::kAnnotated
+                 : instance.ignored ? Label::kIgnored
+                                    : Label::kDropped;
+    view.instance_id = instance.instance_id;
+    view.visib_fract = instance.visib_fract;
+    scene.instances.push_back(std::move(view));
+  }
+  scene.caption = "scene " + std::to_string(message.header.generator_id) + "/" +
+                  std::to_string(message.header.seq) + ": " + CountsText(scene.instances, true);
+  return scene;
 }
 
 }  // namespace sheet

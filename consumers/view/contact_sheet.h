@@ -1,7 +1,8 @@
 #pragma once
 
-// stackgen-view's contact sheet: each scene's image with its instances' visible masks outlined in
-// the colour of their label, the tiles in a grid under a legend, written as one PNG.
+// The contact sheet of stackgen-view and stackgen-monitor: each scene's image with its
+// instances' visible masks outlined in the colour of their label, the tiles in a grid under a
+// legend, written as one PNG.
 
 #include <cstdint>
 #include <limits>
@@ -9,6 +10,7 @@
 #include <vector>
 
 #include <opencv2/core.hpp>
+#include <stackgen/scene.hpp>
 
 namespace stackgen {
 namespace sheet {
@@ -43,6 +45,16 @@ struct Tile {
   cv::Mat pixels;
   std::string caption;
 };
+
+/// The mask (CV_8UC1, 255 inside) of a compressed COCO RLE string over height x width pixels
+/// (contract/rle.h's decoder; throws as it does, naming what is wrong).
+cv::Mat RleMask(const std::string& counts, int height, int width);
+
+/// A scene message as a SceneView: its colour image (BGR), every instance with visible pixels
+/// outlined by its label, the caption "scene GENERATOR/SEQ: counts". Throws std::runtime_error
+/// naming the field when the scene breaks the contract (contract/scene_contract.h) or its masks
+/// would take more than 1 GiB (at most 999 instances).
+SceneView ViewOfMessage(const scene& message);
 
 /// A caption's counts of the scene's instances by label ("ann", "ign" and, where the source
 /// knows them, "drop").

@@ -66,9 +66,9 @@ def whole(tmp_path_factory):
     return dataset_files(out)
 
 
-def start_and_wait_for_images(cut, images_wanted=3):
-    """tools/run started on `cut`, once it has stored a few scenes."""
-    process = subprocess.Popen([RUN, *ARGS, "--out", str(cut)], stdout=subprocess.PIPE,
+def start_and_wait_for_images(cut, images_wanted=3, extra=()):
+    """tools/run started on `cut` (with `extra` flags), once it has stored a few scenes."""
+    process = subprocess.Popen([RUN, *ARGS, "--out", str(cut), *extra], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline:
@@ -101,12 +101,20 @@ def test_interrupted_run_resumes_to_the_same_files(tmp_path, whole):
 
 
 def test_killed_run_leaves_nothing_running_and_resumes(tmp_path, whole):
-    # kill -9 of tools/run: its generator, writer and tee go with it (nothing finishes the
-    # dataset behind the user's back, nothing holds its journal)
+    # kill -9 of tools/run: its generator, writer, monitor and tee go with it (nothing finishes
+    # the dataset behind the user's back, nothing holds its journal)
     cut = tmp_path / "cut"
-    process = start_and_wait_for_images(cut)
+    process = start_and_wait_for_images(cut, extra=("--monitor", "0"))
     children = descendants(process.pid)
-    assert len(children) >= 2, children  # the writer and the generator at least
+    assert len(children) >= 3, children  # the writer, the generator and the monitor at least
+    commands = []
+    for child in children:
+        try:
+            with open("/proc/%d/cmdline" % child) as file:
+                commands.append(file.read())
+        except FileNotFoundError:
+            pass
+    assert any("stackgen-monitor" in command for command in commands), commands
     process.kill()
     process.communicate(timeout=60)
     assert not left_running(children)
@@ -161,7 +169,8 @@ def test_bad_arguments_make_nothing(tmp_path):
             (["--format", "yolo"], "--format must be coco, bop or both"),
             (["--split", "train=0.5,val=0.2"], "--split: the fractions add up to 0.7, not 1"),
             (["--split", "Train=1"], "--split: 'Train=1' is not NAME=FRACTION"),
-            (["--resume"], "--resume: %s does not exist" % out)]:
+            (["--resume"], "--resume: %s does not exist" % out),
+            (["--monitor", "70000"], "--monitor must be a port in 0..65535")]:
         result = run(*args, "--out", str(out))
         assert result.returncode == 2, (args, result.stderr)
         lines = result.stderr.strip().splitlines()

@@ -1,14 +1,19 @@
 """stackgen-monitor as a process beside a real run: /metrics read with Prometheus' own parser
 (Debian's python3-prometheus-client) equals what the generator and the writer print when they
-end; /healthz, the page and its JSON answer; it serves this host only unless told."""
+end; /healthz, the page and its JSON answer; it serves this host only unless told; the page in
+headless Chromium shows the latest scenes and marks a stalled generator."""
 
 import json
 import os
 import re
+import signal
+import subprocess
 import time
 import urllib.error
 import urllib.request
 
+import cv2
+import numpy as np
 from prometheus_client.parser import text_string_to_metric_families
 
 from conftest import BIN, free_url, quick_config
@@ -23,8 +28,11 @@ def start_monitor(processes, url, *extra):
 
 
 def get(base, path):
+    """(status, content type, body: text, or bytes for an image)."""
     with urllib.request.urlopen(base + path, timeout=10) as response:
-        return response.status, response.headers.get("Content-Type"), response.read().decode()
+        body = response.read()
+        kind = response.headers.get("Content-Type")
+        return response.status, kind, body if kind.startswith("image/") else body.decode()
 
 
 def samples(text):
@@ -38,7 +46,8 @@ def samples(text):
 
 # a generator and a writer run 6 scenes while the monitor listens: its counters of each, parsed
 # as Prometheus parses them, are what each prints as it ends (scenes published, stored,
-# received); the page and its JSON show both; the monitor binds to 127.0.0.1 by default
+# received); the page and its JSON show both (and the monitor itself, a consumer like any); the
+# monitor binds to 127.0.0.1 by default
 def test_metrics_equal_what_the_processes_print(tmp_path, processes):
     url, count = free_url(), 6
     monitor, base = start_monitor(processes, url)
@@ -68,7 +77,8 @@ def test_metrics_equal_what_the_processes_print(tmp_path, processes):
         found = samples(text)
         scenes = {labels: value for (name, labels), value in found.items()
                   if name == "stackgen_scenes_total"}
-        by_process = {dict(labels)["process"]: value for labels, value in scenes.items()}
+        by_process = {dict(labels)["process"]: value for labels, value in scenes.items()
+                      if dict(labels)["process"] != "stackgen-monitor"}
         if by_process == {"stackgen": published, "stackgen-coco": stored}:
             break
         assert time.monotonic() < deadline, by_process
@@ -86,7 +96,8 @@ def test_metrics_equal_what_the_processes_print(tmp_path, processes):
     status, content_type, page = get(base, "")
     assert content_type.startswith("text/html") and "stackgen monitor" in page
     table = json.loads(get(base, "status.json")[2])
-    assert sorted(p["process"] for p in table["processes"]) == ["stackgen", "stackgen-coco"]
+    assert sorted(p["process"] for p in table["processes"]) == [
+        "stackgen", "stackgen-coco", "stackgen-monitor"]
     try:
         get(base, "nothing")
         raise AssertionError("an unknown path answered")
@@ -108,3 +119,87 @@ def test_bad_address_and_port_in_use(tmp_path, processes):
                      url], "bad")
     assert bad.wait(10) == 1
     assert "localhost" in bad.stderr()
+
+
+def screenshot(base, path):
+    """The page as headless Chromium draws it after 3 s of its own time, as an image."""
+    shot = subprocess.run(["chromium", "--headless", "--no-sandbox", "--disable-gpu",
+                           "--hide-scrollbars", "--window-size=1280,1000",
+                           "--virtual-time-budget=3000", "--screenshot=%s" % path, base],
+                          capture_output=True, text=True, timeout=60)
+    assert shot.returncode == 0, shot.stderr
+    picture = cv2.imread(str(path))
+    assert picture is not None, "no screenshot"
+    return picture
+
+
+def wait_for(condition, seconds, what):
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.2)
+
+
+# the page during a run: not blank, the latest scenes drawn under the table (the sheet's dark
+# background and its coloured tiles); a generator stopped with SIGSTOP is marked quiet within
+# 5 to 8 s, in the JSON and on the page (its row in red)
+def test_page_shows_scenes_and_a_stalled_generator(tmp_path, processes):
+    url, count = free_url(), 200
+    monitor, base = start_monitor(processes, url)
+    processes([os.path.join(BIN, "stackgen-coco"), "--out", tmp_path / "coco", "--count", count,
+               "--lcm-url", url], "coco")
+    generator = processes([os.path.join(BIN, "stackgen"), "--config", quick_config(tmp_path),
+                           "--count", count, "--lcm-url", url, "--cache-dir",
+                           tmp_path / "cache"], "stackgen")
+
+    def status():
+        return json.loads(get(base, "status.json")[2])["processes"]
+
+    def generator_row():
+        rows = [p for p in status() if p["process"] == "stackgen"]
+        return rows[0] if rows else None
+
+    wait_for(lambda: (generator_row() or {}).get("scenes", 0) >= 3, 60, "no scenes")
+    assert get(base, "latest.jpg")[1] == "image/jpeg"
+    running = screenshot(base, tmp_path / "running.png")
+    assert running.std() > 20, "a blank page"
+    # the sheet: a dark band (its legend and gaps) and many colours below the table
+    below = running[300:, :, :]
+    dark = np.all(below < 60, axis=2).mean()
+    colours = len(np.unique((below // 32).reshape(-1, 3), axis=0))
+    assert dark > 0.02 and colours > 40, (dark, colours)
+    red = np.all(running == [221, 221, 255], axis=2).sum()  # BGR of the quiet rows' #fdd
+    assert red == 0
+
+    os.kill(generator.popen.pid, signal.SIGSTOP)
+    try:
+        stopped = time.monotonic()
+        wait_for(lambda: generator_row()["quiet"], 12, "the stalled generator is not marked")
+        assert time.monotonic() - stopped < 10
+        stalled = screenshot(base, tmp_path / "stalled.png")
+        red = np.all(stalled == [221, 221, 255], axis=2).sum()
+        assert red > 2000, red
+    finally:
+        os.kill(generator.popen.pid, signal.SIGCONT)
+    assert monitor.popen.poll() is None
+
+
+# a stranger floods the bus for 3 s (random bytes and real messages cut, grown and flipped on
+# every channel, datagrams no LCM library sends): the monitor stays up, answers, counts what its
+# key refused, and no forged process enters its table
+def test_flood_of_forged_and_malformed_messages(tmp_path, processes):
+    url = free_url()
+    monitor, base = start_monitor(processes, url)
+    # (tests/e2e/forger.cc, built beside the tests)
+    forger = os.path.join(os.path.dirname(BIN), "tests", "bin", "stackgen-forger")
+    flood = processes([forger, "--lcm-url", url, "--seconds", 3, "--fuzz", 3000, "--datagrams",
+                       3000, "--no-attacks"], "forger")
+    assert flood.wait(60) == 0, flood.stderr()
+    assert get(base, "healthz")[2] == "ok\n"
+    found = samples(get(base, "metrics")[2])
+    refused = sum(value for (name, labels), value in found.items()
+                  if name == "stackgen_monitor_refused_total")
+    assert refused > 100, found
+    table = json.loads(get(base, "status.json")[2])
+    assert [p["process"] for p in table["processes"]] == ["stackgen-monitor"], table
+    assert monitor.popen.poll() is None

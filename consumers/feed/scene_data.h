@@ -29,8 +29,8 @@ class FeedError : public std::runtime_error {
 
 /// The image of `field` ("color", "depth", "instance_map", "depth_sensor") decoded: RGB8 as
 /// CV_8UC3 in R, G, B order, GRAY8 as CV_8UC1, DEPTH16 and INSTANCE16 as CV_16UC1. A RAW image is
-/// not copied: the matrix points into `message.data`, which must outlive it. Throws FeedError naming the field
-/// if the data does not decode to the size and format the message declares.
+/// not copied: the matrix points into `message.data`, which must outlive it. Throws FeedError
+/// naming the field if the data does not decode to the size and format the message declares.
 cv::Mat DecodeImage(const image& message, const std::string& field);
 
 /// Checks that a decoded scene message is one a learner can use: the contract every consumer

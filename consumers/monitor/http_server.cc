@@ -54,7 +54,8 @@ HttpServer::HttpServer(const std::string& bind_address, int port, HttpHandler ha
   sockaddr_in address{};
   address.sin_family = AF_INET;
   address.sin_port = htons(static_cast<uint16_t>(port));
-  if (port < 0 || port > 65535 || inet_pton(AF_INET, bind_address.c_str(), &address.sin_addr) != 1) {
+  if (port < 0 || port > 65535 ||
+      inet_pton(AF_INET, bind_address.c_str(), &address.sin_addr) != 1) {
     throw std::runtime_error("cannot serve on " + where + ": not an IPv4 address and port");
   }
   impl_->daemon = MHD_start_daemon(

@@ -152,8 +152,8 @@ std::string PrometheusText(const ProcessTable& table, const MonitorCounters& cou
                                                     {"annotate", entry.latest.annotate_ms},
                                                     {"publish", entry.latest.publish_ms}};
     for (const auto& [stage, ms] : stages) {
-      text += "stackgen_stage_seconds" + Labels(entry.latest, "stage=\"" + std::string(stage) + "\"") +
-              " " + Value(ms / 1000) + "\n";
+      const std::string labels = Labels(entry.latest, "stage=\"" + std::string(stage) + "\"");
+      text += "stackgen_stage_seconds" + labels + " " + Value(ms / 1000) + "\n";
     }
   }
   // messages each process refused, by reason

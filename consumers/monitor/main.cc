@@ -8,6 +8,7 @@
 //   /healthz      "ok" while it runs (a Kubernetes probe)
 #include <unistd.h>
 
+#include <algorithm>
 #include <csignal>
 #include <cstdio>
 #include <deque>
@@ -42,7 +43,7 @@ constexpr double kSheetEveryS = 1.0;
 constexpr int kQueueCapacity = 4;
 
 struct Flags {
-  std::string lcm_url;
+  std::vector<std::string> lcm_urls;  // every --lcm-url given, in order
   std::string bus_key_file;
   bool open_bus = false;
   bool replay = false;
@@ -53,7 +54,7 @@ struct Flags {
 
 void PrintHelp() {
   std::printf(
-      "Usage: %s [--port N] [--bind ADDRESS] [--lcm-url URL] [--bus-key-file FILE | --open-bus]\n"
+      "Usage: %s [--port N] [--bind ADDRESS] [--lcm-url URL ...] [--bus-key-file FILE | --open-bus]\n"
       "       [--replay] [--fault-drop F]\n"
       "\n"
       "Watches a run: listens to %s and the scenes, and serves over HTTP\n"
@@ -73,7 +74,8 @@ void PrintHelp() {
       "  --bind ADDRESS      the IPv4 address to listen on (default 127.0.0.1: this host only;\n"
       "                      0.0.0.0: every interface, e.g. in a container)\n"
       "  --lcm-url URL       the bus (default $STACKGEN_LCM_URL, else\n"
-      "                      udpm://239.255.76.67:7667?ttl=0)\n"
+      "                      udpm://239.255.76.67:7667?ttl=0); given again, each bus too (a\n"
+      "                      tools/task with a bus per generator): one table of them all\n"
       "  --bus-key-file FILE the bus key (default $STACKGEN_BUS_KEY_FILE, else this user's)\n"
       "  --open-bus          no key: check nothing\n"
       "  --replay            take a recording played onto the bus\n"
@@ -94,23 +96,13 @@ int main(int argc, char** argv) {
   stackgen::FlagParser parser(kProgram);
   parser.Int("--port", &flags.port, 0, 65535);
   parser.String("--bind", &flags.bind, "an IPv4 address");
-  parser.LcmUrl(&flags.lcm_url);
+  parser.Custom("--lcm-url", [&flags](const std::string& url) { flags.lcm_urls.push_back(url); });
   parser.BusKey(&flags.bus_key_file, &flags.open_bus);
   parser.Replay(&flags.replay);
   parser.FaultDrop(&flags.fault_drop);
   parser.ParseOrExit(argc, argv, PrintHelp);
   try {
     stackgen::StopOnSignals(RequestStop);
-    stackgen::ConsumerSessionOptions options;
-    options.process = kProgram;
-    options.name = std::string(kProgram) + "/" + std::to_string(getpid());
-    stackgen::ConsumerSession session(
-        std::make_unique<stackgen::Bus>(
-            stackgen::ResolveLcmUrl(flags.lcm_url),
-            stackgen::ConsumerBusOptions(flags.fault_drop, flags.bus_key_file, flags.open_bus,
-                                         flags.replay, 0x30)),
-        options);
-    stackgen::Bus& bus = session.bus();
     // the table and the latest scenes, filled on this thread, read on the server's
     std::mutex mutex;
     stackgen::ProcessTable table;
@@ -123,41 +115,66 @@ int main(int argc, char** argv) {
     const stackgen::Clock& clock = stackgen::SteadyClock();
     const auto start = clock.Now();
     const auto now_s = [&] { return std::chrono::duration<double>(clock.Now() - start).count(); };
-    const stackgen::Subscription statuses = bus.Subscribe<stackgen::status>(
-        stackgen::kStatusChannel,
-        [&](const stackgen::status& message) {
-          const std::lock_guard<std::mutex> lock(mutex);
-          table.Update(message, now_s());
-          ++counters.status_messages;
-        },
-        1024,
-        [&](const std::string&) {
-          const std::lock_guard<std::mutex> lock(mutex);
-          ++counters.bad_messages;
-        });
-    // the scenes: checked as every consumer checks them, the latest few kept for the sheet
-    const stackgen::Subscription scenes = session.SubscribeScenes(
-        stackgen::kSceneChannel,
-        [&](const stackgen::scene& message) {
-          std::string why;
-          if (!stackgen::CheckScene(message, &why)) {
-            session.Refuse(message.header.generator_id, message.header.seq);
-            return;
-          }
-          if (!session.Fresh(message.header.generator_id, message.header.seq)) return;
-          const std::lock_guard<std::mutex> lock(mutex);
-          latest.push_back(message);
-          if (latest.size() > kLatestScenes) latest.pop_front();
-          sheet_stale = true;
-          ++scenes_heard;
-        },
-        kQueueCapacity,
-        [&](const std::string&) {
-          const std::lock_guard<std::mutex> lock(mutex);
-          ++counters.bad_messages;
-        });
-    session.WatchGeneratorKeys();
-    bus.state().WatchKeys({stackgen::kStatusChannel});
+
+    // one consumer session per bus, all filling the one table
+    if (flags.lcm_urls.empty()) flags.lcm_urls.push_back("");
+    struct Watched {
+      std::unique_ptr<stackgen::ConsumerSession> session;
+      stackgen::Subscription statuses, scenes;
+    };
+    std::vector<Watched> watched;
+    std::string urls;
+    for (const std::string& url : flags.lcm_urls) {
+      stackgen::ConsumerSessionOptions options;
+      options.process = kProgram;
+      options.name = std::string(kProgram) + "/" + std::to_string(getpid());
+      Watched w;
+      w.session = std::make_unique<stackgen::ConsumerSession>(
+          std::make_unique<stackgen::Bus>(
+              stackgen::ResolveLcmUrl(url),
+              stackgen::ConsumerBusOptions(flags.fault_drop, flags.bus_key_file, flags.open_bus,
+                                           flags.replay, 0x30)),
+          options);
+      stackgen::ConsumerSession& session = *w.session;
+      urls += (urls.empty() ? "" : ", ") + session.bus().url();
+      w.statuses = session.bus().Subscribe<stackgen::status>(
+          stackgen::kStatusChannel,
+          [&](const stackgen::status& message) {
+            const std::lock_guard<std::mutex> lock(mutex);
+            table.Update(message, now_s());
+            ++counters.status_messages;
+          },
+          1024,
+          [&](const std::string&) {
+            const std::lock_guard<std::mutex> lock(mutex);
+            ++counters.bad_messages;
+          });
+      // the scenes: checked as every consumer checks them, the latest few kept for the sheet
+      // (the session itself, not the loop's reference to it, is what the handler keeps)
+      w.scenes = session.SubscribeScenes(
+          stackgen::kSceneChannel,
+          [&, own = &session](const stackgen::scene& message) {
+            std::string why;
+            if (!stackgen::CheckScene(message, &why)) {
+              own->Refuse(message.header.generator_id, message.header.seq);
+              return;
+            }
+            if (!own->Fresh(message.header.generator_id, message.header.seq)) return;
+            const std::lock_guard<std::mutex> lock(mutex);
+            latest.push_back(message);
+            if (latest.size() > kLatestScenes) latest.pop_front();
+            sheet_stale = true;
+            ++scenes_heard;
+          },
+          kQueueCapacity,
+          [&](const std::string&) {
+            const std::lock_guard<std::mutex> lock(mutex);
+            ++counters.bad_messages;
+          });
+      session.WatchGeneratorKeys();
+      session.bus().state().WatchKeys({stackgen::kStatusChannel});
+      watched.push_back(std::move(w));
+    }
     // the sheet of the latest scenes, drawn again at most once a second (under `mutex`)
     const auto sheet = [&]() -> const std::vector<uchar>& {
       if (sheet_stale && now_s() - sheet_drawn_s >= kSheetEveryS) {
@@ -199,15 +216,23 @@ int main(int argc, char** argv) {
     });
     std::printf("%s: serving http://%s:%d/ (metrics at /metrics), listening on %s channels %s "
                 "and %s\n",
-                kProgram, flags.bind.c_str(), server.port(), bus.url().c_str(),
+                kProgram, flags.bind.c_str(), server.port(), urls.c_str(),
                 stackgen::kStatusChannel, stackgen::kSceneChannel);
     std::fflush(stdout);
 
+    const int slice_ms = std::max(10, 100 / static_cast<int>(watched.size()));
     while (!stop_requested) {
-      bus.HandleFor(100);
+      stackgen::AuthCounters refused;
+      for (Watched& w : watched) {
+        w.session->bus().HandleFor(slice_ms);
+        const stackgen::AuthCounters bus_refused = w.session->bus().state().auth_counters();
+        refused.unsigned_messages += bus_refused.unsigned_messages;
+        refused.forged += bus_refused.forged;
+        refused.replayed += bus_refused.replayed;
+        refused.relayed += bus_refused.relayed;
+      }
       int64_t held = 0;
       {
-        const stackgen::AuthCounters refused = bus.state().auth_counters();
         const std::lock_guard<std::mutex> lock(mutex);
         counters.refused_unsigned = refused.unsigned_messages;
         counters.refused_forged = refused.forged;
@@ -215,9 +240,9 @@ int main(int argc, char** argv) {
         counters.refused_relayed = refused.relayed;
         held = scenes_heard;
       }
-      session.Service(held, held);
+      for (Watched& w : watched) w.session->Service(held, held);
     }
-    session.Leave(scenes_heard, scenes_heard);
+    for (Watched& w : watched) w.session->Leave(scenes_heard, scenes_heard);
     std::printf("%s: stopped; heard %lld statuses of %zu processes\n", kProgram,
                 static_cast<long long>(counters.status_messages), table.entries().size());
     return 0;

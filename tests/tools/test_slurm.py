@@ -10,6 +10,7 @@ STACKGEN_BIN_DIR set. It needs root (slurmd runs job steps as root) and tools/in
 --slurm; without either it is skipped, saying which."""
 
 import os
+import re
 import signal
 import time
 
@@ -49,7 +50,8 @@ def test_array_job_with_a_killed_task_merges_to_one_process(tmp_path):
         job = cluster.sbatch([
             "--array=0-3", "--cpus-per-task=1", "-D", str(tmp_path), "--open-mode=append",
             "-o", str(tmp_path / "task-%a.log"),
-            "--export=ALL,OUT=%s,COUNT=40,CONFIG=%s,STACKGEN_ROOT=%s" % (out, TINY, SOURCE),
+            "--export=ALL,OUT=%s,COUNT=40,CONFIG=%s,STACKGEN_ROOT=%s,MONITOR=0"
+            % (out, TINY, SOURCE),
             os.path.join(SOURCE, "tools", "deploy", "slurm-array.sbatch")])
         # task 2 half way: some scenes stored, the shard not there
         images = out / ".task-00002.partial" / "part-000" / "images"
@@ -78,6 +80,8 @@ def test_array_job_with_a_killed_task_merges_to_one_process(tmp_path):
     logs = {index: (tmp_path / ("task-%d.log" % index)).read_text() for index in range(4)}
     for index, log in logs.items():
         assert "tools/task: task %d of 4 done: 10 scenes" % index in log, log
+        # each with its monitor on every address of the node (MONITOR=0: a free port)
+        assert re.search(r"task %d: monitor at http://0\.0\.0\.0:\d+/ on " % index, log), log
     # task 2 ran twice: killed, then to its end from what its writer had stored
     assert logs[2].count("tools/task: task 2 of 4: seqs 20..29") == 2, logs[2]
     assert sorted(os.listdir(out)) == ["task-%05d" % index for index in range(4)]

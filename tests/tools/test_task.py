@@ -11,6 +11,7 @@ STACKGEN_BIN_DIR set."""
 
 import fcntl
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -95,10 +96,13 @@ def job(tmp_path_factory):
                  "--shards", "4")
     assert first.returncode == 0, first.stderr
     assert "task 0 of 2: seqs 0..4 of generator 0 (5 scenes), 1 generators" in first.stdout
+    # (with a monitor on both its buses: it changes nothing of the shard)
     second = task(folder / "shards", 10, 2, "--generators", "2", "--seed", "2", "--shards", "4",
-                  env={"JOB_COMPLETION_INDEX": "1"})
+                  "--monitor", "0", env={"JOB_COMPLETION_INDEX": "1"})
     assert second.returncode == 0, second.stderr
     assert "task 1 of 2: seqs 5..9 of generator 0 (5 scenes), 2 generators" in second.stdout
+    assert re.search(r"task 1: monitor at http://127\.0\.0\.1:\d+/ on ", second.stdout), \
+        second.stdout
     one_process(folder / "one", 10, 2, shards=4)
     return folder
 
@@ -219,6 +223,7 @@ def test_task_refuses_bad_arguments_before_making_anything(tmp_path):
         (["--tasks", "2", "--task", "2"], "task '2' is not one of 0..1"),
         (["--tasks", "20", "--task", "0"], "--tasks 20 is more than --count 10"),
         (["--tasks", "2", "--task", "0", "--format", "yolo"], "--format must be coco or bop"),
+        (["--tasks", "2", "--task", "0", "--monitor", "x"], "--monitor must be a port"),
     ]:
         result = subprocess.run([TASK, "--out", str(out), "--count", "10", "--config", TINY,
                                  *args], capture_output=True, text=True, timeout=60,

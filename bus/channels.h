@@ -14,6 +14,8 @@ inline constexpr const char* kStatusChannel = "STACKGEN_STATUS";
 inline constexpr const char* kConfigChannel = "STACKGEN_CONFIG";
 /// The 3D model of each labelled class, latched, about every 5 s (stackgen::model).
 inline constexpr const char* kModelChannel = "STACKGEN_MODEL";
+/// A learner's progress, about 1 Hz (stackgen::learner_status; stackgen.LearnerStatus).
+inline constexpr const char* kLearnerChannel = "STACKGEN_LEARNER";
 
 /// Flow control from reliable consumers to generators (stackgen::credit).
 inline constexpr const char* kCreditChannel = "STACKGEN_CREDIT";

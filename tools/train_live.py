@@ -4,7 +4,9 @@ Run through tools/train-live (which builds what is needed and uses Debian's /usr
 `tools/train-live --help` lists the flags. It starts generators on a bus of its own (or attaches
 to running ones), reads their scenes through stackgen.torch.StreamDataset in DataLoader workers
 (a reliable stream: no scene is lost, generators stay within the window), and prints the loss, the
-scenes per second the generators produce and the learner consumes, and the reuse factor.
+scenes per second the generators produce and the learner consumes, and the reuse factor; on a
+live bus its progress also goes out on STACKGEN_LEARNER (stackgen.LearnerStatus), for
+stackgen-monitor.
 --record LOG keeps every sample's scene, in order, in an LCM log (and the run's settings in
 LOG.train.json); --replay LOG trains again on exactly those samples, with the same batches and,
 on the same machine and device, the same losses. --mix DIR mixes labelled real images in at
@@ -459,6 +461,8 @@ class Training:
 
         self.args, self.device, self.world, self.rank = args, device, world, rank
         self.monitor, self.eval_set = monitor, eval_set
+        # rank 0 on a live bus: its progress on STACKGEN_LEARNER (stackgen-monitor shows it)
+        self.learner = None
         self.meter = sgt.ReuseMeter()
         self.model = self.optimizer = self.parameters = None
         self.losses = []
@@ -555,6 +559,9 @@ class Training:
             if self.model is None:
                 self.build(images, raw_targets)
             value, loss_dict = self.step(images, targets)
+            if self.learner is not None:
+                self.learner.report(self.iteration, value, scenes_taken=self.meter.scenes,
+                                    target_steps=args.iterations, samples=self.meter.samples)
             if self.rank == 0 and (self.iteration % args.print_every == 0 or
                                    self.iteration == args.iterations):
                 self.print_progress(value, loss_dict)
@@ -659,7 +666,12 @@ def main(argv):
                             collate_fn=sgt.collate,
                             persistent_workers=False)
         training = Training(args, device, world, rank, monitor, eval_set)
+        if monitor is not None:
+            training.learner = stackgen.LearnerStatus(
+                url, process=PROGRAM, bus_key_file=args.bus_key_file, open_bus=args.open_bus)
         training.run(loader, generators)
+        if training.learner is not None:
+            training.learner.close(ended=True)
         if world > 1:
             training.report_ranks()
         if rank == 0:

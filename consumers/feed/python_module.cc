@@ -20,6 +20,7 @@
 
 #include "bus/bus.h"
 #include "bus/log.h"
+#include "consumers/feed/learner_publisher.h"
 #include "consumers/feed/scene_data.h"
 #include "consumers/feed/scene_stream.h"
 #include "consumers/feed/status_monitor.h"
@@ -541,6 +542,36 @@ void BindStatusMonitor(py::module_& m) {
       });
 }
 
+// stackgen._native.LearnerPublisher
+void BindLearnerPublisher(py::module_& m) {
+  using namespace stackgen;
+  using namespace stackgen::feed;
+  py::class_<LearnerPublisher>(m, "LearnerPublisher")
+      .def(py::init([](const std::string& url, const std::string& bus_key_file, bool open_bus,
+                       const std::string& process, const std::string& name) {
+             py::gil_scoped_release release;
+             return std::make_unique<LearnerPublisher>(url, bus_key_file, open_bus, process,
+                                                       name);
+           }),
+           py::arg("url"), py::arg("bus_key_file"), py::arg("open_bus"), py::arg("process"),
+           py::arg("name"))
+      .def(
+          "report",
+          [](LearnerPublisher& publisher, int64_t steps, int64_t target_steps, double loss,
+             int64_t scenes_taken, double scenes_per_second, double reuse) {
+            publisher.Report({steps, target_steps, loss, scenes_taken, scenes_per_second, reuse});
+          },
+          py::arg("steps"), py::arg("target_steps"), py::arg("loss"), py::arg("scenes_taken"),
+          py::arg("scenes_per_second"), py::arg("reuse"))
+      .def(
+          "close",
+          [](LearnerPublisher& publisher, bool ended) {
+            py::gil_scoped_release release;
+            publisher.Close(ended);
+          },
+          py::arg("ended"));
+}
+
 // the module's functions and constants
 void BindFunctions(py::module_& m) {
   using namespace stackgen;
@@ -704,5 +735,6 @@ PYBIND11_MODULE(_native, m) {
   BindStream(m);
   BindLogAppender(m);
   BindStatusMonitor(m);
+  BindLearnerPublisher(m);
   BindFunctions(m);
 }

@@ -57,10 +57,12 @@ void PrintHelp() {
       "Usage: %s [--port N] [--bind ADDRESS] [--lcm-url URL ...] [--bus-key-file FILE | --open-bus]\n"
       "       [--replay] [--fault-drop F]\n"
       "\n"
-      "Watches a run: listens to %s and the scenes, and serves over HTTP\n"
+      "Watches a run: listens to %s, the learners' progress and the scenes, and serves over\n"
+      "HTTP\n"
       "  /metrics      every generator's and consumer's counters in the Prometheus text format\n"
       "                (scenes, redraws, resends, held-back seconds, stage seconds, lost,\n"
-      "                refused messages by reason, seconds since last heard, quiet or not)\n"
+      "                refused messages by reason, seconds since last heard, quiet or not;\n"
+      "                each learner's steps, loss, scenes taken and per second, reuse)\n"
       "  /status.json  the same for the page\n"
       "  /latest.jpg   the latest 6 scenes as a contact sheet, their labels drawn\n"
       "  /             a live page: each process's state and rate, quiet ones marked, and the\n"
@@ -120,7 +122,7 @@ int main(int argc, char** argv) {
     if (flags.lcm_urls.empty()) flags.lcm_urls.push_back("");
     struct Watched {
       std::unique_ptr<stackgen::ConsumerSession> session;
-      stackgen::Subscription statuses, scenes;
+      stackgen::Subscription statuses, learners, scenes;
     };
     std::vector<Watched> watched;
     std::string urls;
@@ -149,6 +151,18 @@ int main(int argc, char** argv) {
             const std::lock_guard<std::mutex> lock(mutex);
             ++counters.bad_messages;
           });
+      // learners' progress (stackgen.LearnerStatus, tools/train-live)
+      w.learners = session.bus().Subscribe<stackgen::learner_status>(
+          stackgen::kLearnerChannel,
+          [&](const stackgen::learner_status& message) {
+            const std::lock_guard<std::mutex> lock(mutex);
+            table.UpdateLearner(message, now_s());
+          },
+          256,
+          [&](const std::string&) {
+            const std::lock_guard<std::mutex> lock(mutex);
+            ++counters.bad_messages;
+          });
       // the scenes: checked as every consumer checks them, the latest few kept for the sheet
       // (the session itself, not the loop's reference to it, is what the handler keeps)
       w.scenes = session.SubscribeScenes(
@@ -172,7 +186,7 @@ int main(int argc, char** argv) {
             ++counters.bad_messages;
           });
       session.WatchGeneratorKeys();
-      session.bus().state().WatchKeys({stackgen::kStatusChannel});
+      session.bus().state().WatchKeys({stackgen::kStatusChannel, stackgen::kLearnerChannel});
       watched.push_back(std::move(w));
     }
     // the sheet of the latest scenes, drawn again at most once a second (under `mutex`)

@@ -1,7 +1,9 @@
 #include "consumers/monitor/metrics.h"
 
+#include <cmath>
 #include <cstdio>
 #include <functional>
+#include <tuple>
 #include <utility>
 #include <vector>
 
@@ -28,8 +30,11 @@ std::string Escaped(const std::string& value) {
   return out;
 }
 
-// a number as the format writes it: integers whole, others with 17 significant digits
+// a number as the format writes it: integers whole, others with 17 significant digits, NaN and
+// the infinities by their names
 std::string Value(double value) {
+  if (std::isnan(value)) return "NaN";
+  if (std::isinf(value)) return value > 0 ? "+Inf" : "-Inf";
   char text[64];
   if (value == static_cast<double>(static_cast<int64_t>(value)) && value < 9e15 && value > -9e15) {
     std::snprintf(text, sizeof(text), "%lld", static_cast<long long>(value));
@@ -76,6 +81,21 @@ void ProcessTable::Update(const status& message, double now_s) {
   entry.heard_s = now_s;
   entry.rate_hz.push_back(message.rate_hz);
   if (entry.rate_hz.size() > kRateHistory) entry.rate_hz.pop_front();
+}
+
+void ProcessTable::UpdateLearner(const learner_status& message, double now_s) {
+  if (learners_.size() >= kMaxProcesses && learners_.count(message.name) == 0) {
+    auto oldest = learners_.begin();
+    for (auto it = learners_.begin(); it != learners_.end(); ++it) {
+      if (it->second.heard_s < oldest->second.heard_s) oldest = it;
+    }
+    learners_.erase(oldest);
+  }
+  Learner& learner = learners_[message.name];
+  learner.latest = message;
+  learner.heard_s = now_s;
+  learner.loss.push_back(message.loss);
+  if (learner.loss.size() > kRateHistory) learner.loss.pop_front();
 }
 
 std::string PrometheusText(const ProcessTable& table, const MonitorCounters& counters,
@@ -171,6 +191,44 @@ std::string PrometheusText(const ProcessTable& table, const MonitorCounters& cou
               " " + Value(static_cast<double>(count)) + "\n";
     }
   }
+  // the learners
+  using L = ProcessTable::Learner;
+  const std::vector<std::tuple<const char*, const char*, const char*,
+                               std::function<double(const L&)>>>
+      learner_families = {
+          {"stackgen_learner_steps_total", "counter", "Optimiser steps the learner took.",
+           [](const L& l) { return static_cast<double>(l.latest.steps); }},
+          {"stackgen_learner_target_steps", "gauge", "Steps the learner will take (0: unknown).",
+           [](const L& l) { return static_cast<double>(l.latest.target_steps); }},
+          {"stackgen_learner_loss", "gauge", "The training loss of the learner's last step.",
+           [](const L& l) { return l.latest.loss; }},
+          {"stackgen_learner_scenes_taken_total", "counter", "Scenes the learner took.",
+           [](const L& l) { return static_cast<double>(l.latest.scenes_taken); }},
+          {"stackgen_learner_scenes_per_second", "gauge", "Scenes the learner takes per second.",
+           [](const L& l) { return l.latest.scenes_per_second; }},
+          {"stackgen_learner_reuse", "gauge", "Training samples per scene taken.",
+           [](const L& l) { return l.latest.reuse; }},
+          {"stackgen_learner_run_state", "gauge",
+           "Where the learner's run stands: 0 training, 1 ended, 2 stopped early.",
+           [](const L& l) { return static_cast<double>(l.latest.run_state); }},
+      };
+  for (const auto& [name, type, help, value] : learner_families) {
+    text += std::string("# HELP ") + name + " " + help + "\n# TYPE " + name + " " + type + "\n";
+    for (const auto& [learner_name, learner] : table.learners()) {
+      const std::string labels = "{process=\"" + Escaped(learner.latest.process) + "\",name=\"" +
+                                 Escaped(learner.latest.name) + "\"}";
+      text += std::string(name) + labels + " " + Value(value(learner)) + "\n";
+    }
+  }
+  text +=
+      "# HELP stackgen_learner_last_heard_seconds Seconds since the learner's last report.\n"
+      "# TYPE stackgen_learner_last_heard_seconds gauge\n";
+  for (const auto& [learner_name, learner] : table.learners()) {
+    text += "stackgen_learner_last_heard_seconds{process=\"" + Escaped(learner.latest.process) +
+            "\",name=\"" + Escaped(learner.latest.name) + "\"} " +
+            Value(now_s - learner.heard_s) + "\n";
+  }
+
   // the monitor's own
   text +=
       "# HELP stackgen_monitor_processes Processes the monitor has heard.\n"
@@ -223,8 +281,30 @@ std::string StatusJson(const ProcessTable& table, const MonitorCounters& counter
         {"quiet", age > kQuietAfterS && s.run_state == 0}};
     processes.push_back(std::move(process));
   }
+  nlohmann::json learners = nlohmann::json::array();
+  for (const auto& [name, learner] : table.learners()) {
+    const learner_status& l = learner.latest;
+    const double age = now_s - learner.heard_s;
+    // (JSON has no NaN: a loss not known yet is null)
+    const auto number = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nullptr; };
+    nlohmann::json history = nlohmann::json::array();
+    for (const double loss : learner.loss) history.push_back(number(loss));
+    learners.push_back({{"process", l.process},
+                        {"name", l.name},
+                        {"steps", l.steps},
+                        {"target_steps", l.target_steps},
+                        {"loss", number(l.loss)},
+                        {"loss_history", std::move(history)},
+                        {"scenes_taken", l.scenes_taken},
+                        {"scenes_per_second", l.scenes_per_second},
+                        {"reuse", l.reuse},
+                        {"run_state", l.run_state},
+                        {"age_s", age},
+                        {"quiet", age > kQuietAfterS && l.run_state == 0}});
+  }
   const nlohmann::json out = {
       {"processes", std::move(processes)},
+      {"learners", std::move(learners)},
       {"monitor",
        {{"status_messages", counters.status_messages},
         {"bad_messages", counters.bad_messages},

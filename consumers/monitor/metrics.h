@@ -9,6 +9,7 @@
 #include <map>
 #include <string>
 
+#include <stackgen/learner_status.hpp>
 #include <stackgen/status.hpp>
 
 namespace stackgen {
@@ -43,8 +44,19 @@ class ProcessTable {
   };
   const std::map<std::string, Entry>& entries() const { return entries_; }
 
+  /// Keeps a learner's latest progress (STACKGEN_LEARNER), heard at `now_s`; bounded as the
+  /// processes are.
+  void UpdateLearner(const learner_status& message, double now_s);
+  struct Learner {
+    learner_status latest;
+    double heard_s = 0;
+    std::deque<double> loss;  // its last kRateHistory losses, oldest first
+  };
+  const std::map<std::string, Learner>& learners() const { return learners_; }
+
  private:
   std::map<std::string, Entry> entries_;
+  std::map<std::string, Learner> learners_;
 };
 
 /// A process counts as quiet when it has not been heard for this long (statuses come at 1 Hz),
@@ -54,14 +66,17 @@ inline constexpr double kQuietAfterS = 5;
 /// The Prometheus text exposition (version 0.0.4) of `table` at `now_s`, and of the monitor's
 /// own `counters`: per process (labels process, name, and generator_id for generators) its
 /// counters as `_total` counters, its gauges, its stage times in seconds, how long since it was
-/// heard and whether it is quiet; every family with its HELP and TYPE, label values escaped as
-/// the format says (backslash, double quote, newline).
+/// heard and whether it is quiet; per learner (labels process, name) its steps, loss, scenes
+/// taken and per second, reuse, run state and last heard; every family with its HELP and TYPE,
+/// label values escaped as the format says (backslash, double quote, newline).
 std::string PrometheusText(const ProcessTable& table, const MonitorCounters& counters,
                            double now_s);
 
 /// The table as JSON for the page (an array of objects, one per process, by name: process,
 /// name, generator_id, scenes, rate_hz, rate_history, the stage times, lost, resent,
-/// held_back_s, refused, run_state, age_s, quiet), and the monitor's counters.
+/// held_back_s, refused, run_state, age_s, quiet), the learners (process, name, steps,
+/// target_steps, loss, loss_history, scenes_taken, scenes_per_second, reuse, run_state, age_s,
+/// quiet), and the monitor's counters.
 std::string StatusJson(const ProcessTable& table, const MonitorCounters& counters, double now_s);
 
 }  // namespace stackgen

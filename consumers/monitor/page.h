@@ -2,8 +2,8 @@
 
 // stackgen-monitor's page (/): plain HTML and a little script that reads /status.json every
 // 2 s and draws each process's state, its rate over the last minutes, and a warning for a
-// process gone quiet (not heard for 5 s without saying its run ended); and under it the latest
-// scenes (/latest.jpg), fetched again every 4 s.
+// process gone quiet (not heard for 5 s without saying its run ended); the learners' steps and
+// loss; and under them the latest scenes (/latest.jpg), fetched again every 4 s.
 
 namespace stackgen {
 
@@ -34,6 +34,15 @@ inline constexpr const char kMonitorPage[] = R"html(<!DOCTYPE html>
 <th>held back s</th><th>refused</th><th>heard</th></tr></thead>
 <tbody id="rows"></tbody>
 </table>
+<div id="learners-box" style="display: none">
+<h2 style="font-size: 1.1em">learners</h2>
+<table>
+<thead><tr><th>process</th><th>name</th><th>state</th><th>steps</th><th>loss</th>
+<th>loss, last 2 min</th><th>scenes taken</th><th>scenes/s</th><th>reuse</th><th>heard</th></tr>
+</thead>
+<tbody id="learners"></tbody>
+</table>
+</div>
 <p class="small" id="monitor"></p>
 <h2 style="font-size: 1.1em">latest scenes</h2>
 <img id="sheet" alt="no scene yet" src="latest.jpg">
@@ -64,7 +73,26 @@ async function refresh() {
   try {
     data = await (await fetch("status.json", {cache: "no-store"})).json();
   } catch (e) {
-    document.getElementById("warnings").innerHTML = "<p>the monitor does not answer</p>";
+    const learners = document.getElementById("learners");
+  learners.innerHTML = "";
+  document.getElementById("learners-box").style.display = data.learners.length ? "" : "none";
+  for (const l of data.learners) {
+    const tr = document.createElement("tr");
+    if (l.quiet) {
+      tr.className = "quiet";
+      warnings.push(l.name + " has not been heard for " + l.age_s.toFixed(0) + " s");
+    }
+    const spark = document.createElement("td");
+    spark.append(sparkline(l.loss_history.map(v => v === null ? 0 : v)));
+    tr.append(cell(l.process), cell(l.name, "name"),
+              cell(l.quiet ? "quiet" : ["training", "ended", "stopped"][l.run_state]),
+              cell(l.steps + (l.target_steps ? " / " + l.target_steps : "")),
+              cell(l.loss === null ? "-" : l.loss.toFixed(3)), spark, cell(l.scenes_taken),
+              cell(l.scenes_per_second.toFixed(2)), cell(l.reuse.toFixed(1)),
+              cell(l.age_s.toFixed(1) + " s ago"));
+    learners.append(tr);
+  }
+  document.getElementById("warnings").innerHTML = "<p>the monitor does not answer</p>";
     return;
   }
   const rows = document.getElementById("rows");
@@ -86,6 +114,25 @@ async function refresh() {
               cell(p.lost), cell(p.resent), cell(p.held_back_s.toFixed(1)), cell(p.refused),
               cell(p.age_s.toFixed(1) + " s ago"));
     rows.append(tr);
+  }
+  const learners = document.getElementById("learners");
+  learners.innerHTML = "";
+  document.getElementById("learners-box").style.display = data.learners.length ? "" : "none";
+  for (const l of data.learners) {
+    const tr = document.createElement("tr");
+    if (l.quiet) {
+      tr.className = "quiet";
+      warnings.push(l.name + " has not been heard for " + l.age_s.toFixed(0) + " s");
+    }
+    const spark = document.createElement("td");
+    spark.append(sparkline(l.loss_history.map(v => v === null ? 0 : v)));
+    tr.append(cell(l.process), cell(l.name, "name"),
+              cell(l.quiet ? "quiet" : ["training", "ended", "stopped"][l.run_state]),
+              cell(l.steps + (l.target_steps ? " / " + l.target_steps : "")),
+              cell(l.loss === null ? "-" : l.loss.toFixed(3)), spark, cell(l.scenes_taken),
+              cell(l.scenes_per_second.toFixed(2)), cell(l.reuse.toFixed(1)),
+              cell(l.age_s.toFixed(1) + " s ago"));
+    learners.append(tr);
   }
   document.getElementById("warnings").innerHTML =
       warnings.map(w => "<p>" + w.replace(/[<>&]/g, "") + "</p>").join("");

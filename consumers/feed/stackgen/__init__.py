@@ -353,6 +353,65 @@ class StatusMonitor:
         return [s for s in self._native.latest() if process is None or s["process"] == process]
 
 
+class LearnerStatus:
+    """A learner's progress on the bus (STACKGEN_LEARNER), for stackgen-monitor's page and
+    /metrics: steps, loss, scenes taken and per second, reuse.
+
+    Reports are kept and published from a thread of its own about once a second (report() is
+    cheap: call it every step); close() publishes the last one with how the run ended. A context
+    manager: leaving it closes as ended, or as stopped on an exception.
+
+        with stackgen.LearnerStatus(URL, name="my-run") as status:
+            for step in range(steps):
+                ...
+                status.report(step + 1, loss.item(), scenes_taken=n, target_steps=steps)
+
+    Args:
+        lcm_url: the bus, as for Stream (None: $STACKGEN_LCM_URL, else stackgen.DEFAULT_LCM_URL).
+        name: the learner's name on the page (default "<process>/<host>:<pid>").
+        process: the program's name (default "learner").
+        bus_key_file, open_bus: the bus key, as for Stream.
+    """
+
+    def __init__(self, lcm_url: _Optional[str] = None, name: _Optional[str] = None,
+                 process: str = "learner", bus_key_file: _Optional[str] = None,
+                 open_bus: bool = False) -> None:
+        if bus_key_file is not None and open_bus:
+            raise ValueError("bus_key_file and open_bus=True exclude each other")
+        import socket
+        name = name or "%s/%s:%d" % (process, socket.gethostname(), _os.getpid())
+        self._native = _native.LearnerPublisher(lcm_url or "", bus_key_file or "",
+                                                bool(open_bus), process, name)
+        self._started = None
+        self._closed = False
+
+    def report(self, steps: int, loss: float, scenes_taken: int = 0, target_steps: int = 0,
+               samples: _Optional[int] = None) -> None:
+        """Keeps the learner's latest progress: `steps` taken, the last `loss`, `scenes_taken`
+        from the stream so far, `target_steps` in all (0: unknown), and `samples` trained on so
+        far (the reuse is samples per scene; None: one per scene)."""
+        import time
+        now = time.monotonic()
+        if self._started is None:
+            self._started = now
+        rate = scenes_taken / (now - self._started) if now > self._started else 0.0
+        reuse = (samples / scenes_taken) if samples is not None and scenes_taken > 0 else 1.0
+        self._native.report(int(steps), int(target_steps), float(loss), int(scenes_taken),
+                            float(rate), float(reuse))
+
+    def close(self, ended: bool = True) -> None:
+        """Publishes the last report with the run's end (ended, or stopped before it) and stops."""
+        if not self._closed:
+            self._closed = True
+            self._native.close(bool(ended))
+
+    def __enter__(self) -> "LearnerStatus":
+        return self
+
+    def __exit__(self, kind, value, traceback) -> None:
+        self.close(ended=kind is None)
+
+
 class LogRecorder:
     """Appends scenes to an LCM log that several processes may share.
 
@@ -389,6 +448,6 @@ class LogRecorder:
                             int(time.time() * 1e6) if utime is None else int(utime))
 
 
-__all__ = ["msg", "Stream", "Scene", "Instance", "StatusMonitor", "LogRecorder", "StreamError",
-           "StreamTimeout", "decode_rle", "resolve_lcm_url", "set_program_name", "DEFAULT_LCM_URL",
+__all__ = ["msg", "Stream", "Scene", "Instance", "StatusMonitor", "LearnerStatus", "LogRecorder",
+           "StreamError", "StreamTimeout", "decode_rle", "resolve_lcm_url", "set_program_name", "DEFAULT_LCM_URL",
            "SCENE_CHANNEL", "STATUS_CHANNEL"]

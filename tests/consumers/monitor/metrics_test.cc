@@ -2,6 +2,7 @@
 // and a consumer, label values escaped, quiet processes marked, the table bounded.
 #include "consumers/monitor/metrics.h"
 
+#include <cmath>
 #include <string>
 
 #include <gtest/gtest.h>
@@ -99,6 +100,49 @@ TEST(MonitorMetricsTest, QuietAfterFiveSecondsUnlessEnded) {
   int quiet = 0;
   for (const auto& process : json["processes"]) quiet += process["quiet"].get<bool>();
   EXPECT_EQ(quiet, 1);
+}
+
+// a learner's progress: its steps, loss (NaN as the format writes it, null in the JSON before the
+// first step), scenes, reuse and run state, labelled by process and name
+TEST(MonitorMetricsTest, LearnerProgress) {
+  ProcessTable table;
+  learner_status l{};
+  l.header.seq = -1;
+  l.header.generator_id = -1;
+  l.process = "train-live";
+  l.name = "train-live/host:7";
+  l.loss = std::nan("");
+  table.UpdateLearner(l, 1.0);
+  l.steps = 40;
+  l.target_steps = 100;
+  l.loss = 0.75;
+  l.scenes_taken = 12;
+  l.scenes_per_second = 1.5;
+  l.reuse = 3.25;
+  table.UpdateLearner(l, 2.0);
+  const std::string labels = "{process=\"train-live\",name=\"train-live/host:7\"}";
+  const std::string text = PrometheusText(table, MonitorCounters{}, 3.0);
+  for (const std::string& line :
+       {"stackgen_learner_steps_total" + labels + " 40",
+        "stackgen_learner_target_steps" + labels + " 100",
+        "stackgen_learner_loss" + labels + " 0.75",
+        "stackgen_learner_scenes_taken_total" + labels + " 12",
+        "stackgen_learner_scenes_per_second" + labels + " 1.5",
+        "stackgen_learner_reuse" + labels + " 3.25",
+        "stackgen_learner_run_state" + labels + " 0",
+        "stackgen_learner_last_heard_seconds" + labels + " 1"}) {
+    EXPECT_NE(text.find(line + "\n"), std::string::npos) << line << "\n" << text;
+  }
+  const nlohmann::json json = nlohmann::json::parse(StatusJson(table, MonitorCounters{}, 3.0));
+  ASSERT_EQ(json["learners"].size(), 1u);
+  EXPECT_EQ(json["learners"][0]["steps"], 40);
+  EXPECT_TRUE(json["learners"][0]["loss_history"][0].is_null());
+  EXPECT_EQ(json["learners"][0]["loss_history"][1], 0.75);
+  l.loss = std::nan("");
+  table.UpdateLearner(l, 4.0);
+  EXPECT_NE(PrometheusText(table, MonitorCounters{}, 4.0).find("stackgen_learner_loss" + labels +
+                                                               " NaN\n"),
+            std::string::npos);
 }
 
 // a stranger who varies the name cannot grow the table: past 1024 names the one heard least

@@ -203,3 +203,39 @@ def test_flood_of_forged_and_malformed_messages(tmp_path, processes):
     table = json.loads(get(base, "status.json")[2])
     assert [p["process"] for p in table["processes"]] == ["stackgen-monitor"], table
     assert monitor.popen.poll() is None
+
+
+# a learner reports through stackgen.LearnerStatus: the monitor shows its steps, loss, scenes
+# and reuse in /metrics and on the page's JSON, and its end once it closes; a process with
+# another key (or none) is not heard
+def test_learner_progress(tmp_path, processes):
+    import stackgen
+
+    url = free_url()
+    monitor, base = start_monitor(processes, url)
+    with stackgen.LearnerStatus(url, name="learner-under-test", process="train-live") as status:
+        for step in range(1, 31):
+            status.report(step, 1.0 / step, scenes_taken=step * 2, target_steps=30,
+                          samples=step * 8)
+
+        def learner():
+            rows = [l for l in json.loads(get(base, "status.json")[2])["learners"]
+                    if l["name"] == "learner-under-test"]
+            return rows[0] if rows else None
+
+        wait_for(lambda: learner() is not None and learner()["steps"] == 30, 10,
+                 "the learner's report never arrived")
+        row = learner()
+        assert abs(row["loss"] - 1.0 / 30) < 1e-12 and row["scenes_taken"] == 60
+        assert row["reuse"] == 4.0 and row["run_state"] == 0 and row["target_steps"] == 30
+        found = samples(get(base, "metrics")[2])
+        labels = (("name", "learner-under-test"), ("process", "train-live"))
+        assert found[("stackgen_learner_steps_total", labels)] == 30
+        assert found[("stackgen_learner_scenes_taken_total", labels)] == 60
+    wait_for(lambda: learner()["run_state"] == 1, 10, "the learner's end never arrived")
+    stranger = stackgen.LearnerStatus(url, name="open-learner", open_bus=True)
+    stranger.report(5, 0.5)
+    time.sleep(2.5)
+    stranger.close()
+    names = [l["name"] for l in json.loads(get(base, "status.json")[2])["learners"]]
+    assert names == ["learner-under-test"], names

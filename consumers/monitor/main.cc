@@ -17,6 +17,7 @@
 #include <vector>
 
 #include <opencv2/imgcodecs.hpp>
+#include <stackgen/config_text.hpp>
 
 #include "bus/bus.h"
 #include "bus/channels.h"
@@ -28,6 +29,7 @@
 #include "consumers/view/contact_sheet.h"
 #include "contract/scene_contract.h"
 #include "session/consumer.h"
+#include "session/delivery.h"
 
 namespace {
 
@@ -122,7 +124,7 @@ int main(int argc, char** argv) {
     if (flags.lcm_urls.empty()) flags.lcm_urls.push_back("");
     struct Watched {
       std::unique_ptr<stackgen::ConsumerSession> session;
-      stackgen::Subscription statuses, learners, scenes;
+      stackgen::Subscription statuses, learners, configs, scenes;
     };
     std::vector<Watched> watched;
     std::string urls;
@@ -147,6 +149,25 @@ int main(int argc, char** argv) {
             ++counters.status_messages;
           },
           1024,
+          [&](const std::string&) {
+            const std::lock_guard<std::mutex> lock(mutex);
+            ++counters.bad_messages;
+          });
+      // each generator's run, from its config (the writers' RunName), for the run label
+      w.configs = session.bus().Subscribe<stackgen::config_text>(
+          stackgen::kConfigChannel,
+          [&](const stackgen::config_text& config) {
+            const int32_t generator_id = config.header.generator_id;
+            if (generator_id < 0 || generator_id > stackgen::kMaxGeneratorId ||
+                config.header.seed < 0) {
+              return;
+            }
+            const std::string run =
+                stackgen::RunName(config.header.seed, config.path, config.pbtxt);
+            const std::lock_guard<std::mutex> lock(mutex);
+            table.SetRun(generator_id, run);
+          },
+          64,
           [&](const std::string&) {
             const std::lock_guard<std::mutex> lock(mutex);
             ++counters.bad_messages;

@@ -44,11 +44,14 @@ std::string Value(double value) {
   return text;
 }
 
-// a process's labels, `extra` (already written, e.g. stage="render") after them
-std::string Labels(const status& s, const std::string& extra = "") {
+// a process's labels (a generator's run from `table` when heard), `extra` (already written,
+// e.g. stage="render") after them
+std::string Labels(const ProcessTable& table, const status& s, const std::string& extra = "") {
   std::string labels = "process=\"" + Escaped(s.process) + "\",name=\"" + Escaped(s.name) + "\"";
   if (s.header.generator_id >= 0) {
     labels += ",generator_id=\"" + std::to_string(s.header.generator_id) + "\"";
+    const std::string run = table.RunOf(s.header.generator_id);
+    if (!run.empty()) labels += ",run=\"" + Escaped(run) + "\"";
   }
   if (!extra.empty()) labels += "," + extra;
   return "{" + labels + "}";
@@ -98,6 +101,16 @@ void ProcessTable::UpdateLearner(const learner_status& message, double now_s) {
   if (learner.loss.size() > kRateHistory) learner.loss.pop_front();
 }
 
+void ProcessTable::SetRun(int32_t generator_id, const std::string& run) {
+  if (runs_.size() >= kMaxProcesses && runs_.count(generator_id) == 0) return;
+  runs_[generator_id] = run;
+}
+
+std::string ProcessTable::RunOf(int32_t generator_id) const {
+  const auto found = runs_.find(generator_id);
+  return found == runs_.end() ? std::string() : found->second;
+}
+
 std::string PrometheusText(const ProcessTable& table, const MonitorCounters& counters,
                            double now_s) {
   using E = ProcessTable::Entry;
@@ -108,9 +121,9 @@ std::string PrometheusText(const ProcessTable& table, const MonitorCounters& cou
       {"stackgen_scenes_per_second", "gauge",
        "Scenes per second over the process's last status period.",
        [](const E& e, double) { return e.latest.rate_hz; }},
-      {"stackgen_redraws_total", "counter",
-       "Drops redrawn because they failed a check (unsettled, outside the bin, interpenetrating).",
-       [](const E& e, double) { return static_cast<double>(e.latest.scenes_rejected); }, true},
+      {"stackgen_scene_bytes_total", "counter",
+       "Bytes of scene messages the generator published for the first time.",
+       [](const E& e, double) { return static_cast<double>(e.latest.scene_bytes); }, true},
       {"stackgen_next_seq", "gauge", "The next seq the generator will publish.",
        [](const E& e, double) { return static_cast<double>(e.latest.next_seq); }, true},
       {"stackgen_resent_total", "counter", "Scenes published again from the ring of recent ones.",
@@ -158,7 +171,8 @@ std::string PrometheusText(const ProcessTable& table, const MonitorCounters& cou
     for (const auto& [name, entry] : table.entries()) {
       const bool generator = IsGenerator(entry.latest);
       if ((family.generators_only && !generator) || (family.consumers_only && generator)) continue;
-      text += family.name + Labels(entry.latest) + " " + Value(family.value(entry, now_s)) + "\n";
+      text += family.name + Labels(table, entry.latest) + " " +
+              Value(family.value(entry, now_s)) + "\n";
     }
   }
   // the stage times, one family with a label per stage
@@ -172,8 +186,24 @@ std::string PrometheusText(const ProcessTable& table, const MonitorCounters& cou
                                                     {"annotate", entry.latest.annotate_ms},
                                                     {"publish", entry.latest.publish_ms}};
     for (const auto& [stage, ms] : stages) {
-      const std::string labels = Labels(entry.latest, "stage=\"" + std::string(stage) + "\"");
+      const std::string labels =
+          Labels(table, entry.latest, "stage=\"" + std::string(stage) + "\"");
       text += "stackgen_stage_seconds" + labels + " " + Value(ms / 1000) + "\n";
+    }
+  }
+  // the generators' redraws, by cause
+  text +=
+      "# HELP stackgen_redraws_total Drops the generator redrew because they failed a check, by "
+      "cause.\n# TYPE stackgen_redraws_total counter\n";
+  for (const auto& [name, entry] : table.entries()) {
+    if (!IsGenerator(entry.latest)) continue;
+    const status& s = entry.latest;
+    const std::pair<const char*, int64_t> causes[] = {{"unsettled", s.redraws_unsettled},
+                                                     {"outside", s.redraws_outside},
+                                                     {"interpenetrating", s.redraws_penetrating}};
+    for (const auto& [cause, count] : causes) {
+      text += "stackgen_redraws_total" + Labels(table, s, "cause=\"" + std::string(cause) + "\"") +
+              " " + Value(static_cast<double>(count)) + "\n";
     }
   }
   // messages each process refused, by reason
@@ -187,8 +217,9 @@ std::string PrometheusText(const ProcessTable& table, const MonitorCounters& cou
                                                       {"replayed", s.refused_replayed},
                                                       {"relayed", s.refused_relayed}};
     for (const auto& [reason, count] : reasons) {
-      text += "stackgen_refused_total" + Labels(s, "reason=\"" + std::string(reason) + "\"") +
-              " " + Value(static_cast<double>(count)) + "\n";
+      text += "stackgen_refused_total" +
+              Labels(table, s, "reason=\"" + std::string(reason) + "\"") + " " +
+              Value(static_cast<double>(count)) + "\n";
     }
   }
   // the learners

@@ -54,9 +54,16 @@ class ProcessTable {
   };
   const std::map<std::string, Learner>& learners() const { return learners_; }
 
+  /// The run of generator `generator_id` (RunName of its STACKGEN_CONFIG), for the `run` label
+  /// of its metrics; at most kMaxProcesses generators (later ones go unlabelled).
+  void SetRun(int32_t generator_id, const std::string& run);
+  /// The run of `generator_id`, or "" when not heard.
+  std::string RunOf(int32_t generator_id) const;
+
  private:
   std::map<std::string, Entry> entries_;
   std::map<std::string, Learner> learners_;
+  std::map<int32_t, std::string> runs_;
 };
 
 /// A process counts as quiet when it has not been heard for this long (statuses come at 1 Hz),
@@ -64,7 +71,8 @@ class ProcessTable {
 inline constexpr double kQuietAfterS = 5;
 
 /// The Prometheus text exposition (version 0.0.4) of `table` at `now_s`, and of the monitor's
-/// own `counters`: per process (labels process, name, and generator_id for generators) its
+/// own `counters`: per process (labels process, name, and generator_id and run for generators,
+/// run once its config was heard) its
 /// counters as `_total` counters, its gauges, its stage times in seconds, how long since it was
 /// heard and whether it is quiet; per learner (labels process, name) its steps, loss, scenes
 /// taken and per second, reuse, run state and last heard; every family with its HELP and TYPE,

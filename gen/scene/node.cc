@@ -133,6 +133,7 @@ struct GeneratorNode::Impl {
 
   // what was published, for status messages and the summary
   int64_t published = 0;
+  int64_t scene_bytes = 0;  // of the scenes published (first time)
   int64_t next_seq = 0;
   StageTimes times;
   double publish_ms = 0;
@@ -363,6 +364,10 @@ status GeneratorNode::Impl::Counted(double since) const {
   status message = Status(next_seq);
   message.scenes = published;
   message.scenes_rejected = times.redraws;
+  message.redraws_unsettled = times.redraws_unsettled;
+  message.redraws_outside = times.redraws_outside;
+  message.redraws_penetrating = times.redraws_penetrating;
+  message.scene_bytes = scene_bytes;
   message.rate_hz = since > 0 ? (published - published_at_last_status) / since : 0;
   const double n = published > 0 ? static_cast<double>(published) : 1.0;
   message.physics_ms = times.physics_ms / n;
@@ -471,7 +476,9 @@ void GeneratorNode::Impl::PublishEncoded() {
   // publish the scene and its labels.
   const Clock::TimePoint publish_start = clock.Now();
   message.header.utime = UnixMicros();
-  server->Publish(seq, EncodeMessage(message));
+  std::vector<uint8_t> encoded = EncodeMessage(message);
+  scene_bytes += static_cast<int64_t>(encoded.size());
+  server->Publish(seq, std::move(encoded));
   bus.Publish(kLabelsChannel, LabelsOf(message));
   publish_ms += Seconds(publish_start, clock.Now()) * 1e3;
   ++published;

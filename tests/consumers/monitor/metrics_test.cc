@@ -21,6 +21,8 @@ status Generator() {
   s.scenes_held = -1;
   s.scenes = 17;
   s.scenes_rejected = 2;
+  s.redraws_unsettled = 2;
+  s.scene_bytes = 123456789;
   s.rate_hz = 1.5;
   s.physics_ms = 250;
   s.render_ms = 80;
@@ -60,7 +62,10 @@ TEST(MonitorMetricsTest, GeneratorAndWriterAsPrometheusText) {
   const std::string w =
       "{process=\"stackgen-coco\",name=\"stackgen-coco@host:/data/\\\"new\\\"\\\\set\"";
   for (const std::string& line :
-       {"stackgen_scenes_total" + g + "} 17", "stackgen_redraws_total" + g + "} 2",
+       {"stackgen_scenes_total" + g + "} 17",
+        "stackgen_redraws_total" + g + ",cause=\"unsettled\"} 2",
+        "stackgen_redraws_total" + g + ",cause=\"interpenetrating\"} 0",
+        "stackgen_scene_bytes_total" + g + "} 123456789",
         "stackgen_next_seq" + g + "} 17", "stackgen_resent_total" + g + "} 4",
         "stackgen_held_back_seconds_total" + g + "} 1.25",
         "stackgen_stage_seconds" + g + ",stage=\"physics\"} 0.25",
@@ -76,6 +81,20 @@ TEST(MonitorMetricsTest, GeneratorAndWriterAsPrometheusText) {
   // a generator's own families are not a writer's, nor the other way round
   EXPECT_EQ(text.find("stackgen_next_seq" + w), std::string::npos);
   EXPECT_EQ(text.find("stackgen_lost" + g), std::string::npos);
+}
+
+// once a generator's config was heard, its run labels its metrics (the writers' RunName)
+TEST(MonitorMetricsTest, GeneratorsRunLabelsItsMetrics) {
+  ProcessTable table;
+  table.Update(Generator(), 0.0);
+  table.SetRun(3, "seed 5, config c.pbtxt (sha256 ab)");
+  table.SetRun(4, "seed 6, config d.pbtxt (sha256 cd)");
+  const std::string text = PrometheusText(table, MonitorCounters{}, 1.0);
+  EXPECT_NE(text.find("stackgen_scenes_total{process=\"stackgen\",name=\"stackgen/3@host:42\","
+                      "generator_id=\"3\",run=\"seed 5, config c.pbtxt (sha256 ab)\"} 17\n"),
+            std::string::npos)
+      << text;
+  EXPECT_EQ(table.RunOf(7), "");
 }
 
 // a process not heard for more than 5 s is quiet, unless it said its run ended; the page's JSON

@@ -88,8 +88,18 @@ def test_metrics_equal_what_the_processes_print(tmp_path, processes):
     assert found[("stackgen_lost", writer)] == 0
     generator_labels = [labels for labels in scenes if dict(labels)["process"] == "stackgen"][0]
     assert dict(generator_labels)["generator_id"] == "0"
+    # its run, from its config, as the writers name it
+    assert dict(generator_labels)["run"].startswith("seed 4, config ")
+    # its redraws by cause and bytes, as its summary says them
+    redraws = re.search(r"(\d+) drops redrawn \((\d+) unsettled, (\d+) outside the bin, "
+                        r"(\d+) interpenetrating\)", generator.stderr() + generator.stdout())
+    for cause, count in zip(("unsettled", "outside", "interpenetrating"), redraws.groups()[1:]):
+        labels = tuple(sorted(dict(generator_labels, cause=cause).items()))
+        assert found[("stackgen_redraws_total", labels)] == int(count)
+    assert found[("stackgen_scene_bytes_total", generator_labels)] > published * 10000
     assert found[("stackgen_run_state", generator_labels)] == 1  # ended: all stored
-    assert found[("stackgen_stage_seconds", generator_labels + (("stage", "render"),))] > 0
+    render = tuple(sorted(dict(generator_labels, stage="render").items()))
+    assert found[("stackgen_stage_seconds", render)] > 0
     assert found[("stackgen_monitor_status_messages_total", ())] >= 2
 
     assert get(base, "healthz")[2] == "ok\n"

@@ -8,6 +8,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <array>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
@@ -613,96 +614,65 @@ void BindFunctions(py::module_& m) {
       "Names the program in the stream's warnings on stderr (\"NAME: warning: ...\"); default "
       "\"stackgen\".");
 }
+// a column over `items`: get(item) of each
+template <typename T, typename Item, typename Get>
+py::array_t<T> Column(const std::vector<Item>& items, Get get) {
+  py::array_t<T> array(static_cast<py::ssize_t>(items.size()));
+  T* out = array.mutable_data();
+  for (size_t k = 0; k < items.size(); ++k) out[k] = static_cast<T>(get(items[k]));
+  return array;
+}
+
+// an (N, n) array over `items`: the n values get(item) points at, of each
+template <typename T, int n, typename Item, typename Get>
+py::array_t<T> Rows(const std::vector<Item>& items, Get get) {
+  py::array_t<T> array({static_cast<py::ssize_t>(items.size()), py::ssize_t{n}});
+  T* out = array.mutable_data();
+  for (size_t k = 0; k < items.size(); ++k) {
+    for (int c = 0; c < n; ++c) out[k * n + c] = static_cast<T>(get(items[k])[c]);
+  }
+  return array;
+}
+
+// what both kinds of grasps have: the instance, rank, pixel, approach and proof
+template <typename Grasp>
+py::dict GraspColumns(const std::vector<Grasp>& g) {
+  py::dict out;
+  out["instance_id"] = Column<int32_t>(g, [](const Grasp& x) { return x.instance_id; });
+  out["rank"] = Column<int32_t>(g, [](const Grasp& x) { return x.rank; });
+  out["uv"] = Rows<int32_t, 2>(g, [](const Grasp& x) { return std::array<int32_t, 2>{x.u, x.v}; });
+  out["clearance_mm"] = Column<double>(g, [](const Grasp& x) { return x.clearance_mm; });
+  out["approach_clear"] = Column<bool>(g, [](const Grasp& x) { return x.approach_clear != 0; });
+  out["com_offset_mm"] = Column<double>(g, [](const Grasp& x) { return x.com_offset_mm; });
+  out["proof"] = Column<int8_t>(g, [](const Grasp& x) { return x.proof; });
+  out["proof_swing_deg"] = Column<double>(g, [](const Grasp& x) { return x.proof_swing_deg; });
+  out["proof_neighbours_moved_mm"] =
+      Column<double>(g, [](const Grasp& x) { return x.proof_neighbours_moved_mm; });
+  return out;
+}
+
 // the suction and parallel-jaw grasps (config grasps), one array per field over all of each
 // kind, each instance's best first
 void BindSceneGrasps(SceneClass& scene) {
   using namespace stackgen;
   using namespace stackgen::feed;
   scene.def_property_readonly("suction_grasps", [](const FeedScene& s) {
-    const std::vector<suction_grasp>& grasps = s.message().suction_grasps;
-    const auto n = static_cast<py::ssize_t>(grasps.size());
-    py::array_t<int32_t> instance_ids(n), ranks(n), pixels({n, py::ssize_t{2}});
-    py::array_t<double> points({n, py::ssize_t{3}}), normals({n, py::ssize_t{3}}), seal(n),
-        clearance(n), com_offset(n), swing(n), moved(n);
-    py::array_t<bool> clear(n);
-    py::array_t<int8_t> proof(n);
-    for (py::ssize_t k = 0; k < n; ++k) {
-      const suction_grasp& g = grasps[static_cast<size_t>(k)];
-      instance_ids.mutable_at(k) = g.instance_id;
-      ranks.mutable_at(k) = g.rank;
-      pixels.mutable_at(k, 0) = g.u;
-      pixels.mutable_at(k, 1) = g.v;
-      for (py::ssize_t c = 0; c < 3; ++c) {
-        points.mutable_at(k, c) = g.point_mm[c];
-        normals.mutable_at(k, c) = g.normal[c];
-      }
-      seal.mutable_at(k) = g.seal;
-      clearance.mutable_at(k) = g.clearance_mm;
-      clear.mutable_at(k) = g.approach_clear;
-      com_offset.mutable_at(k) = g.com_offset_mm;
-      proof.mutable_at(k) = g.proof;
-      swing.mutable_at(k) = g.proof_swing_deg;
-      moved.mutable_at(k) = g.proof_neighbours_moved_mm;
-    }
-    py::dict out;
-    out["instance_id"] = instance_ids;
-    out["rank"] = ranks;
-    out["uv"] = pixels;
-    out["point_mm"] = points;
-    out["normal"] = normals;
-    out["seal"] = seal;
-    out["clearance_mm"] = clearance;
-    out["approach_clear"] = clear;
-    out["com_offset_mm"] = com_offset;
-    out["proof"] = proof;
-    out["proof_swing_deg"] = swing;
-    out["proof_neighbours_moved_mm"] = moved;
+    const std::vector<suction_grasp>& g = s.message().suction_grasps;
+    py::dict out = GraspColumns(g);
+    out["point_mm"] = Rows<double, 3>(g, [](const suction_grasp& x) { return x.point_mm; });
+    out["normal"] = Rows<double, 3>(g, [](const suction_grasp& x) { return x.normal; });
+    out["seal"] = Column<double>(g, [](const suction_grasp& x) { return x.seal; });
     return out;
   });
   scene.def_property_readonly("jaw_grasps", [](const FeedScene& s) {
-    const std::vector<jaw_grasp>& grasps = s.message().jaw_grasps;
-    const auto n = static_cast<py::ssize_t>(grasps.size());
-    py::array_t<int32_t> instance_ids(n), ranks(n), pixels({n, py::ssize_t{2}});
-    py::array_t<double> points_a({n, py::ssize_t{3}}), points_b({n, py::ssize_t{3}}),
-        approach({n, py::ssize_t{3}}), width(n), margin(n), clearance(n), com_offset(n), swing(n),
-        moved(n);
-    py::array_t<bool> clear(n);
-    py::array_t<int8_t> proof(n);
-    for (py::ssize_t k = 0; k < n; ++k) {
-      const jaw_grasp& g = grasps[static_cast<size_t>(k)];
-      instance_ids.mutable_at(k) = g.instance_id;
-      ranks.mutable_at(k) = g.rank;
-      pixels.mutable_at(k, 0) = g.u;
-      pixels.mutable_at(k, 1) = g.v;
-      for (py::ssize_t c = 0; c < 3; ++c) {
-        points_a.mutable_at(k, c) = g.point_a_mm[c];
-        points_b.mutable_at(k, c) = g.point_b_mm[c];
-        approach.mutable_at(k, c) = g.approach[c];
-      }
-      width.mutable_at(k) = g.width_mm;
-      margin.mutable_at(k) = g.cone_margin_deg;
-      clearance.mutable_at(k) = g.clearance_mm;
-      clear.mutable_at(k) = g.approach_clear;
-      com_offset.mutable_at(k) = g.com_offset_mm;
-      proof.mutable_at(k) = g.proof;
-      swing.mutable_at(k) = g.proof_swing_deg;
-      moved.mutable_at(k) = g.proof_neighbours_moved_mm;
-    }
-    py::dict out;
-    out["instance_id"] = instance_ids;
-    out["rank"] = ranks;
-    out["uv"] = pixels;
-    out["point_a_mm"] = points_a;
-    out["point_b_mm"] = points_b;
-    out["approach"] = approach;
-    out["width_mm"] = width;
-    out["cone_margin_deg"] = margin;
-    out["clearance_mm"] = clearance;
-    out["approach_clear"] = clear;
-    out["com_offset_mm"] = com_offset;
-    out["proof"] = proof;
-    out["proof_swing_deg"] = swing;
-    out["proof_neighbours_moved_mm"] = moved;
+    const std::vector<jaw_grasp>& g = s.message().jaw_grasps;
+    py::dict out = GraspColumns(g);
+    out["point_a_mm"] = Rows<double, 3>(g, [](const jaw_grasp& x) { return x.point_a_mm; });
+    out["point_b_mm"] = Rows<double, 3>(g, [](const jaw_grasp& x) { return x.point_b_mm; });
+    out["approach"] = Rows<double, 3>(g, [](const jaw_grasp& x) { return x.approach; });
+    out["width_mm"] = Column<double>(g, [](const jaw_grasp& x) { return x.width_mm; });
+    out["cone_margin_deg"] =
+        Column<double>(g, [](const jaw_grasp& x) { return x.cone_margin_deg; });
     return out;
   });
 }

@@ -1,9 +1,11 @@
-"""Real processes for the Python tests: free multicast URLs, programs with their output in files.
-(tests/consumers/feed/conftest.py has its own copies, from before this file.)"""
+"""Real processes for the Python tests: free multicast URLs, programs with their output in files,
+and the body of the `processes` fixture the conftest.py files declare."""
 
 import socket
 import subprocess
 import time
+
+import pytest
 
 
 def free_url():
@@ -29,12 +31,13 @@ class Process:
         try:
             return self.popen.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
-            self.kill()
-            raise AssertionError("%s ran past %s s: %s" % (self.popen.args[0], timeout,
-                                                          self.stderr()))
+            self.popen.kill()
+            self.popen.wait()
+            pytest.fail("%s still ran after %g s; stderr: %s" % (
+                self.popen.args[0], timeout, self.stderr()))
 
     def wait_for_output(self, text, timeout):
-        """Whether `text` appears on its stdout within `timeout` seconds."""
+        """Whether `text` appears on its stdout within `timeout` seconds (or before it ends)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if text in self.stdout():
@@ -58,3 +61,18 @@ class Process:
             self.popen.wait()
         self._out.close()
         self._err.close()
+
+
+def started(tmp_path):
+    """A `processes` fixture's body: yields start(argv, name), which runs a program with its
+    output in tmp_path/name.out and .err, and kills those still running at the end."""
+    running = []
+
+    def start(argv, name):
+        process = Process(argv, str(tmp_path / name))
+        running.append(process)
+        return process
+
+    yield start
+    for process in running:
+        process.kill()

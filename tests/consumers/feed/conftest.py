@@ -4,10 +4,8 @@ CTest runs these files with Debian's /usr/bin/python3 -m pytest and sets STACKGE
 STACKGEN_BIN_DIR and PYTHONPATH (the build's python/ folder)."""
 
 import os
-import socket
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -16,6 +14,7 @@ SOURCE = os.environ.get("STACKGEN_SOURCE_DIR",
                             os.path.abspath(__file__))))))
 sys.path.insert(0, os.path.join(SOURCE, "tests", "support"))
 import configs  # noqa: E402  (tests/support/configs.py)
+import processes as support  # noqa: E402  (tests/support/processes.py)
 
 BIN = os.environ.get("STACKGEN_BIN_DIR", os.path.join(SOURCE, "build", "bin"))
 # 6 connectors, 160 x 120: small and quick scenes
@@ -43,73 +42,13 @@ def quick_config(folder, source=None, halls=1):
     return configs.quick_config(folder, source or TINY_CONFIG, halls)
 
 
-def free_url():
-    """A multicast URL on this host only, on a port nothing is bound to."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        probe.bind(("", 0))
-        port = probe.getsockname()[1]
-    return "udpm://239.255.76.67:%d?ttl=0&recv_buf_size=4194304" % port
-
-
-class Process:
-    """A program running as a real process, its output in files."""
-
-    def __init__(self, argv, log_prefix):
-        self.out_path = log_prefix + ".out"
-        self.err_path = log_prefix + ".err"
-        self._out = open(self.out_path, "w")
-        self._err = open(self.err_path, "w")
-        self.popen = subprocess.Popen(argv, stdout=self._out, stderr=self._err)
-
-    def wait(self, timeout):
-        """The exit status; fails the test if it runs past `timeout` seconds."""
-        try:
-            return self.popen.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            self.popen.kill()
-            self.popen.wait()
-            pytest.fail("%s still ran after %g s; stderr: %s" % (
-                self.popen.args[0], timeout, self.stderr()))
-
-    def wait_for_output(self, text, timeout):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if text in self.stdout():
-                return True
-            if self.popen.poll() is not None:
-                return text in self.stdout()
-            time.sleep(0.02)
-        return False
-
-    def stdout(self):
-        with open(self.out_path) as file:
-            return file.read()
-
-    def stderr(self):
-        with open(self.err_path) as file:
-            return file.read()
-
-    def kill(self):
-        if self.popen.poll() is None:
-            self.popen.kill()
-            self.popen.wait()
-        self._out.close()
-        self._err.close()
+free_url = support.free_url
 
 
 @pytest.fixture
 def processes(tmp_path):
     """Starts programs (argv, name) and kills those still running at the end of the test."""
-    started = []
-
-    def start(argv, name):
-        process = Process([str(a) for a in argv], str(tmp_path / name))
-        started.append(process)
-        return process
-
-    yield start
-    for process in started:
-        process.kill()
+    yield from support.started(tmp_path)
 
 
 def generator_argv(url, count, cache_dir, *extra, generator_id=0, seed=5, config=None):

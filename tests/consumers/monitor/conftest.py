@@ -28,13 +28,4 @@ def quick_config(folder):
 @pytest.fixture
 def processes(tmp_path):
     """Starts programs (argv, name) and kills those still running at the end of the test."""
-    started = []
-
-    def start(argv, name):
-        process = support.Process(argv, str(tmp_path / name))
-        started.append(process)
-        return process
-
-    yield start
-    for process in started:
-        process.kill()
+    yield from support.started(tmp_path)

@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "gen/render/renderer.h"
+#include "tests/support/cameras.h"
 #include "tests/support/meshes.h"
 
 namespace stackgen {
@@ -99,14 +100,7 @@ TEST(SuctionTest, CandidatesOnWhatTheCameraSees) {
   GraspScene scene;
   const int box = scene.AddMesh(testing::BoxMesh(Eigen::Vector3f(100, 60, 20)));
   scene.AddObject(box, At(0, 0, 10), 1);
-  CameraModel camera;
-  camera.width = 320;
-  camera.height = 240;
-  camera.fx = camera.fy = 400;
-  camera.cx = 159.5;
-  camera.cy = 119.5;
-  camera.world_from_camera = Eigen::Translation3d(0, 0, 500) * Eigen::Isometry3d::Identity();
-  camera.world_from_camera.linear() = Eigen::Vector3d(1, -1, -1).asDiagonal();
+  const CameraModel camera = testing::CameraLookingDown(500);
   // the box's top face: x in [-50, 50], y in [-30, 30] at z = 20, 480 mm from the camera
   cv::Mat ids(240, 320, CV_16UC1, cv::Scalar(0));
   const double scale = 400.0 / 480;

@@ -13,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "gen/render/renderer.h"
+#include "tests/support/cameras.h"
 #include "tests/support/meshes.h"
 
 namespace stackgen {
@@ -21,17 +22,9 @@ namespace {
 constexpr double kHeightMm = 500;  // the camera above the z = 0 plane
 constexpr double kBaselineMm = 100;
 
-// a camera at world (0, 0, kHeightMm) looking straight down, image x along world x, y along -y
+// a camera kHeightMm above the z = 0 plane, looking straight down
 CameraModel CameraLookingDown(int width = 320, int height = 240) {
-  CameraModel camera;
-  camera.width = width;
-  camera.height = height;
-  camera.fx = camera.fy = 400;
-  camera.cx = (width - 1) / 2.0;
-  camera.cy = (height - 1) / 2.0;
-  camera.world_from_camera = Eigen::Translation3d(0, 0, kHeightMm) * Eigen::Isometry3d::Identity();
-  camera.world_from_camera.linear() = Eigen::Vector3d(1, -1, -1).asDiagonal();
-  return camera;
+  return testing::CameraLookingDown(kHeightMm, width, height);
 }
 
 DrawItem Item(int mesh_id, const Eigen::Vector3d& at, float metallic, float roughness,
@@ -161,7 +154,7 @@ TEST(DepthSensorTest, ProjectorShadowFallsBehindTheBoxAwayFromTheProjector) {
 
 // a mirror-flat metal plate facing the camera returns none of the pattern but where it mirrors
 // the projector into the camera (a saturated glint, with a thin fringe of a few degrees that
-// returns a measurable part): no depth on at least 95 % of it (97.6 % here); matte plastic
+// returns a measurable part): no depth on at least 95 % of it; matte plastic
 // returns its albedo everywhere: depth on all of it; white paper returns about 1
 TEST(DepthSensorTest, PolishedMetalFacingTheCameraDropsOutMattePlasticDoesNot) {
   Renderer renderer(320, 240);

@@ -11,6 +11,7 @@
 
 #include "gen/render/environment.h"
 #include "gen/render/renderer.h"
+#include "tests/support/cameras.h"
 #include "tests/support/environments.h"
 #include "tests/support/golden.h"
 #include "tests/support/meshes.h"
@@ -46,19 +47,7 @@ TriangleMesh MakeSphere(float radius_mm, int rings = 64, int segments = 128) {
   return mesh;
 }
 
-// a camera at world (0, 0, height) looking straight down at the z = 0 plane, image x along
-// world x
-CameraModel CameraLookingDown(double height_mm, int width = 320, int height = 240) {
-  CameraModel camera;
-  camera.width = width;
-  camera.height = height;
-  camera.fx = camera.fy = 400;
-  camera.cx = (width - 1) / 2.0;
-  camera.cy = (height - 1) / 2.0;
-  camera.world_from_camera = Eigen::Translation3d(0, 0, height_mm) * Eigen::Isometry3d::Identity();
-  camera.world_from_camera.linear() = Eigen::Vector3d(1, -1, -1).asDiagonal();
-  return camera;
-}
+using testing::CameraLookingDown;
 
 // an environment whose radiance is `f` of the direction, prefiltered
 template <typename F>

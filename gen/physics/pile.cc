@@ -13,6 +13,7 @@
 
 #include "gen/physics/pile_internal.h"
 #include "gen/physics/settle_detector.h"
+#include "gen/physics/still_contacts.h"
 
 namespace stackgen {
 
@@ -52,6 +53,10 @@ constexpr double kPileLandedMm = 1.0;
 constexpr double kPileLandedDeg = 1.0;
 constexpr double kPileLandedWindowS = 0.25;
 constexpr double kRestSlopMm = 0.01;
+// at rest, a part whose points all moved less than this since its contacts were searched keeps
+// them against other such parts and the bin (StillContacts), mm: a fifth of the slop, a fiftieth
+// of the settle rule's 0.1 mm; docs/results.md, "Speed", has what it saves and what more costs
+constexpr double kStillMm = 0.002;
 constexpr int kFreeFriction = SOLVER_USE_WARMSTARTING | SOLVER_SIMD;
 constexpr int kHoldingFriction =
     SOLVER_USE_WARMSTARTING | SOLVER_SIMD | SOLVER_USE_2_FRICTION_DIRECTIONS |
@@ -387,10 +392,13 @@ class PileWorld {
         free_friction ? std::min(kDropIterations, solver_iterations_) : solver_iterations_;
   }
   // Landed: holding friction and contacts at rest, stepped `step_ratio` times as long as while
-  // falling (the last step's impulses, where each step starts, grow with it). Once only.
+  // falling (the last step's impulses, where each step starts, grow with it), the contacts of
+  // parts that lie still kept (StillContacts, kStillMm). Once only.
   void Rest(double step_ratio) {
     if (resting_) return;
     resting_ = true;
+    still_ =
+        std::make_unique<StillContacts>(w_.world.get(), &w_.dispatcher, parts_, ToSim(kStillMm));
     btContactSolverInfo& solver = w_.world->getSolverInfo();
     solver.m_splitImpulse = false;
     solver.m_linearSlop = ToSim(kRestSlopMm);
@@ -407,6 +415,9 @@ class PileWorld {
       }
     }
   }
+
+  // Every contact searched every step from now on, as Bullet does (a strict check's physics).
+  void SearchEveryStep() { still_.reset(); }
 
   // the poses of `bodies` (their centres of mass), mm
   static std::vector<Eigen::Isometry3d> Poses(const std::vector<btRigidBody*>& bodies) {
@@ -426,6 +437,7 @@ class PileWorld {
   std::vector<btVector3> inertia_of_type_;
   std::vector<btRigidBody*> parts_;  // in the order added
   std::vector<int> part_types_;
+  std::unique_ptr<StillContacts> still_;  // at rest; before the world goes
 };
 
 // Adds the mesh frame of a part whose body (centre of mass) is at `world_from_body` to `result`
@@ -593,15 +605,17 @@ void Place(const BinSpec& bin, const std::vector<TypeModel>& type_models,
   result->max_penetration_mm = w->MaxPenetrationMm();
 }
 
-// Goes on stepping the pile of `bodies` (of `types`) at rest until it is at rest by `rule` (its
-// window reaching back to the poses now) or rule.max_time_s more passed; `after` gets the poses
-// and checks then, settled (at rest by the rule) and the time it went on.
+// Goes on stepping the pile of `bodies` (of `types`) at rest, every contact searched every step,
+// until it is at rest by `rule` (its window reaching back to the poses now) or rule.max_time_s
+// more passed; `after` gets the poses and checks then, settled (at rest by the rule) and the time
+// it went on.
 void GoOnToRest(const BinSpec& bin, const SimulationParams& params,
                 const std::vector<TypeModel>& type_models, const RestRule& rule,
                 const std::vector<int>& types, const std::vector<btRigidBody*>& bodies,
                 PileWorld* w, PileResult* after) {
   *after = PileResult{};
   w->Rest(params.rest_time_step_s / params.time_step_s);
+  w->SearchEveryStep();
   double time_s = 0;
   after->settled = StepUntilRest(w, params.rest_time_step_s, rule, bodies, rule.max_time_s,
                                  &time_s, true) == Ended::kAtRest;

@@ -159,7 +159,8 @@ inline constexpr RestRule kStrictRestRule{0.1, 0.1, 1, 60};
 /// friction anchors (static friction: contact points held while inside the friction cone) and a
 /// little angular damping; the two phases of SimulationParams: while falling, split-impulse
 /// contacts at time_step_s (at the default 1/600 s a 6 mm plate does not tunnel), once landed,
-/// contacts that leave a 0.01 mm overlap alone at rest_time_step_s; penetrations stay far below
+/// contacts that leave a 0.01 mm overlap alone at rest_time_step_s, those of parts lying still
+/// kept rather than searched again (StillContacts); penetrations stay far below
 /// 0.5 mm. The simulator is immutable after construction and may be used from several threads
 /// at once; Simulate() builds a fresh world each call and keeps no state between calls.
 class PileSimulator {
@@ -212,12 +213,13 @@ class PileSimulator {
   PileResult Resettle(const std::vector<int>& types,
                       const std::vector<Eigen::Isometry3d>& world_from_object) const;
 
-  /// As above; then, when `after` is not null, goes on in the same world until the pile is at
-  /// rest by `rule` or rule.max_time_s more passed, and `after` gets the poses and checks then
-  /// (settled: at rest by the rule; simulated_s: the time it went on). A strict check that a
-  /// published pile was at rest: how far its parts still move. The result itself is the same
-  /// as without (`rule` is not used without `after`). Throws std::invalid_argument as above, or
-  /// for a rule whose values are not positive or whose window is longer than its cap.
+  /// As above; then, when `after` is not null, goes on in the same world, every contact searched
+  /// every step, until the pile is at rest by `rule` or rule.max_time_s more passed, and `after`
+  /// gets the poses and checks then (settled: at rest by the rule; simulated_s: the time it went
+  /// on). A strict check that a published pile was at rest: how far its parts still move. The
+  /// result itself is the same as without (`rule` is not used without `after`). Throws
+  /// std::invalid_argument as above, or for a rule whose values are not positive or whose window is
+  /// longer than its cap.
   PileResult Resettle(const std::vector<int>& types,
                       const std::vector<Eigen::Isometry3d>& world_from_object, const RestRule& rule,
                       PileResult* after) const;

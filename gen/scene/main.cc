@@ -73,8 +73,9 @@ flags:
                       size of an encoded scene, about 1 MB at 640x480); older ones are
                       regenerated from their seed when asked for
   --physics-threads N piles settled at once, one physics world per thread, 1..256 (default:
-                      the cores this process may use, %d here); the scenes are the same for
-                      any N (with physics.pick_sequence one pile settles ahead)
+                      the cores this process may use, %d here), up to 4 piles per thread
+                      settled ahead; the scenes are the same for any N (with
+                      physics.pick_sequence one pile settles ahead)
   --fault-drop F      drop the fraction F in [0, 1) of the messages received (credits, resend
                       requests), from a fixed seed: for tests and demos (default: 0)
   --check             check the flags, the config (meshes and collision shapes included), the

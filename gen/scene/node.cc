@@ -54,6 +54,12 @@ std::string AuthSummary(const Bus& bus, int64_t scenes) {
   return text + RefusedSummary(bus.state().auth_counters());
 }
 
+// Piles queued or settled ahead of the one being rendered, per physics thread. Piles take from
+// a tenth of a second to seconds (a drop redrawn); with one per thread a slow pile held the other
+// threads idle once they had settled the next (the scenes go out in seq order). A settled pile is
+// its parts' types and poses, about 2 KB for 12 parts. docs/results.md, "Speed", has the gain.
+constexpr size_t kPilesAheadPerThread = 4;
+
 double Seconds(Clock::TimePoint from, Clock::TimePoint to) {
   return std::chrono::duration<double>(to - from).count();
 }
@@ -434,14 +440,16 @@ void GeneratorNode::Impl::WaitForConsumers(int timeout_ms) {
   PublishPeriodic(false);
 }
 
-// the next piles settle on the physics threads while the scenes of this one are rendered, one
-// pile per thread (each scene is the same either way: a pure function of its seq); with
-// views_per_pile V, V scenes in a row show each state. With pick sequences each state follows
-// from the one before: one pile (the state after the next pick) settles ahead.
+// the next piles settle on the physics threads while the scenes of this one are rendered, up to
+// kPilesAheadPerThread piles per thread queued or settled ahead (each scene is the same either
+// way: a pure function of its seq); with views_per_pile V, V scenes in a row show each state.
+// With pick sequences each state follows from the one before: one pile (the state after the next
+// pick) settles ahead.
 void GeneratorNode::Impl::SettleAhead(int64_t first_seq) {
   const int views = generator.views_per_pile();
   const bool picks = generator.pick_sequence();
-  const size_t most = picks ? 1 : static_cast<size_t>(std::max(1, options.physics_threads));
+  const size_t most =
+      picks ? 1 : static_cast<size_t>(std::max(1, options.physics_threads)) * kPilesAheadPerThread;
   SceneGenerator* scenes = &generator;
   while (ahead.size() < most) {
     // with picks the state after the one in hand; without, the pile after the one queued last

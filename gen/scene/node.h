@@ -43,8 +43,9 @@ struct GeneratorNodeOptions {
   double stall_timeout_s = 60;
   /// Encoded scenes kept for resending.
   int ring_size = 64;
-  /// Piles settled at once, one world per thread, ahead of the one being rendered; the scenes
-  /// are the same for any number (with physics.pick_sequence one pile settles ahead).
+  /// Piles settled at once, one world per thread, ahead of the one being rendered (up to four
+  /// per thread queued or settled ahead); the scenes are the same for any number (with
+  /// physics.pick_sequence one pile settles ahead).
   int physics_threads = 1;
   /// A progress line on stderr (a terminal).
   bool progress = false;

@@ -436,7 +436,7 @@ MovedOn Moved(const PileResult& published, const PileResult& after) {
 // rest: simulated on in the same world until every part moved less than 0.1 mm and 0.1 degree
 // over 1 s (60 s at most), none of the 24 parts of 2 piles moves more than 1 mm or 1 degree, and
 // the heaps do not sink. The landed rule (1 mm, 1 degree over 0.25 s) publishes a pile with a
-// part that moves on (seed 14, the first of seeds 1 to 24 that does): the check tells the rules
+// part that moves on (seed 3, the first of seeds 1 to 24 that does): the check tells the rules
 // apart, and with the landed rule as the default this test fails. stackgen-rest-check measures
 // the rules over 300 piles (docs/results.md, "Piles at rest").
 TEST_F(PileTest, DefaultSettleRulePublishesPilesThatStayPut) {
@@ -473,7 +473,7 @@ TEST_F(PileTest, DefaultSettleRulePublishesPilesThatStayPut) {
   const PileSimulator loose(Connector(), ConnectorPieces(), PartPhysics{}, kBin,
                             testing::LandedRule(), (dir_ / "cache").string());
   uint64_t moved_seed = 0;
-  for (uint64_t seed = 14; seed <= 24 && moved_seed == 0; ++seed) {
+  for (uint64_t seed = 1; seed <= 24 && moved_seed == 0; ++seed) {
     PileResult loose_after;
     const PileResult loose_pile =
         loose.Simulate(std::vector<int>(12, 0), seed, kStrictRestRule, &loose_after);

@@ -73,26 +73,7 @@ async function refresh() {
   try {
     data = await (await fetch("status.json", {cache: "no-store"})).json();
   } catch (e) {
-    const learners = document.getElementById("learners");
-  learners.innerHTML = "";
-  document.getElementById("learners-box").style.display = data.learners.length ? "" : "none";
-  for (const l of data.learners) {
-    const tr = document.createElement("tr");
-    if (l.quiet) {
-      tr.className = "quiet";
-      warnings.push(l.name + " has not been heard for " + l.age_s.toFixed(0) + " s");
-    }
-    const spark = document.createElement("td");
-    spark.append(sparkline(l.loss_history.map(v => v === null ? 0 : v)));
-    tr.append(cell(l.process), cell(l.name, "name"),
-              cell(l.quiet ? "quiet" : ["training", "ended", "stopped"][l.run_state]),
-              cell(l.steps + (l.target_steps ? " / " + l.target_steps : "")),
-              cell(l.loss === null ? "-" : l.loss.toFixed(3)), spark, cell(l.scenes_taken),
-              cell(l.scenes_per_second.toFixed(2)), cell(l.reuse.toFixed(1)),
-              cell(l.age_s.toFixed(1) + " s ago"));
-    learners.append(tr);
-  }
-  document.getElementById("warnings").innerHTML = "<p>the monitor does not answer</p>";
+    document.getElementById("warnings").innerHTML = "<p>the monitor does not answer</p>";
     return;
   }
   const rows = document.getElementById("rows");

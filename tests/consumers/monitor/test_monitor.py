@@ -194,6 +194,21 @@ def test_page_shows_scenes_and_a_stalled_generator(tmp_path, processes):
     assert monitor.popen.poll() is None
 
 
+# the page away from its monitor (saved and opened as a file, so its status.json cannot be
+# fetched) says the monitor does not answer
+def test_page_says_when_the_monitor_does_not_answer(tmp_path, processes):
+    monitor, base = start_monitor(processes, free_url())
+    page = tmp_path / "page.html"
+    page.write_text(get(base, "")[2])
+    dom = subprocess.run(["chromium", "--headless", "--no-sandbox", "--disable-gpu",
+                          "--virtual-time-budget=2000", "--dump-dom", page.as_uri()],
+                         capture_output=True, text=True, timeout=60)
+    assert dom.returncode == 0, dom.stderr
+    warnings = re.search(r'<div id="warnings">(.*?)</div>', dom.stdout, re.S)
+    assert warnings, dom.stdout[-2000:]
+    assert warnings.group(1) == "<p>the monitor does not answer</p>", warnings.group(1)
+
+
 # a stranger floods the bus for 3 s (random bytes and real messages cut, grown and flipped on
 # every channel, datagrams no LCM library sends): the monitor stays up, answers, counts what its
 # key refused, and no forged process enters its table

@@ -56,14 +56,7 @@ LearnerPublisher::LearnerPublisher(const std::string& url, const std::string& ke
   impl->pid = getpid();
   impl->process = process;
   impl->name = name;
-  try {
-    BusOptions options;
-    options.key_file = key_file;
-    options.open_bus = open_bus;
-    impl->bus = std::make_unique<Bus>(ResolveLcmUrl(url), options);
-  } catch (const std::exception& error) {
-    throw FeedError(error.what());
-  }
+  impl->bus = OpenBus(url, key_file, open_bus);
   impl->thread = std::thread([impl] {
     const Clock& clock = SteadyClock();
     auto last = clock.Now();

@@ -3,6 +3,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "bus/bus.h"
 #include "consumers/dataset/images.h"
 #include "contract/rle.h"
 #include "contract/scene_contract.h"
@@ -91,6 +92,17 @@ cv::Mat FeedScene::DepthSensor() {
 }
 cv::Mat FeedScene::InstanceMap() {
   return Decoded(&instance_map_, message_.instance_map, "instance_map");
+}
+
+std::unique_ptr<Bus> OpenBus(const std::string& url, const std::string& key_file, bool open_bus) {
+  try {
+    BusOptions options;
+    options.key_file = key_file;
+    options.open_bus = open_bus;
+    return std::make_unique<Bus>(ResolveLcmUrl(url), options);
+  } catch (const std::exception& error) {
+    throw FeedError(error.what());
+  }
 }
 
 }  // namespace stackgen::feed

@@ -19,6 +19,10 @@
 
 #include "contract/rle.h"
 
+namespace stackgen {
+class Bus;
+}  // namespace stackgen
+
 namespace stackgen::feed {
 
 /// A scene or a stream that cannot be used; the text names the scene, field, file or URL.
@@ -26,6 +30,11 @@ class FeedError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
 };
+
+/// The bus at `url` (resolved as every program resolves --lcm-url) with BusOptions' key_file and
+/// open_bus, for the feed's helpers that only publish or listen. Throws FeedError with the
+/// reason (a bad URL, an unreadable key) if it cannot be opened.
+std::unique_ptr<Bus> OpenBus(const std::string& url, const std::string& key_file, bool open_bus);
 
 /// The image of `field` ("color", "depth", "instance_map", "depth_sensor") decoded: RGB8 as
 /// CV_8UC3 in R, G, B order, GRAY8 as CV_8UC1, DEPTH16 and INSTANCE16 as CV_16UC1. A RAW image is

@@ -33,14 +33,7 @@ StatusMonitor::StatusMonitor(const std::string& url, const std::string& key_file
     : impl_(std::make_unique<Impl>()) {
   Impl* impl = impl_.get();
   impl->pid = getpid();
-  try {
-    BusOptions options;
-    options.key_file = key_file;
-    options.open_bus = open_bus;
-    impl->bus = std::make_unique<Bus>(ResolveLcmUrl(url), options);
-  } catch (const std::exception& error) {
-    throw FeedError(error.what());
-  }
+  impl->bus = OpenBus(url, key_file, open_bus);
   impl->bus->Subscribe<status>(
       kStatusChannel,
       [impl](const status& message) {

@@ -54,10 +54,10 @@ std::string AuthSummary(const Bus& bus, int64_t scenes) {
   return text + RefusedSummary(bus.state().auth_counters());
 }
 
-// Piles queued or settled ahead of the one being rendered, per physics thread. Piles take from
-// a tenth of a second to seconds (a drop redrawn); with one per thread a slow pile held the other
+// Piles queued or settled ahead of the one being rendered, per physics thread. Piles differ
+// widely in cost (a drop redrawn costs several); with one per thread a slow pile held the other
 // threads idle once they had settled the next (the scenes go out in seq order). A settled pile is
-// its parts' types and poses, about 2 KB for 12 parts. docs/results.md, "Speed", has the gain.
+// only its parts' types and poses. docs/results.md, "Speed", has the gain.
 constexpr size_t kPilesAheadPerThread = 4;
 
 double Seconds(Clock::TimePoint from, Clock::TimePoint to) {

@@ -82,12 +82,12 @@ image EncodeImage(const cv::Mat& pixels, int8_t pixel_format,
     cv::Mat to_write = pixels;
     // OpenCV writes colour files from BGR.
     if (pixels.channels() == 3) cv::cvtColor(pixels, to_write, cv::COLOR_RGB2BGR);
-    // colour (the camera's noise in every pixel): OpenCV's default when no level is given, the
-    // Sub filter at zlib level 1 with its run-length strategy, much faster than level 1 with
-    // libpng's adaptive filters and no larger; depth and ids (smooth, flat regions) deflate
-    // smaller with those filters (docs/results.md, "Speed")
+    // colour (the camera's noise in every pixel) and ids (a few flat regions): OpenCV's default
+    // when no level is given, the Sub filter at zlib level 1 with its run-length strategy, much
+    // faster than level 1 with libpng's adaptive filters and no larger; depth (smooth slopes)
+    // deflates far smaller with those filters (docs/results.md, "Speed")
     std::vector<int> parameters;
-    if (pixels.channels() != 3) parameters = {cv::IMWRITE_PNG_COMPRESSION, 1};
+    if (pixel_format == image::PIXEL_DEPTH16) parameters = {cv::IMWRITE_PNG_COMPRESSION, 1};
     std::vector<uint8_t> bytes;
     if (!cv::imencode(".png", to_write, bytes, parameters)) {
       throw std::runtime_error("cannot encode a PNG image");

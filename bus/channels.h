@@ -29,8 +29,9 @@ inline constexpr const char* kLivenessChannel = "STACKGEN_LIVENESS";
 /// bus/udpm.h). Sent and heard by the Bus itself.
 inline constexpr const char* kRepairChannel = "STACKGEN_REPAIR";
 
-/// status.run_state of a generator: running, ended (every scene published and stored), stopped
-/// before its end (a signal or an error).
+/// status.run_state: running; ended (a generator: every scene published and stored; a consumer:
+/// what it was asked for taken, or its stream ended); stopped before its end (a signal, an
+/// error, a consumer's timeout).
 inline constexpr int8_t kRunRunning = 0;
 inline constexpr int8_t kRunEnded = 1;
 inline constexpr int8_t kRunStopped = 2;

@@ -132,11 +132,11 @@ void ConsumerSession::Service(int64_t held, int64_t taken) {
   if (held_at_last_status_ < 0) held_at_last_status_ = held;
   if (live_ && options_.status_period_s > 0 &&
       clock_->Now() - last_status_ >= std::chrono::duration<double>(options_.status_period_s)) {
-    PublishStatus(held, taken);
+    PublishStatus(held, taken, kRunRunning);
   }
 }
 
-void ConsumerSession::PublishStatus(int64_t held, int64_t taken) {
+void ConsumerSession::PublishStatus(int64_t held, int64_t taken, int8_t run_state) {
   const Clock::TimePoint now = clock_->Now();
   const double seconds = std::chrono::duration<double>(now - last_status_).count();
   if (held_at_last_status_ < 0) held_at_last_status_ = held;
@@ -148,14 +148,15 @@ void ConsumerSession::PublishStatus(int64_t held, int64_t taken) {
   report.rate_hz = seconds > 0 ? static_cast<double>(held - held_at_last_status_) / seconds : 0;
   report.delivery = delivery();
   report.bad_messages = undecodable_ + refused_;
+  report.run_state = run_state;
   bus_->Publish(kStatusChannel, ConsumerStatus(*bus_, report));
   last_status_ = now;
   held_at_last_status_ = held;
 }
 
-void ConsumerSession::Leave(int64_t held, int64_t taken) {
+void ConsumerSession::Leave(int64_t held, int64_t taken, int8_t run_state) {
   if (!live_) return;
-  if (options_.status_period_s > 0) PublishStatus(held, taken);
+  if (options_.status_period_s > 0) PublishStatus(held, taken, run_state);
   if (client_) client_->Leave();
 }
 
@@ -189,6 +190,7 @@ status ConsumerStatus(const Bus& bus, const ConsumerReport& report) {
   message.refused_forged = refused.forged;
   message.refused_replayed = refused.replayed;
   message.refused_relayed = refused.relayed;
+  message.run_state = report.run_state;
   return message;
 }
 

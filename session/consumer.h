@@ -70,6 +70,10 @@ struct ConsumerReport {
   DeliveryCounters delivery;
   /// Messages it could not use: undecodable, or scenes that failed its checks.
   int64_t bad_messages = 0;
+  /// Where its run stands (status.run_state, bus/channels.h): kRunRunning, or as it leaves
+  /// kRunEnded (it took what it was asked for, or its stream ended) or kRunStopped (a signal,
+  /// a timeout: before its end).
+  int8_t run_state = 0;
 };
 
 /// How a consumer takes part, beyond its bus.
@@ -178,11 +182,14 @@ class ConsumerSession {
   /// warning and, when due, the status. `held`: the scenes the consumer holds (stored, handed out,
   /// drawn); `taken`: those it took in this run.
   void Service(int64_t held, int64_t taken);
-  /// Publishes the status now (see Service).
-  void PublishStatus(int64_t held, int64_t taken);
-  /// The last status (unless status_period_s is 0), and a reliable client's leaving credit:
-  /// generators stop waiting for it. Nothing on a log.
-  void Leave(int64_t held, int64_t taken);
+  /// Publishes the status now (see Service), with `run_state` (status.run_state: kRunRunning,
+  /// or kRunEnded or kRunStopped as the consumer leaves).
+  void PublishStatus(int64_t held, int64_t taken, int8_t run_state);
+  /// The last status (unless status_period_s is 0), saying how the run ended: kRunEnded (the
+  /// consumer took what it was asked for, or its stream ended) or kRunStopped (a signal, a
+  /// timeout), so a monitor shows it ended, not gone quiet; and a reliable client's leaving
+  /// credit: generators stop waiting for it. Nothing on a log.
+  void Leave(int64_t held, int64_t taken, int8_t run_state);
 
   /// What did not make it: messages that did not decode, copies refused, repeats.
   int64_t undecodable() const { return undecodable_; }

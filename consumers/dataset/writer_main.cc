@@ -272,10 +272,12 @@ class WriterSession {
     if (bus.state().log_ended() && writer_->num_images() == stored_at_start_) session_->CheckKeys();
   }
 
-  // generators stop waiting for us; a valid dataset of what arrived; the summary
+  // generators stop waiting for us (and a monitor sees we ended: our --count stored, or
+  // stopped: a signal); a valid dataset of what arrived; the summary
   void Finish() {
     Commit();
-    session_->Leave(writer_->num_images(), session_->delivery().stored);
+    session_->Leave(writer_->num_images(), session_->delivery().stored,
+                    Enough() ? kRunEnded : kRunStopped);
     writer_->Finish();
     PrintSummary();
   }

@@ -381,10 +381,11 @@ struct SceneStream::Impl {
         break;
       }
     }
-    // generators stop waiting for this stream
+    // generators stop waiting for this stream; it ended (its generators ended, or its learner
+    // closed it)
     credit_handed();
     const int64_t handed = Counters().handed;
-    session->Leave(handed, handed);
+    session->Leave(handed, handed, kRunEnded);
   }
 
   // what reading a log has found so far

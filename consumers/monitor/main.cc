@@ -277,7 +277,7 @@ int main(int argc, char** argv) {
       }
       for (Watched& w : watched) w.session->Service(held, held);
     }
-    for (Watched& w : watched) w.session->Leave(scenes_heard, scenes_heard);
+    for (Watched& w : watched) w.session->Leave(scenes_heard, scenes_heard, stackgen::kRunStopped);
     std::printf("%s: stopped; heard %lld statuses of %zu processes\n", kProgram,
                 static_cast<long long>(counters.status_messages), table.entries().size());
     return 0;

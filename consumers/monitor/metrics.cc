@@ -154,8 +154,9 @@ std::string PrometheusText(const ProcessTable& table, const MonitorCounters& cou
       {"stackgen_fault_dropped_total", "counter", "Messages dropped on purpose (--fault-drop).",
        [](const E& e, double) { return static_cast<double>(e.latest.fault_dropped); }},
       {"stackgen_run_state", "gauge",
-       "Where the generator's run stands: 0 running, 1 ended (all stored), 2 stopped early.",
-       [](const E& e, double) { return static_cast<double>(e.latest.run_state); }, true},
+       "Where the process's run stands: 0 running, 1 ended (a generator: all stored; a "
+       "consumer: what it was asked for), 2 stopped early.",
+       [](const E& e, double) { return static_cast<double>(e.latest.run_state); }},
       {"stackgen_last_heard_seconds", "gauge", "Seconds since the process's last status.",
        [](const E& e, double now) { return now - e.heard_s; }},
       {"stackgen_quiet", "gauge",

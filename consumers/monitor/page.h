@@ -87,7 +87,7 @@ async function refresh() {
     }
     if (p.lost > 0) warnings.push(p.name + " is missing " + p.lost + " scenes");
     tr.append(cell(p.process), cell(p.name, "name"),
-              cell(p.quiet ? "quiet" : (p.generator_id >= 0 ? states[p.run_state] : "running")),
+              cell(p.quiet ? "quiet" : states[p.run_state] || "state " + p.run_state),
               cell(p.scenes), cell(p.rate_hz.toFixed(2)));
     const spark = document.createElement("td");
     spark.append(sparkline(p.rate_history));

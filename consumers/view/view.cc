@@ -541,7 +541,9 @@ std::vector<Tile> ReceiveBusTiles(const Flags& flags) {
     session.bus().HandleFor(100);
     session.Service(held(), held());
   }
-  session.Leave(held(), held());
+  session.Leave(
+      held(), held(),
+      static_cast<int>(tiles.size()) >= flags.count ? stackgen::kRunEnded : stackgen::kRunStopped);
   ReportEnd(session, flags, tiles.size());
   return tiles;
 }

@@ -50,6 +50,7 @@ TEST(ConsumerStatusTest, HoldsTheReportAndTheBusCounters) {
   report.delivery.lost = 2;
   report.delivery.reasked = 3;
   report.bad_messages = 4;
+  report.run_state = kRunStopped;
   const status message = ConsumerStatus(bus, report);
   EXPECT_EQ(message.header.seq, -1);
   EXPECT_EQ(message.header.generator_id, -1);
@@ -65,6 +66,7 @@ TEST(ConsumerStatusTest, HoldsTheReportAndTheBusCounters) {
   EXPECT_EQ(message.lost, 2);
   EXPECT_EQ(message.reasked, 3);
   EXPECT_EQ(message.bad_messages, 4);
+  EXPECT_EQ(message.run_state, kRunStopped);
   EXPECT_EQ(message.fault_dropped, bus.state().fault_dropped());
   EXPECT_EQ(message.refused_unsigned, 0);
 }
@@ -143,9 +145,13 @@ TEST(ConsumerSessionTest, BestEffortCountsWhatItHeardAndPublishesStatusEachPerio
   EXPECT_EQ(statuses[0].received, 1);
   EXPECT_EQ(statuses[0].duplicates, 1);
   EXPECT_EQ(statuses[0].bad_messages, 2);
-  session.Leave(5, 5);
+  EXPECT_EQ(statuses[0].run_state, kRunRunning);
+  // the last status says how the run ended (a monitor shows it ended, not gone quiet)
+  session.Leave(5, 5, kRunEnded);
   session.bus().HandleFor(0);
-  EXPECT_EQ(statuses.size(), 2u);
+  ASSERT_EQ(statuses.size(), 2u);
+  EXPECT_EQ(statuses[1].run_state, kRunEnded);
+  EXPECT_EQ(statuses[1].scenes_held, 5);
 }
 
 // a reliable session: a seq whose copies keep failing is given up at the third bad copy (the

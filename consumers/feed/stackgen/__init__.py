@@ -347,8 +347,8 @@ class StatusMonitor:
             A list of status dicts, one per process heard. Keys: process, name, generator_id,
             next_seq (a generator's next seq; -1 for consumers), scenes_held (a consumer's
             scenes; -1 for generators), utime, scenes, rate_hz, received, lost, resent,
-            regenerated, reliable_consumers, held_back_s, run_state (a generator's: 0 running,
-            1 ended, 2 stopped before its end).
+            regenerated, reliable_consumers, held_back_s, run_state (0 running, 1 ended, 2
+            stopped before its end; a consumer says 1 or 2 in its last status, as it leaves).
         """
         return [s for s in self._native.latest() if process is None or s["process"] == process]
 

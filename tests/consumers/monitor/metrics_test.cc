@@ -97,15 +97,19 @@ TEST(MonitorMetricsTest, GeneratorsRunLabelsItsMetrics) {
   EXPECT_EQ(table.RunOf(7), "");
 }
 
-// a process not heard for more than 5 s is quiet, unless it said its run ended; the page's JSON
-// says the same
+// a process not heard for more than 5 s is quiet, unless it said its run ended, a generator or
+// a consumer (a writer that stored its --count); the page's JSON says the same
 TEST(MonitorMetricsTest, QuietAfterFiveSecondsUnlessEnded) {
   ProcessTable table;
   status ended = Generator();
   ended.name = "stackgen/4@host:43";
   ended.run_state = 1;
+  status writer_ended = Writer();
+  writer_ended.name = "stackgen-coco@host:/done";
+  writer_ended.run_state = 1;
   table.Update(Generator(), 0.0);
   table.Update(ended, 0.0);
+  table.Update(writer_ended, 0.0);
   table.Update(Writer(), 5.5);
   const std::string text = PrometheusText(table, MonitorCounters{}, 6.0);
   EXPECT_NE(text.find("stackgen_quiet{process=\"stackgen\",name=\"stackgen/3@host:42\","
@@ -115,7 +119,16 @@ TEST(MonitorMetricsTest, QuietAfterFiveSecondsUnlessEnded) {
                       "generator_id=\"3\"} 0\n"),
             std::string::npos);
   const nlohmann::json json = nlohmann::json::parse(StatusJson(table, MonitorCounters{}, 6.0));
-  ASSERT_EQ(json["processes"].size(), 3u);
+  EXPECT_NE(
+      text.find("stackgen_quiet{process=\"stackgen-coco\",name=\"stackgen-coco@host:/done\"} 0\n"),
+      std::string::npos)
+      << text;
+  EXPECT_NE(
+      text.find("stackgen_run_state{process=\"stackgen-coco\",name=\"stackgen-coco@host:/done\"} "
+                "1\n"),
+      std::string::npos)
+      << text;
+  ASSERT_EQ(json["processes"].size(), 4u);
   int quiet = 0;
   for (const auto& process : json["processes"]) quiet += process["quiet"].get<bool>();
   EXPECT_EQ(quiet, 1);

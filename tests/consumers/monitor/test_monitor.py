@@ -98,6 +98,7 @@ def test_metrics_equal_what_the_processes_print(tmp_path, processes):
         assert found[("stackgen_redraws_total", labels)] == int(count)
     assert found[("stackgen_scene_bytes_total", generator_labels)] > published * 10000
     assert found[("stackgen_run_state", generator_labels)] == 1  # ended: all stored
+    assert found[("stackgen_run_state", writer)] == 1  # ended: its --count stored, not quiet
     render = tuple(sorted(dict(generator_labels, stage="render").items()))
     assert found[("stackgen_stage_seconds", render)] > 0
     assert found[("stackgen_monitor_status_messages_total", ())] >= 2

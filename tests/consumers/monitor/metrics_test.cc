@@ -118,7 +118,6 @@ TEST(MonitorMetricsTest, QuietAfterFiveSecondsUnlessEnded) {
   EXPECT_NE(text.find("stackgen_quiet{process=\"stackgen\",name=\"stackgen/4@host:43\","
                       "generator_id=\"3\"} 0\n"),
             std::string::npos);
-  const nlohmann::json json = nlohmann::json::parse(StatusJson(table, MonitorCounters{}, 6.0));
   EXPECT_NE(
       text.find("stackgen_quiet{process=\"stackgen-coco\",name=\"stackgen-coco@host:/done\"} 0\n"),
       std::string::npos)
@@ -128,6 +127,7 @@ TEST(MonitorMetricsTest, QuietAfterFiveSecondsUnlessEnded) {
                 "1\n"),
       std::string::npos)
       << text;
+  const nlohmann::json json = nlohmann::json::parse(StatusJson(table, MonitorCounters{}, 6.0));
   ASSERT_EQ(json["processes"].size(), 4u);
   int quiet = 0;
   for (const auto& process : json["processes"]) quiet += process["quiet"].get<bool>();

@@ -51,7 +51,7 @@ MODES = {
                 train_scenes=200),
     "gpu": dict(backbone="resnet50", scale=1.0, steps=3000, batch_size=4, lr=0.02,
                 train_scenes=2000),
-    "quick": dict(backbone="unet", scale=0.5, steps=1500, batch_size=8, lr=0.004,
+    "quick": dict(backbone="unet", scale=0.5, steps=4000, batch_size=8, lr=0.004,
                   train_scenes=300),
 }
 # what the quick mode's sets state over each config (protobuf text, merged field by field)
@@ -112,7 +112,7 @@ def parse_args(argv):
     parser.add_argument("--train-scenes", type=toolcli.whole_number(1), default=None, metavar="N",
                         help="training scenes per config (cpu 200, gpu 2000, quick 300)")
     parser.add_argument("--steps", type=toolcli.whole_number(1), default=None,
-                        help="optimiser steps (cpu 300, gpu 3000, quick 1500)")
+                        help="optimiser steps (cpu 300, gpu 3000, quick 4000)")
     parser.add_argument("--batch-size", type=toolcli.whole_number(1), default=None,
                         help="images per step (cpu 2, gpu 4, quick 8 crops)")
     parser.add_argument("--scale", type=fraction, default=None,

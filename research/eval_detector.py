@@ -124,6 +124,10 @@ def parse_args(argv):
     parser.add_argument("--device", default=None, help="cpu or cuda (default: the mode's)")
     parser.add_argument("--threads", type=toolcli.whole_number(1), default=os.cpu_count() or 1,
                         help="torch CPU threads (default: the cores)")
+    parser.add_argument("--workers", type=toolcli.whole_number(0), default=0,
+                        help="cpu and gpu modes: processes that read the training images ahead "
+                             "of the model, the same images in the same order (default 0: the "
+                             "training process reads them between steps)")
     parser.add_argument("--work-dir", default=None,
                         help="where training and held-out sets are made and each trained model "
                              "is kept (default: a temporary folder, removed at the end); a "
@@ -160,6 +164,8 @@ def parse_args(argv):
             parser.error("--seeds wants distinct whole numbers, got %r" % args.seeds)
     if args.mode != "quick" and (args.strict_rest or args.errors or args.unet_levels):
         parser.error("--strict-rest, --errors and --unet-levels are for --mode quick")
+    if args.mode == "quick" and args.workers:
+        parser.error("--workers is for --mode cpu and gpu")
     if args.unet_levels is None:
         args.unet_levels = 4
     elif args.unet_levels > 6:
@@ -219,8 +225,9 @@ def build_model(args):
 
 
 def to_tensors(dataset, index, flip):
-    """An image tensor and a torchvision target; ignore regions left out (they are neither
-    objects nor background to the loss), all labels class 1."""
+    """An image tensor (uint8, channels first; the model's float is made on its device) and a
+    torchvision target; ignore regions left out (they are neither objects nor background to the
+    loss), all labels class 1."""
     import numpy as np
     import torch
 
@@ -235,10 +242,58 @@ def to_tensors(dataset, index, flip):
     for k, mask in enumerate(masks):
         ys, xs = np.nonzero(mask)
         boxes[k] = [xs.min(), ys.min(), xs.max() + 1, ys.max() + 1]
-    tensor = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float() / 255
+    tensor = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1)
     return tensor, {"boxes": torch.from_numpy(boxes),
                     "labels": torch.ones(len(masks), dtype=torch.int64),
                     "masks": torch.from_numpy(np.ascontiguousarray(masks))}
+
+
+def batch_plan(images, steps, batch_size, seed):
+    """The training's images: per step, batch_size (index, flip) pairs, a fixed sequence of
+    the seed (every image once per shuffled pass), the same for every config."""
+    order = random.Random(seed)
+    plan, indices = [], []
+    for _ in range(steps):
+        batch = []
+        for _ in range(batch_size):
+            if not indices:
+                indices = list(range(images))
+                order.shuffle(indices)
+            index = indices.pop()
+            batch.append((index, order.random() < 0.5))
+        plan.append(batch)
+    return plan
+
+
+class PlannedBatches:
+    """The batches of a plan as a torch Dataset: item k is step k + 1's list of (image, target)."""
+
+    def __init__(self, dataset, plan):
+        self.dataset, self.plan = dataset, plan
+
+    def __len__(self):
+        return len(self.plan)
+
+    def __getitem__(self, step):
+        return [to_tensors(self.dataset, index, flip) for index, flip in self.plan[step]]
+
+    @staticmethod
+    def collate(items):
+        return items[0]
+
+
+def training_batches(args, dataset):
+    """Step by step, the (image uint8 CHW, target) pairs of batch_plan: read here between steps
+    (--workers 0) or ahead by --workers processes, each a prefetch of 4 batches."""
+    import torch
+
+    batches = PlannedBatches(dataset, batch_plan(len(dataset), args.steps, args.batch_size,
+                                                 args.seed))
+    if args.workers == 0:
+        return (batches[k] for k in range(len(batches)))
+    return iter(torch.utils.data.DataLoader(batches, batch_size=1, shuffle=False,
+                                            num_workers=args.workers, prefetch_factor=4,
+                                            collate_fn=PlannedBatches.collate))
 
 
 def train(args, dataset, name):
@@ -249,19 +304,13 @@ def train(args, dataset, name):
     model.train()
     parameters = [p for p in model.parameters() if p.requires_grad]
     optimizer = torch.optim.SGD(parameters, lr=args.lr, momentum=0.9, weight_decay=1e-4)
-    order = random.Random(args.seed)
     warmup = min(100, args.steps // 4)
     start = time.monotonic()
-    indices = []
+    batches = training_batches(args, dataset)
     for step in range(1, args.steps + 1):
-        # a fixed sequence of images and flips, the same for every config
         images, targets = [], []
-        for _ in range(args.batch_size):
-            if not indices:
-                indices = list(range(len(dataset)))
-                order.shuffle(indices)
-            image, target = to_tensors(dataset, indices.pop(), order.random() < 0.5)
-            images.append(image.to(device))
+        for image, target in next(batches):
+            images.append(image.to(device).float() / 255)
             targets.append({k: v.to(device) for k, v in target.items()})
         # linear warm-up, then cosine decay
         if step <= warmup:

@@ -110,3 +110,43 @@ def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
     assert set(summary["pixels"]) >= {"false_negative", "false_positive"}
     (picture,) = os.listdir(errors)
     assert picture.endswith(".jpg") and cv2.imread(os.path.join(errors, picture)) is not None
+
+
+def test_workers_read_the_same_batches_as_the_training_process(tmp_path):
+    """--workers: the batches read ahead by worker processes are those read between steps, image
+    for image and flip for flip, and every image comes once per pass of the plan."""
+    from types import SimpleNamespace
+
+    import torch
+
+    sys.path.insert(0, os.path.join(ROOT, "research"))
+    import eval_detector  # noqa: E402
+    from stackgen.coco import CocoDataset
+
+    plan = eval_detector.batch_plan(5, 4, 3, seed=7)
+    assert [len(batch) for batch in plan] == [3, 3, 3, 3]
+    passes = [index for batch in plan for index, _ in batch]
+    assert sorted(passes[:5]) == list(range(5)) and sorted(passes[5:10]) == list(range(5))
+    assert {flip for batch in plan for _, flip in batch} == {False, True}
+    folder = str(tmp_path / "squares")
+    make_coco(folder)
+    dataset = CocoDataset(folder)
+    read = {}
+    for workers in (0, 2):
+        args = SimpleNamespace(steps=6, batch_size=3, seed=7, workers=workers)
+        read[workers] = list(eval_detector.training_batches(args, dataset))
+    assert len(read[0]) == len(read[2]) == 6
+    flips = 0
+    for here, ahead in zip(read[0], read[2]):
+        assert len(here) == len(ahead) == 3
+        for (image, target), (image2, target2) in zip(here, ahead):
+            assert image.dtype == torch.uint8 and image.shape == (3, 480, 640)
+            assert torch.equal(image, image2)
+            assert target.keys() == target2.keys()
+            assert all(torch.equal(target[k], target2[k]) for k in target)
+            # one object per image (the other is an ignore region), its box where its mask is
+            box = target["boxes"][0].int().tolist()
+            assert target["masks"].shape == (1, 480, 640) and target["masks"].sum() == 8100
+            assert image[0, box[1]:box[3], box[0]:box[2]].min() == 220
+            flips += box[0] > 320
+    assert 0 < flips

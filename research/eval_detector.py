@@ -103,7 +103,9 @@ def parse_args(argv):
                              "(default: the faster rule 1 mm, 1 degree, 0.25 s)")
     parser.add_argument("--errors", default=None, metavar="DIR",
                         help="quick mode: pictures of the worst images' errors per config and "
-                             "test set (default: WORK_DIR/errors, or none without --work-dir)")
+                             "test set (default: WORK_DIR/errors/unetL-S-steps, the network's "
+                             "levels and steps, so runs of another instrument keep theirs; none "
+                             "without --work-dir)")
     parser.add_argument("--worst", type=toolcli.whole_number(0), default=4, metavar="N",
                         help="quick mode: images per error picture (default 4)")
     parser.add_argument("--unet-levels", type=toolcli.whole_number(2), default=None, metavar="N",
@@ -496,7 +498,8 @@ def run_quick(args, work):
         tests.append(("held-out stackgen", CocoDataset(held_out), bin_size(text)))
     for path in args.test:
         tests.append((os.path.basename(os.path.normpath(path)), CocoDataset(path), None))
-    errors = args.errors or (os.path.join(args.work_dir, "errors") if args.work_dir else None)
+    errors = args.errors or (os.path.join(args.work_dir, "errors", "unet%d-%d-steps" % (
+        args.unet_levels, args.steps)) if args.work_dir else None)
     if errors:
         os.makedirs(errors, exist_ok=True)
 

@@ -89,10 +89,10 @@ def test_quick_mode_flags_are_checked():
 def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
     folder = str(tmp_path / "squares")
     make_coco(folder)
-    out, errors = str(tmp_path / "results.json"), str(tmp_path / "errors")
+    out, work = str(tmp_path / "results.json"), str(tmp_path / "work")
     result = run("--mode", "quick", "--config", os.path.join(ROOT, "config", "default.pbtxt"),
                  "--train-dir", folder, "--test", folder, "--no-held-out", "--seeds", "3",
-                 "--steps", "2", "--threads", "2", "--errors", errors, "--worst", "1",
+                 "--steps", "2", "--threads", "2", "--work-dir", work, "--worst", "1",
                  "--unet-levels", "5", "--out", out)
     assert result.returncode == 0, result.stderr
     assert "foreground IoU" in result.stdout and "spread" in result.stdout
@@ -108,6 +108,8 @@ def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
     assert summary["foreground_iou"]["mean"] == scores["foreground_iou"]
     assert summary["foreground_iou"]["spread"] == 0  # one seed
     assert set(summary["pixels"]) >= {"false_negative", "false_positive"}
+    # the pictures go where the instrument's levels and steps name them
+    errors = os.path.join(work, "errors", "unet5-2-steps")
     (picture,) = os.listdir(errors)
     assert picture.endswith(".jpg") and cv2.imread(os.path.join(errors, picture)) is not None
 

@@ -35,7 +35,8 @@ moves on; one published while it still crept or toppled does.
 Prints, over all parts: the share that moved more than 1 mm or 1 degree, and more than 5 mm or
 10 degrees; how far the heaps sank; how many piles came to rest; the faces of each part type's
 convex hull the parts rest on (0 = the largest), as published and after; the physics time per
-pile (median).
+pile (median and mean) and the shares of it spent on redrawn drops and on drops not at rest in
+time.
 )";
 
 double Median(std::vector<double> values) {
@@ -73,6 +74,7 @@ std::string FaceShares(const std::vector<std::map<int, int64_t>>& faces, bool se
 struct Tally {
   std::vector<std::map<int, int64_t>> faces_before, faces_after;  // per type: face -> parts
   std::vector<double> physics_ms, resettle_s;                     // per pile
+  double total_physics_ms = 0;
   stackgen::StageTimes redraws;
   int64_t parts = 0, moved = 0, moved_far = 0, at_rest = 0, shifted = 0, turned = 0;
   std::vector<double> shifts_mm, turns_deg;  // per part
@@ -112,6 +114,12 @@ void Print(const Tally& t, const stackgen::RestRule& rule, int64_t count, bool s
       "outside the bin, %d interpenetrating)\n",
       static_cast<long long>(t.parts), Median(t.physics_ms), t.redraws.redraws,
       t.redraws.redraws_unsettled, t.redraws.redraws_outside, t.redraws.redraws_penetrating);
+  const double total = std::max(t.total_physics_ms, 1e-9);
+  std::printf(
+      "stackgen-rest-check: of all the physics (%.1f ms a published pile on average), %.1f %% "
+      "went to redrawn drops, %.1f %% to drops not at rest in time\n",
+      t.total_physics_ms / std::max<int64_t>(count, 1), 100 * t.redraws.redrawn_physics_ms / total,
+      100 * t.redraws.unsettled_physics_ms / total);
   std::printf(
       "stackgen-rest-check: going on to strict rest (every part < %g mm and < %g deg over %g s, "
       "at most %g s more): %lld of %lld piles came to rest, in %.2f s (median)\n",
@@ -179,6 +187,7 @@ int Run(int argc, char** argv) {
       pile = pile.object_types.empty() && k == 0 ? generator.Settle(0) : generator.SettleNext(pile);
     } while (pile.level != 0);
     tally.physics_ms.push_back(pile.times.physics_ms);
+    tally.total_physics_ms += pile.times.physics_ms;
     tally.redraws.Add(pile.times);
     // the same drop again, and on in the same world
     stackgen::PileResult again;

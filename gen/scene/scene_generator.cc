@@ -153,6 +153,8 @@ void StageTimes::Add(const StageTimes& other) {
   redraws_unsettled += other.redraws_unsettled;
   redraws_outside += other.redraws_outside;
   redraws_penetrating += other.redraws_penetrating;
+  redrawn_physics_ms += other.redrawn_physics_ms;
+  unsettled_physics_ms += other.unsettled_physics_ms;
 }
 
 int SceneGenerator::views_per_pile() const { return impl_->config().physics().views_per_pile(); }
@@ -263,9 +265,14 @@ SettledPile SceneGenerator::Impl::Drop(int64_t pile_index, int64_t first_seq) co
       pile = PastedPile(object_types, pile_seed);
       break;
     }
+    const Clock::time_point drop_start = Clock::now();
     pile = simulator->Simulate(object_types, pile_seed);
     // every check a published scene must pass
+    const int unsettled = local.redraws_unsettled;
     if (Passes(pile, &local)) break;
+    const double drop_ms = MillisecondsSince(drop_start);
+    local.redrawn_physics_ms += drop_ms;
+    local.unsettled_physics_ms += local.redraws_unsettled > unsettled ? drop_ms : 0;
   }
   local.physics_ms = MillisecondsSince(start);
   settled.seed = seed;

@@ -31,6 +31,10 @@ struct StageTimes {
   int redraws_unsettled = 0;
   int redraws_outside = 0;
   int redraws_penetrating = 0;
+  /// Of physics_ms, the milliseconds spent on the drops that were redrawn, and on those of them
+  /// that did not settle in time (not on the bus; stackgen-rest-check prints them).
+  double redrawn_physics_ms = 0;
+  double unsettled_physics_ms = 0;
 
   /// Adds another scene's (or pile's) times and counts to these.
   void Add(const StageTimes& other);

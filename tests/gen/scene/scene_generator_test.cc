@@ -305,6 +305,34 @@ TEST(SceneGeneratorTest, CutAndPastePlacesPartsWithoutPhysicsOrBin) {
                ConfigError);
 }
 
+// The physics of drops that were redrawn is counted apart (stackgen-rest-check prints its share):
+// none without a redraw; with drops that did not settle in time (a 1.5 s cap), part of the
+// pile's physics, and all of it unsettled here.
+TEST(SceneGeneratorTest, RedrawnDropsPhysicsIsCountedApart) {
+  LoadedConfig config = DefaultConfig();
+  config::PhysicsConfig& physics = *config.config.mutable_physics();
+  physics.set_max_sim_time_s(1.5);
+  physics.set_settle_translation_mm(1);
+  physics.set_settle_rotation_deg(1);
+  physics.set_settle_window_s(0.25);
+  const SceneGenerator generator(config, 0, 1, testing::MakeTempDir("stackgen-cache"));
+  int unsettled = 0;
+  for (int64_t seq = 0; seq < 2; ++seq) {
+    const StageTimes times = generator.Settle(seq).times;
+    unsettled += times.redraws_unsettled;
+    EXPECT_EQ(times.redraws, times.redraws_unsettled) << seq;
+    if (times.redraws == 0) {
+      EXPECT_EQ(times.redrawn_physics_ms, 0) << seq;
+      EXPECT_EQ(times.unsettled_physics_ms, 0) << seq;
+    } else {
+      EXPECT_GT(times.unsettled_physics_ms, 0) << seq;
+      EXPECT_EQ(times.unsettled_physics_ms, times.redrawn_physics_ms) << seq;
+      EXPECT_LT(times.redrawn_physics_ms, times.physics_ms) << seq;
+    }
+  }
+  EXPECT_GE(unsettled, 1);
+}
+
 // a bin too small for the parts is refused before anything runs, naming the config.
 TEST(SceneGeneratorTest, BinTooSmallIsRefused) {
   LoadedConfig config = DefaultConfig();

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <numeric>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -74,7 +75,6 @@ std::string FaceShares(const std::vector<std::map<int, int64_t>>& faces, bool se
 struct Tally {
   std::vector<std::map<int, int64_t>> faces_before, faces_after;  // per type: face -> parts
   std::vector<double> physics_ms, resettle_s;                     // per pile
-  double total_physics_ms = 0;
   stackgen::StageTimes redraws;
   int64_t parts = 0, moved = 0, moved_far = 0, at_rest = 0, shifted = 0, turned = 0;
   std::vector<double> shifts_mm, turns_deg;  // per part
@@ -114,11 +114,12 @@ void Print(const Tally& t, const stackgen::RestRule& rule, int64_t count, bool s
       "outside the bin, %d interpenetrating)\n",
       static_cast<long long>(t.parts), Median(t.physics_ms), t.redraws.redraws,
       t.redraws.redraws_unsettled, t.redraws.redraws_outside, t.redraws.redraws_penetrating);
-  const double total = std::max(t.total_physics_ms, 1e-9);
+  const double all_ms = std::accumulate(t.physics_ms.begin(), t.physics_ms.end(), 0.0);
+  const double total = std::max(all_ms, 1e-9);
   std::printf(
       "stackgen-rest-check: of all the physics (%.1f ms a published pile on average), %.1f %% "
       "went to redrawn drops, %.1f %% to drops not at rest in time\n",
-      t.total_physics_ms / std::max<int64_t>(count, 1), 100 * t.redraws.redrawn_physics_ms / total,
+      all_ms / std::max<int64_t>(count, 1), 100 * t.redraws.redrawn_physics_ms / total,
       100 * t.redraws.unsettled_physics_ms / total);
   std::printf(
       "stackgen-rest-check: going on to strict rest (every part < %g mm and < %g deg over %g s, "
@@ -187,7 +188,6 @@ int Run(int argc, char** argv) {
       pile = pile.object_types.empty() && k == 0 ? generator.Settle(0) : generator.SettleNext(pile);
     } while (pile.level != 0);
     tally.physics_ms.push_back(pile.times.physics_ms);
-    tally.total_physics_ms += pile.times.physics_ms;
     tally.redraws.Add(pile.times);
     // the same drop again, and on in the same world
     stackgen::PileResult again;

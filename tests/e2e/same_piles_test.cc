@@ -43,9 +43,9 @@ TEST(SamePilesTest, PosturesFacesAndPlacesAreThoseOf8794ea7) {
                 dir + "/stats");
   ASSERT_EQ(stats.Wait(120), 0) << stats.Stderr();
   // The postures, resting faces and places in the bin are the same kind (each test's line ends
-  // "same"). The heights are not asserted: today's parts lie lower (D 0.095, Holm p 0.014 in
-  // this sample, "different"; docs/results.md, "Piles at rest", issue 41), and the one landing
-  // rule found that gives 8794ea7's heights breaks the rest proof.
+  // "same"). The heights are not asserted: today's parts lie lower, and the one landing rule
+  // found that gives 8794ea7's heights breaks the rest proof (docs/results.md, "Piles at rest";
+  // issue 41).
   const std::string out = "\n" + stats.Stdout();
   for (const std::string test : {"alpha", "beta", "gamma", "heading", "face", "radius"}) {
     const size_t line = out.find("\n" + test + ": ");

@@ -1,6 +1,7 @@
 #include "gen/annotate/rle.h"
 
 #include <algorithm>
+#include <cstring>
 #include <stdexcept>
 
 namespace stackgen {
@@ -26,6 +27,43 @@ void CheckRunsCover(const std::vector<uint32_t>& runs, int height, int width, co
   }
 }
 
+// The first nonzero byte in [p, end), or end; eight bytes at a time
+const uint8_t* FirstNonZero(const uint8_t* p, const uint8_t* end) {
+  for (uint64_t word = 0; end - p >= 8; p += 8) {
+    std::memcpy(&word, p, 8);
+    if (word != 0) break;
+  }
+  while (p < end && *p == 0) ++p;
+  return p;
+}
+
+// One past the last nonzero byte in [begin, end), or begin
+const uint8_t* EndOfNonZero(const uint8_t* begin, const uint8_t* end) {
+  for (uint64_t word = 0; end - begin >= 8; end -= 8) {
+    std::memcpy(&word, end - 8, 8);
+    if (word != 0) break;
+  }
+  while (end > begin && end[-1] == 0) --end;
+  return end;
+}
+
+// The box around the nonzero pixels of a CV_8UC1 mask; empty when there are none. (Not
+// cv::boundingRect, which reads a mask of two columns as a list of points.)
+cv::Rect NonZeroBox(const cv::Mat& mask) {
+  int top = -1, bottom = -1, left = mask.cols, right = -1;
+  for (int y = 0; y < mask.rows; ++y) {
+    const uint8_t* row = mask.ptr<uint8_t>(y);
+    const uint8_t* end = row + mask.cols;
+    const uint8_t* first = FirstNonZero(row, end);
+    if (first == end) continue;
+    if (top < 0) top = y;
+    bottom = y;
+    left = std::min(left, static_cast<int>(first - row));
+    right = std::max(right, static_cast<int>(EndOfNonZero(first, end) - row) - 1);
+  }
+  return top < 0 ? cv::Rect() : cv::Rect(left, top, right - left + 1, bottom - top + 1);
+}
+
 }  // namespace
 
 std::vector<uint32_t> MaskToRuns(const cv::Mat& mask) {
@@ -33,25 +71,45 @@ std::vector<uint32_t> MaskToRuns(const cv::Mat& mask) {
     throw std::runtime_error("MaskToRuns: mask must be CV_8UC1, got type " +
                              std::to_string(mask.type()));
   }
-  // read column-major by walking the rows of the transpose
-  cv::Mat columns;
-  if (!mask.empty()) cv::transpose(mask, columns);
+  // only the box around the set pixels is read (a part's mask covers a few percent of the
+  // image); every pixel outside it is zero and joins the zeros run it falls in
+  const cv::Rect box = NonZeroBox(mask);
   std::vector<uint32_t> runs;
   uint8_t previous = 0;
-  uint32_t count = 0;
-  for (int c = 0; c < columns.rows; ++c) {
-    const uint8_t* pixel = columns.ptr<uint8_t>(c);
-    for (int r = 0; r < columns.cols; ++r) {
-      const uint8_t inside = pixel[r] != 0 ? 1 : 0;
-      if (inside != previous) {
-        runs.push_back(count);
-        count = 0;
-        previous = inside;
+  uint64_t count = 0;
+  const auto add_zeros = [&](uint64_t n) {
+    if (n == 0) return;
+    if (previous != 0) {
+      runs.push_back(static_cast<uint32_t>(count));
+      count = 0;
+      previous = 0;
+    }
+    count += n;
+  };
+  const uint64_t height = static_cast<uint64_t>(mask.rows);
+  add_zeros(static_cast<uint64_t>(box.x) * height);
+  if (box.area() > 0) {
+    // read column-major by walking the rows of the box's transpose
+    cv::Mat columns;
+    cv::transpose(mask(box), columns);
+    const uint64_t below = height - static_cast<uint64_t>(box.y + box.height);
+    for (int c = 0; c < columns.rows; ++c) {
+      add_zeros(static_cast<uint64_t>(box.y));
+      const uint8_t* pixel = columns.ptr<uint8_t>(c);
+      for (int r = 0; r < columns.cols; ++r) {
+        const uint8_t inside = pixel[r] != 0 ? 1 : 0;
+        if (inside != previous) {
+          runs.push_back(static_cast<uint32_t>(count));
+          count = 0;
+          previous = inside;
+        }
+        ++count;
       }
-      ++count;
+      add_zeros(below);
     }
   }
-  runs.push_back(count);
+  add_zeros(static_cast<uint64_t>(mask.cols - box.x - box.width) * height);
+  runs.push_back(static_cast<uint32_t>(count));
   return runs;
 }
 

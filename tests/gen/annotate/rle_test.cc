@@ -120,6 +120,50 @@ TEST(RleTest, RandomRoundTrips) {
   }
 }
 
+// The runs of every pixel read column by column, as cocoapi's rleEncode: what MaskToRuns, which
+// reads only the box around the set pixels, must give.
+Runs RunsOfEveryPixel(const cv::Mat& mask) {
+  Runs runs;
+  uint8_t previous = 0;
+  uint32_t count = 0;
+  for (int x = 0; x < mask.cols; ++x) {
+    for (int y = 0; y < mask.rows; ++y) {
+      const uint8_t inside = mask.at<uint8_t>(y, x) != 0 ? 1 : 0;
+      if (inside != previous) {
+        runs.push_back(count);
+        count = 0;
+        previous = inside;
+      }
+      ++count;
+    }
+  }
+  runs.push_back(count);
+  return runs;
+}
+
+// Scattered pixels, set pixels on the first and last rows and columns, all-zero masks and views
+// into a larger image (rows not contiguous) give the runs of every pixel (fixed seed).
+TEST(RleTest, RunsOfTheBoxAreThoseOfEveryPixel) {
+  std::mt19937 engine(99);
+  for (int trial = 0; trial < 300; ++trial) {
+    const int height = 1 + static_cast<int>(engine() % 30);
+    const int width = 1 + static_cast<int>(engine() % 30);
+    cv::Mat whole = cv::Mat::zeros(height + 4, width + 6, CV_8UC1);
+    cv::Mat mask = whole(cv::Rect(3, 2, width, height));
+    const int pixels = static_cast<int>(engine() % 8);  // 0: an all-zero mask
+    for (int p = 0; p < pixels; ++p) {
+      int x = static_cast<int>(engine() % width), y = static_cast<int>(engine() % height);
+      if (engine() % 4 == 0) x = engine() % 2 ? 0 : width - 1;   // on a first or last column
+      if (engine() % 4 == 0) y = engine() % 2 ? 0 : height - 1;  // on a first or last row
+      mask.at<uint8_t>(y, x) = static_cast<uint8_t>(1 + engine() % 255);
+    }
+    if (engine() % 5 == 0) mask.row(static_cast<int>(engine() % height)).setTo(7);
+    whole.row(0).setTo(255);  // outside the view: never read
+    ASSERT_EQ(MaskToRuns(mask), RunsOfEveryPixel(mask))
+        << height << " x " << width << ", " << pixels << " pixels, trial " << trial;
+  }
+}
+
 // Runs that do not cover height * width are refused when decoding.
 TEST(RleTest, WrongSizeThrows) {
   EXPECT_THROW(DecodeRle("11112O", 3, 4), std::runtime_error);

@@ -480,6 +480,40 @@ def quick_model(args, config, train_dir, seed):
     return model, time.monotonic() - start
 
 
+def scene_kinds(folder, dataset):
+    """Each image's kind of scene from the README.txt of an independent set
+    (research/make-blender-testset writes "images/000003.png: white tote (0.85, ...), ..."): the
+    words before the first "(" or ",", in the dataset's order; None when the folder has no such
+    line for every image."""
+    path = os.path.join(folder, "README.txt")
+    if not os.path.isfile(path):
+        return None
+    kinds = {}
+    with open(path) as file:
+        for line in file:
+            match = re.match(r"(images/[^:\s]+): ([^(,]+)", line)
+            if match:
+                kinds[os.path.normpath(os.path.join(folder, match.group(1)))] = \
+                    match.group(2).strip()
+    names = [os.path.normpath(dataset.image_path(i)) for i in range(len(dataset))]
+    if not names or any(name not in kinds for name in names):
+        return None
+    return [kinds[name] for name in names]
+
+
+def by_kind(per_image, kinds):
+    """Foreground IoU per kind of scene: per_image holds each seed's list of per-image IoUs
+    (the dataset's order), kinds each image's kind. [(kind, mean over its images and the seeds,
+    images)], the lowest first."""
+    groups = {}
+    for seed_ious in per_image:
+        for iou, kind in zip(seed_ious, kinds):
+            groups.setdefault(kind, []).append(iou)
+    seeds = max(1, len(per_image))
+    return sorted(((kind, sum(v) / len(v), len(v) // seeds) for kind, v in groups.items()),
+                  key=lambda entry: (entry[1], entry[0]))
+
+
 def run_quick(args, work):
     """The quick mode: per config and seed a training set and a segmenter, scored on every test
     set; per config and test set the mean and spread over the seeds, and where the errors lie."""
@@ -496,8 +530,11 @@ def run_quick(args, work):
             make_dataset(os.path.join(work, "held-out.pbtxt"), args.held_out, 1000000, held_out,
                          os.path.join(work, "held-out.log"))
         tests.append(("held-out stackgen", CocoDataset(held_out), bin_size(text)))
+    kinds = {}  # test name: each image's kind of scene, from an independent set's README.txt
     for path in args.test:
-        tests.append((os.path.basename(os.path.normpath(path)), CocoDataset(path), None))
+        name, dataset = os.path.basename(os.path.normpath(path)), CocoDataset(path)
+        tests.append((name, dataset, None))
+        kinds[name] = scene_kinds(path, dataset)
     errors = args.errors or (os.path.join(args.work_dir, "errors", "unet%d-%d-steps" % (
         args.unet_levels, args.steps)) if args.work_dir else None)
     if errors:
@@ -526,6 +563,7 @@ def run_quick(args, work):
                         stem, re.sub(r"[^A-Za-z0-9_.-]+", "-", test_name))), pictures)
                 result = dict(config=config, test=test_name, seed=seed,
                               train_seconds=round(trained_s, 1), foreground_iou=pixels["iou"],
+                              per_image_iou=pixels["per_image_iou"],
                               pixels={key: pixels[key] for key in (
                                   "false_negative", "false_positive", "fp_rate")},
                               **detections)
@@ -546,6 +584,10 @@ def run_quick(args, work):
                                   foreground_iou=dict(zip(("mean", "spread", "sd"), iou)),
                                   miou=dict(zip(("mean", "spread", "sd"), miou)),
                                   pixels=pooled))
+            if kinds.get(test_name):
+                summaries[-1]["by_kind"] = [
+                    dict(kind=kind, foreground_iou=mean, images=images) for kind, mean, images in
+                    by_kind([r["per_image_iou"] for r in mine], kinds[test_name])]
         write_results(args, results, summaries)
     print("%s: quick mode, seeds %s: mean over the seeds (spread = largest - smallest)" % (
         PROGRAM, " ".join(map(str, args.seeds))), flush=True)
@@ -555,6 +597,11 @@ def run_quick(args, work):
               "%.3f)\n    %s" % (PROGRAM, os.path.basename(summary["config"]), summary["test"],
                                  iou["mean"], iou["spread"], iou["sd"], miou["mean"],
                                  miou["spread"], error_line(summary["pixels"])), flush=True)
+        if "by_kind" in summary:
+            print("    by the kind of scene its README.txt names (foreground IoU of its images, "
+                  "the seeds pooled; lowest first): %s" % ", ".join(
+                      "%s %.3f (%d)" % (k["kind"], k["foreground_iou"], k["images"])
+                      for k in summary["by_kind"]), flush=True)
     if errors:
         print("%s: pictures of the worst images' errors (seed %d; green found, red false, blue "
               "missed, grey ignored): %s" % (PROGRAM, args.seeds[0], errors), flush=True)

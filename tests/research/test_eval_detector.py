@@ -8,6 +8,7 @@ import sys
 
 import cv2
 import numpy as np
+import pytest
 
 ROOT = os.environ.get("STACKGEN_SOURCE_DIR",
                       os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(
@@ -89,6 +90,10 @@ def test_quick_mode_flags_are_checked():
 def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
     folder = str(tmp_path / "squares")
     make_coco(folder)
+    # an independent set's README names each image's kind of scene
+    with open(os.path.join(folder, "README.txt"), "w") as file:
+        file.write("Made by hand.\n\nimages/0.png: white tote (0.85, 0.85), 200 mm; 2 parts\n"
+                   "images/1.png: blue tote, 210 mm; 2 parts\n")
     out, work = str(tmp_path / "results.json"), str(tmp_path / "work")
     result = run("--mode", "quick", "--config", os.path.join(ROOT, "config", "default.pbtxt"),
                  "--train-dir", folder, "--test", folder, "--no-held-out", "--seeds", "3",
@@ -108,10 +113,37 @@ def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
     assert summary["foreground_iou"]["mean"] == scores["foreground_iou"]
     assert summary["foreground_iou"]["spread"] == 0  # one seed
     assert set(summary["pixels"]) >= {"false_negative", "false_positive"}
+    # each kind of scene scores as its image did
+    assert "by the kind of scene" in result.stdout
+    assert {k["kind"]: k["foreground_iou"] for k in summary["by_kind"]} == {
+        "white tote": scores["per_image_iou"][0], "blue tote": scores["per_image_iou"][1]}
+    assert [k["images"] for k in summary["by_kind"]] == [1, 1]
     # the pictures go where the instrument's levels and steps name them
     errors = os.path.join(work, "errors", "unet5-2-steps")
     (picture,) = os.listdir(errors)
     assert picture.endswith(".jpg") and cv2.imread(os.path.join(errors, picture)) is not None
+
+
+def test_kinds_of_scene_pool_the_seeds_and_need_every_image_named(tmp_path):
+    sys.path.insert(0, os.path.join(ROOT, "research"))
+    import eval_detector  # noqa: E402
+    from stackgen.coco import CocoDataset
+
+    # two seeds of three images, two of them white totes: the lowest kind first
+    kinds = eval_detector.by_kind([[0.2, 0.9, 0.4], [0.4, 0.7, 0.6]],
+                                  ["white tote", "blue tote", "white tote"])
+    assert [(kind, images) for kind, _, images in kinds] == [("white tote", 2), ("blue tote", 1)]
+    assert [mean for _, mean, _ in kinds] == pytest.approx([0.4, 0.8])
+    folder = str(tmp_path / "squares")
+    make_coco(folder)
+    dataset = CocoDataset(folder)
+    assert eval_detector.scene_kinds(folder, dataset) is None  # no README.txt
+    with open(os.path.join(folder, "README.txt"), "w") as file:
+        file.write("images/1.png: steel tote (grey 0.7), 200 mm\n")
+    assert eval_detector.scene_kinds(folder, dataset) is None  # image 0 not named
+    with open(os.path.join(folder, "README.txt"), "a") as file:
+        file.write("images/0.png: red tote, 190 mm\n")
+    assert eval_detector.scene_kinds(folder, dataset) == ["red tote", "steel tote"]
 
 
 def test_workers_read_the_same_batches_as_the_training_process(tmp_path):

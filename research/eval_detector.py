@@ -509,8 +509,7 @@ def by_kind(per_image, kinds):
     for seed_ious in per_image:
         for iou, kind in zip(seed_ious, kinds):
             groups.setdefault(kind, []).append(iou)
-    seeds = max(1, len(per_image))
-    return sorted(((kind, sum(v) / len(v), len(v) // seeds) for kind, v in groups.items()),
+    return sorted(((kind, sum(v) / len(v), kinds.count(kind)) for kind, v in groups.items()),
                   key=lambda entry: (entry[1], entry[0]))
 
 

@@ -154,6 +154,7 @@ struct GeneratorNode::Impl {
   int64_t published_at_last_status = 0;
   int64_t periods = 0;
   Clock::TimePoint start;
+  Clock::TimePoint first_published;  // when the run's first scene went out
   Clock::TimePoint last_status;
 
   // the pipeline's state: the piles settling ahead (in seq order, at most one per physics
@@ -489,6 +490,7 @@ void GeneratorNode::Impl::PublishEncoded() {
   server->Publish(seq, std::move(encoded));
   bus.Publish(kLabelsChannel, LabelsOf(message));
   publish_ms += Seconds(publish_start, clock.Now()) * 1e3;
+  if (published == 0) first_published = publish_start;
   ++published;
   next_seq = seq + 1;
   Serve(0);
@@ -628,9 +630,11 @@ void GeneratorNode::RunScenes() {
   // after the last scene, until every reliable consumer has stored it (or went silent)
   if (node.next_seq == last_seq + 1) {
     // a learner's stream joins a generator by hearing its scenes and credits within 0.2 s of
-    // the first: a short run may end before that, so one not heard of yet is given a second
+    // the first: a run may end before that, so one not heard of yet is given until a second
+    // after the first scene (a run that lasted longer has heard from it already)
     if (node.server->reliable_consumers() == 0) {
-      node.Listen(1.0, [&node] { return node.server->reliable_consumers() > 0; });
+      node.Listen(1.0 - Seconds(node.first_published, node.clock.Now()),
+                  [&node] { return node.server->reliable_consumers() > 0; });
     }
     while (!node.server->AllStoredThrough(last_seq) && !node.Stopped()) node.WaitForConsumers(20);
     if (node.options.count == 0) {

@@ -6,6 +6,7 @@
 #include "gen/render/environment.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <limits>
@@ -70,10 +71,26 @@ Eigen::Matrix3d FrameAround(const Eigen::Vector3d& n) {
   return frame;
 }
 
+// a direction's azimuth phi (from +x towards +y) and polar angle theta (from +z), radians
+struct Angles {
+  double phi;
+  double theta;
+};
+
+Angles AnglesOf(const Eigen::Vector3d& direction) {
+  const Eigen::Vector3d d = direction.normalized();
+  return {std::atan2(d.y(), d.x()), std::acos(std::clamp(d.z(), -1.0, 1.0))};
+}
+
+// the pixel of an equirectangular image of width x height at those angles
+Eigen::Vector2d PixelOfAngles(const Angles& angles, int width, int height) {
+  return {(angles.phi + kPi) / (2 * kPi) * width - 0.5, angles.theta / kPi * height - 0.5};
+}
+
 // bilinear lookup of an equirectangular CV_32FC3 image: wraps around in azimuth, clamps at the
 // poles
-Eigen::Vector3f SampleBilinear(const cv::Mat& image, const Eigen::Vector3d& direction) {
-  const Eigen::Vector2d p = PixelOfDirection(direction, image.cols, image.rows);
+Eigen::Vector3f SampleBilinear(const cv::Mat& image, const Angles& angles) {
+  const Eigen::Vector2d p = PixelOfAngles(angles, image.cols, image.rows);
   const double v = std::clamp(p.y(), 0.0, image.rows - 1.0);
   const int u0 = static_cast<int>(std::floor(p.x()));
   const int v0 = std::min(static_cast<int>(std::floor(v)), image.rows - 1);
@@ -91,15 +108,20 @@ Eigen::Vector3f SampleBilinear(const cv::Mat& image, const Eigen::Vector3d& dire
          static_cast<float>(fv * fu) * at(v1, u0 + 1);
 }
 
-// trilinear lookup in a pyramid of equirectangular images (level m halves level m - 1)
+Eigen::Vector3f SampleBilinear(const cv::Mat& image, const Eigen::Vector3d& direction) {
+  return SampleBilinear(image, AnglesOf(direction));
+}
+
+// trilinear lookup in a pyramid of equirectangular images (level m halves level m - 1); the
+// direction's angles are found once for both levels
 Eigen::Vector3f SampleLod(const std::vector<cv::Mat>& pyramid, const Eigen::Vector3d& direction,
                           double lod) {
   lod = std::clamp(lod, 0.0, static_cast<double>(pyramid.size() - 1));
   const int m0 = static_cast<int>(std::floor(lod));
   const int m1 = std::min(m0 + 1, static_cast<int>(pyramid.size()) - 1);
   const float t = static_cast<float>(lod - m0);
-  return (1 - t) * SampleBilinear(pyramid[m0], direction) +
-         t * SampleBilinear(pyramid[m1], direction);
+  const Angles angles = AnglesOf(direction);
+  return (1 - t) * SampleBilinear(pyramid[m0], angles) + t * SampleBilinear(pyramid[m1], angles);
 }
 
 // the 9 real spherical harmonics of bands 0..2 at a unit direction
@@ -160,10 +182,7 @@ Eigen::Vector3d DirectionOfPixel(double u, double v, int width, int height) {
 }
 
 Eigen::Vector2d PixelOfDirection(const Eigen::Vector3d& direction, int width, int height) {
-  const Eigen::Vector3d d = direction.normalized();
-  const double phi = std::atan2(d.y(), d.x());
-  const double theta = std::acos(std::clamp(d.z(), -1.0, 1.0));
-  return {(phi + kPi) / (2 * kPi) * width - 0.5, theta / kPi * height - 0.5};
+  return PixelOfAngles(AnglesOf(direction), width, height);
 }
 
 EnvironmentMap LoadEnvironment(const std::string& path) {
@@ -406,9 +425,23 @@ PrefilteredEnvironment Prefilter(const EnvironmentMap& environment, int base_wid
   // read from the pyramid level whose texels match its share of the lobe
   out.levels.push_back(base);
   constexpr uint32_t kSamples = 64;
+  struct LobeSample {
+    Eigen::Vector3d h_local;  // the half vector in the frame around the normal
+    double lod;               // the pyramid level to read it from
+  };
+  std::array<LobeSample, kSamples> lobe;
   for (int k = 1; k < kLevels; ++k) {
     const double roughness = static_cast<double>(k) / (kLevels - 1);
     const double alpha = roughness * roughness;
+    // the lobe's samples, the same in every texel's frame
+    for (uint32_t i = 0; i < kSamples; ++i) {
+      lobe[i].h_local = SampleGgx(Hammersley(i, kSamples), alpha);
+      const double n_dot_h = lobe[i].h_local.z();
+      // pdf of l with n = v: D / 4; the sample's solid angle against a base texel's
+      const double pdf = DistributionGgx(n_dot_h, alpha) / 4;
+      const double sample_solid_angle = 1 / (kSamples * pdf + 1e-12);
+      lobe[i].lod = 0.5 * std::log2(sample_solid_angle / texel_solid_angle) + 1;
+    }
     cv::Mat level(base.rows >> k, base.cols >> k, CV_32FC3);
     // rows in parallel: each texel is a pure function of the pyramid
     cv::parallel_for_(cv::Range(0, level.rows), [&](const cv::Range& rows) {
@@ -418,18 +451,12 @@ PrefilteredEnvironment Prefilter(const EnvironmentMap& environment, int base_wid
           const Eigen::Matrix3d frame = FrameAround(n);
           Eigen::Vector3f sum = Eigen::Vector3f::Zero();
           double weight = 0;
-          for (uint32_t i = 0; i < kSamples; ++i) {
-            const Eigen::Vector3d h_local = SampleGgx(Hammersley(i, kSamples), alpha);
-            const Eigen::Vector3d h = frame * h_local;
-            const double n_dot_h = h_local.z();
+          for (const LobeSample& sample : lobe) {
+            const Eigen::Vector3d h = frame * sample.h_local;
             const Eigen::Vector3d l = 2 * n.dot(h) * h - n;
             const double n_dot_l = n.dot(l);
             if (n_dot_l <= 0) continue;
-            // pdf of l with n = v: D / 4; the sample's solid angle against a base texel's
-            const double pdf = DistributionGgx(n_dot_h, alpha) / 4;
-            const double sample_solid_angle = 1 / (kSamples * pdf + 1e-12);
-            const double lod = 0.5 * std::log2(sample_solid_angle / texel_solid_angle) + 1;
-            sum += static_cast<float>(n_dot_l) * SampleLod(pyramid, l, lod);
+            sum += static_cast<float>(n_dot_l) * SampleLod(pyramid, l, sample.lod);
             weight += n_dot_l;
           }
           const Eigen::Vector3f mean = sum / static_cast<float>(weight);
@@ -461,13 +488,16 @@ cv::Mat OctahedralOf(const cv::Mat& equirectangular, int size) {
     throw std::invalid_argument("OctahedralOf: need a non-empty CV_32FC3 image and size > 0");
   }
   cv::Mat out(size, size, CV_32FC3);
-  for (int row = 0; row < size; ++row) {
-    for (int column = 0; column < size; ++column) {
-      const Eigen::Vector3f c = SampleBilinear(
-          equirectangular, DirectionOfOctahedral((column + 0.5) / size, (row + 0.5) / size));
-      out.at<cv::Vec3f>(row, column) = cv::Vec3f(c.x(), c.y(), c.z());
+  // rows in parallel: each texel is a pure function of the image
+  cv::parallel_for_(cv::Range(0, size), [&](const cv::Range& rows) {
+    for (int row = rows.start; row < rows.end; ++row) {
+      for (int column = 0; column < size; ++column) {
+        const Eigen::Vector3f c = SampleBilinear(
+            equirectangular, DirectionOfOctahedral((column + 0.5) / size, (row + 0.5) / size));
+        out.at<cv::Vec3f>(row, column) = cv::Vec3f(c.x(), c.y(), c.z());
+      }
     }
-  }
+  });
   return out;
 }
 

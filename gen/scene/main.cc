@@ -35,6 +35,11 @@ int UsableCores() {
   return std::max(1, CPU_COUNT(&set));
 }
 
+// A scene's camera model and image encoding cost more than its render on a GPU: on a many-core
+// host one thread for them would set the pace (docs/results.md, "Speed"). On a few cores the
+// physics and the render keep them busy, and one thread is enough.
+int DefaultEncodeThreads() { return std::max(1, UsableCores() / 4); }
+
 constexpr const char* kUsage = R"(usage: stackgen [flags]
 
 Drops copies of a part into a bin with Bullet physics, renders the settled pile headless
@@ -76,6 +81,9 @@ flags:
                       the cores this process may use, %d here), up to 4 piles per thread
                       settled ahead; the scenes are the same for any N (with
                       physics.pick_sequence one pile settles ahead)
+  --encode-threads N  scenes given their camera model and image encoding at once, one per thread,
+                      while the next renders, 1..64 (default: a quarter of the cores this process
+                      may use, at least 1: %d here); published in seq order, the same for any N
   --fault-drop F      drop the fraction F in [0, 1) of the messages received (credits, resend
                       requests), from a fixed seed: for tests and demos (default: 0)
   --check             check the flags, the config (meshes and collision shapes included), the
@@ -93,8 +101,8 @@ resends scenes a consumer missed (from the ring, else regenerated: scene k is al
 and after --count scenes waits until every reliable consumer has stored them all.
 Best-effort listeners (stackgen-view, lcm-spy, lcm-logger) are never waited for; with only
 them, pass --no-consumer-ok.
-The next piles settle on the physics threads and scenes are encoded on another thread while
-the next one renders.
+The next piles settle on the physics threads and scenes are encoded on the encoding threads
+while the next one renders.
 On exit and on SIGINT it prints the mean milliseconds per scene of each stage.
 )";
 
@@ -114,6 +122,7 @@ int Run(int argc, char** argv) {
   int64_t stall_timeout = 60;
   int ring_size = 64;
   int physics_threads = UsableCores();
+  int encode_threads = DefaultEncodeThreads();
   BusOptions bus_options;
   FlagParser parser("stackgen");
   parser.String("--config", &config_path);
@@ -131,9 +140,11 @@ int Run(int argc, char** argv) {
   parser.Int("--stall-timeout", &stall_timeout, 1, 86400);
   parser.Int("--resend-ring", &ring_size, 1, 10000);
   parser.Int("--physics-threads", &physics_threads, 1, 256);
+  parser.Int("--encode-threads", &encode_threads, 1, 64);
   parser.FaultDrop(&bus_options.drop_receive_fraction);
   parser.ParseOrExit(argc, argv, [] {
-    std::printf(kUsage, DefaultConfigPath(STACKGEN_DEFAULT_CONFIG).c_str(), UsableCores());
+    std::printf(kUsage, DefaultConfigPath(STACKGEN_DEFAULT_CONFIG).c_str(), UsableCores(),
+                DefaultEncodeThreads());
   });
   if (first_seq + count - 1 > kMaxSeq) {
     std::fprintf(
@@ -174,6 +185,7 @@ int Run(int argc, char** argv) {
   options.stall_timeout_s = static_cast<double>(stall_timeout);
   options.ring_size = ring_size;
   options.physics_threads = physics_threads;
+  options.encode_threads = encode_threads;
   options.progress = isatty(STDERR_FILENO) != 0;
   options.stop = &g_stop;
   GeneratorNode node(&bus, &generator, config, seed, generator_id, options);

@@ -157,14 +157,15 @@ struct GeneratorNode::Impl {
   Clock::TimePoint first_published;  // when the run's first scene went out
   Clock::TimePoint last_status;
 
-  // the pipeline's state: the piles settling ahead (in seq order, at most one per physics
-  // thread), the one being rendered, the scene encoding
+  // the pipeline's state: the piles settling ahead (in seq order, up to kPilesAheadPerThread
+  // per physics thread), the one being rendered, the scenes encoding (in seq order, at most one
+  // per encoding thread)
   Worker physics_worker;
   Worker encode_worker;
   std::deque<std::future<SettledPile>> ahead;
   int64_t last_settling_first = -1;  // without picks: first seq of the pile queued last
   std::optional<SettledPile> current;
-  std::future<std::pair<scene, StageTimes>> encoding;
+  std::deque<std::future<std::pair<scene, StageTimes>>> encoding;
 
   bool Stopped() const { return options.stop != nullptr && *options.stop; }
   status Status(int64_t next) const;
@@ -202,7 +203,8 @@ GeneratorNode::Impl::Impl(Bus* bus_in, SceneGenerator* generator_in, const Loade
                std::to_string(getpid());
       }()),
       alone_since(clock.Now()),
-      physics_worker(std::max(1, options_in.physics_threads)) {
+      physics_worker(std::max(1, options_in.physics_threads)),
+      encode_worker(std::max(1, options_in.encode_threads)) {
   config_message.path = config.path;
   config_message.pbtxt = EffectiveConfigText(config.config);
   config_message.header.seq = -1;
@@ -473,9 +475,10 @@ void GeneratorNode::Impl::SettleAhead(int64_t first_seq) {
   }
 }
 
-// the scene encoded on the third thread, published once the consumers' windows allow it
+// the oldest scene encoding, published once the consumers' windows allow it
 void GeneratorNode::Impl::PublishEncoded() {
-  auto [message, encode_times] = encoding.get();
+  auto [message, encode_times] = encoding.front().get();
+  encoding.pop_front();
   times.Add(encode_times);
   const int64_t seq = message.header.seq;
   // never more than a reliable consumer's window ahead of what it stored
@@ -557,7 +560,7 @@ GeneratorNode::GeneratorNode(Bus* bus, SceneGenerator* generator, const LoadedCo
 
 GeneratorNode::~GeneratorNode() {
   // work in flight for scenes that will not be published (an error or a signal)
-  if (impl_->encoding.valid()) impl_->encoding.wait();
+  for (auto& pending : impl_->encoding) pending.wait();
   for (auto& pile : impl_->ahead) pile.wait();
 }
 
@@ -587,9 +590,9 @@ void GeneratorNode::RunScenes() {
       node.options.count > 0 ? node.options.first_seq + node.options.count - 1 : kMaxSeq;
   const int views = node.generator.views_per_pile();
   for (int64_t seq = first_seq; seq <= last_seq && !node.Stopped(); ++seq) {
-    // nothing in flight: render only what may be published (later, the one scene being
-    // encoded is published first, and rendering runs at most one scene ahead of it)
-    if (!node.encoding.valid()) {
+    // nothing in flight: render only what may be published (later, rendering runs at most one
+    // scene per encoding thread ahead of what was published)
+    if (node.encoding.empty()) {
       while (!node.server->MayPublish(seq) && !node.Stopped()) node.WaitForConsumers(20);
       if (node.Stopped()) break;
     }
@@ -610,22 +613,25 @@ void GeneratorNode::RunScenes() {
       }
       rendered = node.generator.Render(*node.current, seq, &node.times);
     } catch (...) {
-      // the scene in flight is made: publish it before the error ends the run
-      if (node.encoding.valid()) node.PublishEncoded();
+      // the scenes in flight are made: publish them before the error ends the run
+      while (!node.encoding.empty() && !node.Stopped()) node.PublishEncoded();
       throw;
     }
-    if (node.encoding.valid()) node.PublishEncoded();
+    // every encoding thread busy: the oldest scene goes out first
+    const size_t encoders = static_cast<size_t>(std::max(1, node.options.encode_threads));
+    while (node.encoding.size() >= encoders && !node.Stopped()) node.PublishEncoded();
     if (node.Stopped()) break;
     SceneGenerator* scenes = &node.generator;
-    node.encoding = node.encode_worker.Submit([scenes, rendered = std::move(rendered)]() mutable {
-      StageTimes encode_times;
-      scene message = scenes->Encode(std::move(rendered), &encode_times);
-      return std::make_pair(std::move(message), encode_times);
-    });
+    node.encoding.push_back(
+        node.encode_worker.Submit([scenes, rendered = std::move(rendered)]() mutable {
+          StageTimes encode_times;
+          scene message = scenes->Encode(std::move(rendered), &encode_times);
+          return std::make_pair(std::move(message), encode_times);
+        }));
   }
-  if (node.encoding.valid() && !node.Stopped()) node.PublishEncoded();
+  while (!node.encoding.empty() && !node.Stopped()) node.PublishEncoded();
   // work in flight for scenes that will not be published (stopped by a signal)
-  if (node.encoding.valid()) node.encoding.wait();
+  for (auto& pending : node.encoding) pending.wait();
   for (auto& pile : node.ahead) pile.wait();
   // after the last scene, until every reliable consumer has stored it (or went silent)
   if (node.next_seq == last_seq + 1) {

@@ -2,10 +2,10 @@
 
 // The generator node (docs/design.md, "Processes, nodes and time"): one generator's whole bus life.
 // It owns the delivery server (credits, resends, windows), the three-stage pipeline (the next
-// pile settles on one thread while this one renders, and scene k is encoded on a third while
-// k + 1 renders), the periodic config, model and status messages, and twin detection (another
-// generator with this id on the bus). `stackgen`'s main parses flags, builds the config, bus
-// and scene generator, and runs a node.
+// piles settle on the physics threads while this one renders, and scenes k - E + 1 .. k are
+// encoded on E encoding threads while k + 1 renders), the periodic config, model and status
+// messages, and twin detection (another generator with this id on the bus). `stackgen`'s main
+// parses flags, builds the config, bus and scene generator, and runs a node.
 //
 // Where scenes go on the bus, in one hop: Run publishes each scene through
 // SceneServer::Publish (STACKGEN_SCENE) and its labels on STACKGEN_LABELS once every reliable
@@ -47,6 +47,9 @@ struct GeneratorNodeOptions {
   /// per thread queued or settled ahead); the scenes are the same for any number (with
   /// physics.pick_sequence one pile settles ahead).
   int physics_threads = 1;
+  /// Scenes whose camera model and image encoding run at once, each on its own thread, while
+  /// the next renders; they are published in seq order, the same for any number.
+  int encode_threads = 1;
   /// A progress line on stderr (a terminal).
   bool progress = false;
   /// Set from a signal handler: the node stops at the next scene, prints its summary and

@@ -31,10 +31,11 @@ using testing::Process;
 constexpr int kScenes = 4;
 
 // One run of the generator: its labels and its scenes (encoded, publish time zeroed) by scene
-// number, its exit code and its output.
+// number, the scene numbers in the order the scenes arrived, its exit code and its output.
 struct GeneratorRun {
   std::map<int64_t, labels> scenes;
   std::map<int64_t, std::vector<unsigned char>> whole;
+  std::vector<int64_t> arrived;
   int exit_code = -1;
   std::string output;
 };
@@ -55,6 +56,7 @@ GeneratorRun Generate(const std::string& dir, uint64_t seed,
   bus.Subscribe<scene>(kSceneChannel, [&run](const scene& message) {
     scene copy = message;
     copy.header.utime = 0;
+    run.arrived.push_back(copy.header.seq);
     std::vector<unsigned char>& bytes = run.whole[copy.header.seq];
     bytes.resize(copy.getEncodedSize());
     copy.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
@@ -74,11 +76,16 @@ GeneratorRun Generate(const std::string& dir, uint64_t seed,
   args.insert(args.end(), flags.begin(), flags.end());
   Process generator(args, dir + "/stackgen");
 
-  // the labels arrive as the scenes are made; generous time for a slow machine
+  // the labels arrive as the scenes are made; generous time for a slow machine, none once the
+  // generator has exited (what it sent before is read first)
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::minutes(5);
-  while (
-      (static_cast<int>(run.scenes.size()) < count || static_cast<int>(run.whole.size()) < count) &&
-      std::chrono::steady_clock::now() < deadline) {
+  const auto missing = [&run, count] {
+    return static_cast<int>(run.scenes.size()) < count ||
+           static_cast<int>(run.whole.size()) < count;
+  };
+  int after_exit = 0;
+  while (missing() && std::chrono::steady_clock::now() < deadline && after_exit < 5) {
+    if (generator.Exited()) ++after_exit;
     bus.HandleFor(100);
   }
   run.exit_code = generator.Wait(60);
@@ -118,19 +125,26 @@ std::vector<unsigned char> PoseBytes(const labels& scene) {
 }
 
 // Two processes given the same seed publish bit-identical poses for every scene, and the same
-// scenes byte for byte (images and labels), one settling its piles on one physics thread and the
-// other on three; a third given another seed publishes different ones.
+// scenes byte for byte (images and labels), one settling its piles on one physics thread and
+// encoding its scenes on one thread, the other with three of each (publishing in seq order all
+// the same); a third given another seed publishes different ones.
 TEST(DeterminismTest, SameSeedGivesBitIdenticalPosesAcrossProcesses) {
   const std::string dir = testing::MakeTempDir("stackgen-determinism");
   const std::string config = std::string(STACKGEN_SOURCE_DIR) + "/config/default.pbtxt";
-  const GeneratorRun first = Generate(dir + "/a", 21, config, kScenes, {"--physics-threads", "1"});
-  const GeneratorRun second = Generate(dir + "/b", 21, config, kScenes, {"--physics-threads", "3"});
+  const GeneratorRun first = Generate(dir + "/a", 21, config, kScenes,
+                                      {"--physics-threads", "1", "--encode-threads", "1"});
+  const GeneratorRun second = Generate(dir + "/b", 21, config, kScenes,
+                                       {"--physics-threads", "3", "--encode-threads", "3"});
   const GeneratorRun other = Generate(dir + "/c", 22);
   for (const GeneratorRun* run : {&first, &second, &other}) {
     ASSERT_EQ(run->exit_code, 0) << run->output;
     ASSERT_EQ(run->scenes.size(), static_cast<size_t>(kScenes)) << run->output;
     ASSERT_EQ(run->whole.size(), static_cast<size_t>(kScenes)) << run->output;
   }
+  EXPECT_TRUE(std::is_sorted(second.arrived.begin(), second.arrived.end()) &&
+              std::adjacent_find(second.arrived.begin(), second.arrived.end()) ==
+                  second.arrived.end())
+      << "the scenes of 3 encoding threads arrived out of seq order";
 
   for (int64_t seq = 0; seq < kScenes; ++seq) {
     ASSERT_EQ(first.scenes.count(seq), 1u) << "scene " << seq;
@@ -153,7 +167,7 @@ TEST(DeterminismTest, SameSeedGivesBitIdenticalPosesAcrossProcesses) {
     }
     EXPECT_TRUE(PoseBytes(a) == PoseBytes(b)) << "scene " << seq;
     EXPECT_TRUE(first.whole.at(seq) == second.whole.at(seq))
-        << "scene " << seq << " differs with 3 physics threads";
+        << "scene " << seq << " differs with 3 physics and 3 encoding threads";
     EXPECT_FALSE(first.whole.at(seq) == other.whole.at(seq)) << "scene " << seq;
 
     // another seed: other poses
@@ -176,8 +190,8 @@ TEST(DeterminismTest, SameSeedGivesBitIdenticalPosesAcrossProcesses) {
 }
 
 // A run that starts inside a pile (views_per_pile 4, --first-seq 5: seqs 5-7 show pile 1, seq 8
-// starts pile 2) with two physics threads publishes the scenes it was asked for, the same as
-// with one.
+// starts pile 2) with two physics and two encoding threads publishes the scenes it was asked
+// for, the same as with one of each.
 TEST(DeterminismTest, PhysicsThreadsFromInsideAPile) {
   const std::string dir = testing::MakeTempDir("stackgen-inside");
   const std::string config = WriteConnectorConfig(
@@ -187,7 +201,7 @@ TEST(DeterminismTest, PhysicsThreadsFromInsideAPile) {
       "settle_window_s: 0.25 }\n");
   const std::vector<std::string> from_5 = {"--first-seq", "5"};
   std::vector<std::string> two = from_5, one = from_5;
-  two.insert(two.end(), {"--physics-threads", "2"});
+  two.insert(two.end(), {"--physics-threads", "2", "--encode-threads", "2"});
   one.insert(one.end(), {"--physics-threads", "1"});
   const GeneratorRun a = Generate(dir + "/a", 3, config, 4, two);
   const GeneratorRun b = Generate(dir + "/b", 3, config, 4, one);

@@ -168,6 +168,11 @@ int Run(int argc, char** argv) {
                                         .c_str()
                                   : "open: no bus key",
               generator.Description().c_str());
+  std::printf(
+      "pipeline: piles settled on %d physics thread%s (--physics-threads), scenes encoded on "
+      "%d thread%s (--encode-threads), of the %d cores this process may use\n",
+      physics_threads, physics_threads == 1 ? "" : "s", encode_threads,
+      encode_threads == 1 ? "" : "s", UsableCores());
   std::fflush(stdout);
   if (check) {
     std::printf("stackgen: --check: the config, the bus and the renderer are usable\n");

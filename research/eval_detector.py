@@ -134,7 +134,8 @@ def parse_args(argv):
                         help="where training and held-out sets are made and each trained model "
                              "is kept (default: a temporary folder, removed at the end); a "
                              "second run with the same folder and settings scores the kept "
-                             "models on its test sets without training again")
+                             "models on its test sets without training again; a kept set made "
+                             "from another config text, scene count or seed is refused")
     parser.add_argument("--out", metavar="FILE", help="also write the results as JSON")
     args = parser.parse_args(argv)
     for key, value in MODES[args.mode].items():
@@ -192,6 +193,46 @@ def make_dataset(config, count, seed, out, log):
                                                              lines[-1] if lines else log))
     print("%s: made %d scenes of %s in %.0f s" % (PROGRAM, count, config,
                                                   time.monotonic() - start), flush=True)
+
+
+STAMP = "made-from.txt"
+
+
+def work_set_stamp(config, count, seed):
+    """What a set of the work folder is made from: the seed, the scene count and the config's
+    text (with --work-dir's sets, a changed config file or count must not find the old set)."""
+    with open(config) as file:
+        return "seed %d, %d scenes, config:\n%s" % (seed, count, file.read())
+
+
+def check_work_set(config, count, seed, out):
+    """Refuses a set `out` of the work folder that a run before made from another config text,
+    count or seed (its stamp says; a set from before stamps: its image count)."""
+    if not os.path.isfile(os.path.join(out, "annotations.json")):
+        return
+    stamp = os.path.join(out, STAMP)
+    if os.path.isfile(stamp):
+        with open(stamp) as file:
+            if file.read() == work_set_stamp(config, count, seed):
+                return
+        fail("%s: made from another config, scene count or seed than %s with %d scenes and seed "
+             "%d (%s): remove it or give another --work-dir" % (out, config, count, seed, stamp))
+    with open(os.path.join(out, "annotations.json")) as file:
+        images = len(json.load(file).get("images", []))
+    if images != count:
+        fail("%s: holds %d scenes, not %d: remove it or give another --work-dir" % (
+            out, images, count))
+
+
+def work_set(config, count, seed, out, log):
+    """The set `out` of the work folder: `count` scenes of `config` from `seed`, made with
+    tools/run and stamped, or the one a run before made there from the same (check_work_set)."""
+    check_work_set(config, count, seed, out)
+    if os.path.isfile(os.path.join(out, "annotations.json")):
+        return
+    make_dataset(config, count, seed, out, log)
+    with open(os.path.join(out, STAMP), "w") as file:
+        file.write(work_set_stamp(config, count, seed))
 
 
 def build_model(args):
@@ -520,14 +561,22 @@ def run_quick(args, work):
     from stackgen.coco import CocoDataset
 
     overlay = QUICK_LABELS + ("" if args.strict_rest else QUICK_RULES)
+    # every set of the work folder checked before anything is made or trained
+    merged_configs = []
+    for k, config in enumerate(args.config):
+        stem = os.path.splitext(os.path.basename(config))[0]
+        merged_configs.append(os.path.join(work, "config-%d-%s.pbtxt" % (k, stem)))
+        merged_config(config, overlay, merged_configs[-1])
+        for seed in [] if args.train_dir else args.seeds:
+            check_work_set(merged_configs[-1], args.train_scenes, seed,
+                           os.path.join(work, "train-%d-%s-seed-%d" % (k, stem, seed)))
     tests = []
     if not args.no_held_out:
         held_out = os.path.join(work, "held-out")
         text = merged_config(os.path.join(ROOT, "config", "default.pbtxt"), overlay,
                              os.path.join(work, "held-out.pbtxt"))
-        if not os.path.isfile(os.path.join(held_out, "annotations.json")):
-            make_dataset(os.path.join(work, "held-out.pbtxt"), args.held_out, 1000000, held_out,
-                         os.path.join(work, "held-out.log"))
+        work_set(os.path.join(work, "held-out.pbtxt"), args.held_out, 1000000, held_out,
+                 os.path.join(work, "held-out.log"))
         tests.append(("held-out stackgen", CocoDataset(held_out), bin_size(text)))
     kinds = {}  # test name: each image's kind of scene, from an independent set's README.txt
     for path in args.test:
@@ -542,16 +591,14 @@ def run_quick(args, work):
     results, summaries = [], []
     for k, config in enumerate(args.config):
         stem = os.path.splitext(os.path.basename(config))[0]
-        merged = os.path.join(work, "config-%d-%s.pbtxt" % (k, stem))
-        merged_config(config, overlay, merged)
+        merged = merged_configs[k]
         for seed in args.seeds:
             if args.train_dir:
                 train_dir = args.train_dir[k]
             else:
                 train_dir = os.path.join(work, "train-%d-%s-seed-%d" % (k, stem, seed))
-                if not os.path.isfile(os.path.join(train_dir, "annotations.json")):
-                    make_dataset(merged, args.train_scenes, seed, train_dir,
-                                 os.path.join(work, "train-%d-seed-%d.log" % (k, seed)))
+                work_set(merged, args.train_scenes, seed, train_dir,
+                         os.path.join(work, "train-%d-seed-%d.log" % (k, seed)))
             model, trained_s = quick_model(args, config, train_dir, seed)
             for test_name, dataset, size in tests:
                 worst = args.worst if errors and seed == args.seeds[0] else 0
@@ -651,12 +698,14 @@ def main(argv):
         return
 
     # the test sets: held-out stackgen scenes, then the given folders
+    for k, config in enumerate([] if args.train_dir else args.config):
+        check_work_set(config, args.train_scenes, args.seed, os.path.join(
+            work, "train-%d-%s" % (k, os.path.splitext(os.path.basename(config))[0])))
     tests = []
     if not args.no_held_out:
         held_out = os.path.join(work, "held-out")
-        if not os.path.isfile(os.path.join(held_out, "annotations.json")):
-            make_dataset(os.path.join(ROOT, "config", "default.pbtxt"), args.held_out, 1000000,
-                         held_out, os.path.join(work, "held-out.log"))
+        work_set(os.path.join(ROOT, "config", "default.pbtxt"), args.held_out, 1000000,
+                 held_out, os.path.join(work, "held-out.log"))
         tests.append(("held-out stackgen (default config)", CocoDataset(held_out)))
     for path in args.test:
         tests.append((path, CocoDataset(path)))
@@ -668,9 +717,8 @@ def main(argv):
             train_dir = args.train_dir[k]
         else:
             train_dir = os.path.join(work, "train-%d-%s" % (k, os.path.splitext(name)[0]))
-            if not os.path.isfile(os.path.join(train_dir, "annotations.json")):
-                make_dataset(config, args.train_scenes, args.seed, train_dir,
-                             os.path.join(work, "train-%d.log" % k))
+            work_set(config, args.train_scenes, args.seed, train_dir,
+                     os.path.join(work, "train-%d.log" % k))
         # a model trained before on a training set of this work folder with the same settings is
         # scored again (a --train-dir folder is the user's: nothing is written there)
         kept = None if args.train_dir else os.path.join(

@@ -314,6 +314,8 @@ void ValidateLighting(const config::GeneratorConfig& c, const FieldNamer& n) {
   CheckOrdered(n, "lighting", "count_min", light.count_min(), "count_max", light.count_max());
   CheckOrdered(n, "lighting", "distance_min_mm", light.distance_min_mm(), "distance_max_mm",
                light.distance_max_mm());
+  CheckOrdered(n, "lighting", "light_radius_deg_min", light.light_radius_deg_min(),
+               "light_radius_deg_max", light.light_radius_deg_max());
   if (light.color_temperature_min_k() != 0 || light.color_temperature_max_k() != 0) {
     // (0 and 0: no colour temperature drawn; else from the reddest the Planckian fit covers)
     constexpr double kReddestK = 1667;

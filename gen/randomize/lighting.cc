@@ -117,6 +117,20 @@ std::optional<Light> SampleCameraLight(const config::LightingConfig& config,
   return ring;
 }
 
+void DrawLightRadii(const config::LightingConfig& config, std::mt19937_64& engine,
+                    std::vector<Light>* lights) {
+  constexpr int kDraws = kMostLights;
+  double draws[kDraws];
+  for (double& d : draws) {
+    d = Uniform(engine, config.light_radius_deg_min(), config.light_radius_deg_max());
+  }
+  const double middle = (config.light_radius_deg_min() + config.light_radius_deg_max()) / 2;
+  for (size_t i = 0; i < lights->size(); ++i) {
+    const double degrees = !config.randomize() ? middle : draws[std::min<size_t>(i, kDraws - 1)];
+    (*lights)[i].radius_rad = static_cast<float>(degrees * M_PI / 180);
+  }
+}
+
 MaterialGain SampleMaterialGain(const config::AppearanceConfig& config, std::mt19937_64& engine) {
   // eight draws whatever the settings
   const double value = Uniform(engine, config.value_gain_min(), config.value_gain_max());

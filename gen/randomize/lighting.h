@@ -37,6 +37,13 @@ std::optional<Light> SampleCameraLight(const config::LightingConfig& config,
                                        const Eigen::Vector3d& camera_position,
                                        std::mt19937_64& engine);
 
+/// Draws each light's angular radius (Light::radius_rad), uniform in [light_radius_deg_min,
+/// light_radius_deg_max] degrees; with randomize false, the middle of that range. Always takes
+/// three values from `engine` whatever the settings and the number of lights; draw it from an
+/// engine of its own, so that no other draw moves.
+void DrawLightRadii(const config::LightingConfig& config, std::mt19937_64& engine,
+                    std::vector<Light>* lights);
+
 /// Draws the material gains of one part type for one scene: a value gain in
 /// [value_gain_min, value_gain_max] times a per-channel tint 1 +- tint_max, and highlight and
 /// shininess gains in their ranges (shininess log-uniform), then a roughness gain in

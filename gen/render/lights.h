@@ -31,6 +31,14 @@ struct Light {
   /// Physically based shading: the light's colour, linear RGB of luminance 1 (white: 1, 1, 1),
   /// multiplying its strength per channel. Blinn-Phong ignores it.
   Eigen::Vector3f color{1, 1, 1};
+  /// Physically based shading with shadows: the lamp's angular radius seen from the scene,
+  /// radians, 0..kMaxLightRadiusRad. 0: a point, hard shadows. Larger: a lamp of that size, whose
+  /// shadows soften with the distance between what casts them and what they fall on (a shadow
+  /// edge 2 d tan(radius) wide at a distance d). Blinn-Phong ignores it.
+  float radius_rad = 0.f;
 };
+
+/// Largest Light::radius_rad, radians (45 degrees).
+inline constexpr float kMaxLightRadiusRad = 0.7853982f;
 
 }  // namespace stackgen

@@ -537,6 +537,13 @@ void Renderer::Impl::CheckOptions(const CameraModel& camera, const std::vector<L
                              std::to_string(options.background_image.rows) + " of OpenCV type " +
                              std::to_string(options.background_image.type()));
   }
+  for (size_t i = 0; i < lights.size(); ++i) {
+    if (!(lights[i].radius_rad >= 0 && lights[i].radius_rad <= kMaxLightRadiusRad)) {
+      throw std::runtime_error("Renderer::Render: light " + std::to_string(i) + "'s radius_rad " +
+                               std::to_string(lights[i].radius_rad) + " is outside 0.." +
+                               std::to_string(kMaxLightRadiusRad));
+    }
+  }
   if (options.shadows && (options.shadow_map_size < kMinShadowMapSize ||
                           options.shadow_map_size > kMaxShadowMapSize)) {
     throw std::runtime_error("Renderer::Render: shadow_map_size " +
@@ -635,11 +642,35 @@ void Renderer::Impl::SetShadows(const CameraModel& camera, const std::vector<Lig
                 sizeof(frame_uniforms.shadow_from_camera[i]));
     frame_uniforms.shadow_normal_offset_mm[i] = static_cast<float>(view.normal_offset_mm);
     frame_uniforms.shadow_depth_bias[i] = static_cast<float>(view.depth_bias);
+    // a shadow edge's half width in texels per mm between occluder and receiver: tan(radius)
+    // over a texel's width in mm (perspective: at 1 mm from the light, divided by the
+    // receiver's distance in the shader)
+    float* softness = frame_uniforms.shadow_softness[i];
+    softness[0] = view.perspective ? 1.f : 0.f;
+    softness[1] = static_cast<float>(view.near_mm);
+    softness[2] = static_cast<float>(view.far_mm);
+    softness[3] = static_cast<float>(std::tan(static_cast<double>(lights[i].radius_rad)) *
+                                     shadow_map_size / (2 * view.half_width));
   }
   frame_uniforms.shadow_texel = 1.f / static_cast<float>(shadow_map_size);
   glActiveTexture(GL_TEXTURE0 + kShadowMapUnit);
   glBindTexture(GL_TEXTURE_2D_ARRAY, shadow_maps);
+  if (frame_uniforms.soft_shadows) {
+    // the same maps read as plain depths, for the occluders' distance
+    if (shadow_depth_sampler == 0) {
+      glGenSamplers(1, &shadow_depth_sampler);
+      glSamplerParameteri(shadow_depth_sampler, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+      glSamplerParameteri(shadow_depth_sampler, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+      glSamplerParameteri(shadow_depth_sampler, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+      glSamplerParameteri(shadow_depth_sampler, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+      glSamplerParameteri(shadow_depth_sampler, GL_TEXTURE_COMPARE_MODE, GL_NONE);
+    }
+    glActiveTexture(GL_TEXTURE0 + kShadowDepthUnit);
+    glBindTexture(GL_TEXTURE_2D_ARRAY, shadow_maps);
+    glBindSampler(kShadowDepthUnit, shadow_depth_sampler);
+  }
   glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
+  CheckGlError("Renderer::Render: shadow maps");
 }
 
 void Renderer::Impl::RenderPhong(const CameraModel& camera, const RenderOptions& options,
@@ -714,6 +745,9 @@ void Renderer::Render(const CameraModel& camera, const std::vector<Light>& light
   const Eigen::Isometry3d camera_from_world = camera.world_from_camera.inverse();
 
   impl.SetLights(camera_from_world, lights, options.shadows, items);
+  impl.frame_uniforms.soft_shadows =
+      pbr && impl.frame_uniforms.shadows &&
+      std::any_of(lights.begin(), lights.end(), [](const Light& l) { return l.radius_rad > 0; });
   if (impl.frame_uniforms.shadows) impl.SetShadows(camera, lights, options.shadow_map_size, items);
 
   // draw near items first so the depth test rejects hidden fragments before shading

@@ -213,6 +213,9 @@ ShadowView MakeShadowView(const Light& light, const Eigen::AlignedBox3d& box, in
     clip_from_light(3, 3) = 1;
     view.depth_bias = kShadowDepthBiasMm / (far - near);
     view.normal_offset_mm = kShadowNormalOffsetTexels * 2 * std::max(half_x, half_y) / size;
+    view.near_mm = near;
+    view.far_mm = far;
+    view.half_width = std::max(half_x, half_y);
   } else {
     // the box seen from the light, aimed at its centre
     const Eigen::Vector3d position = light.position_world.cast<double>();
@@ -247,6 +250,10 @@ ShadowView MakeShadowView(const Light& light, const Eigen::AlignedBox3d& box, in
     const double z_center = std::clamp(distance, near, far);
     view.depth_bias = kShadowDepthBiasMm * far * near / ((far - near) * z_center * z_center);
     view.normal_offset_mm = kShadowNormalOffsetTexels * 2 * far * std::max(tan_x, tan_y) / size;
+    view.perspective = true;
+    view.near_mm = near;
+    view.far_mm = far;
+    view.half_width = std::max(tan_x, tan_y);
   }
   view.clip_from_world = clip_from_light * light_from_world.matrix();
   return view;
@@ -333,6 +340,7 @@ void LightUniforms::Set(const FrameUniforms& f) const {
     glUniform1fv(shadow_normal_offset_mm, n, f.shadow_normal_offset_mm);
     glUniform1fv(shadow_depth_bias, n, f.shadow_depth_bias);
     glUniform1f(shadow_texel, f.shadow_texel);
+    if (f.soft_shadows) glUniform4fv(shadow_softness, n, &f.shadow_softness[0][0]);
   }
 }
 

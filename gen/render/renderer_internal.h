@@ -35,6 +35,7 @@ inline constexpr int kDfgUnit = 2;
 inline constexpr int kEnvironmentUnit = 3;
 inline constexpr int kSetupUnit = 4;
 inline constexpr int kResolveCoverageUnit = 5;  // the coverage pass's samples
+inline constexpr int kShadowDepthUnit = 6;      // the shadow maps' depths, not compared
 inline constexpr int kDfgSize = 32;             // texels per side of the DFG table
 
 // shadow bias against acne, small enough for no visible gap between a shadow and its caster
@@ -80,6 +81,11 @@ struct ShadowView {
   Eigen::Matrix4d clip_from_world;  // GL clip coordinates of the light's depth pass
   double depth_bias = 0;            // kShadowDepthBiasMm in map depth units (at the box centre)
   double normal_offset_mm = 0;      // kShadowNormalOffsetTexels in mm (at the far side)
+  // the light's depth range, mm from the light (orthographic: along it, from the box centre's
+  // plane) and the map's half width: mm (orthographic) or the tangent of its half angle
+  bool perspective = false;
+  double near_mm = 0, far_mm = 0;
+  double half_width = 1;
 };
 
 // The view of `light` covering `box` (world, mm) with a map of `size` texels per side:
@@ -151,8 +157,10 @@ struct LightUniforms {
   GLint shadow_normal_offset_mm = -1;
   GLint shadow_depth_bias = -1;
   GLint shadow_texel = -1;
+  GLint shadow_softness = -1;
 
   void Find(GLuint program) {
+    shadow_softness = glGetUniformLocation(program, "shadow_softness");
     light_vector_camera = glGetUniformLocation(program, "light_vector_camera");
     shadow_from_camera = glGetUniformLocation(program, "shadow_from_camera");
     shadow_normal_offset_mm = glGetUniformLocation(program, "shadow_normal_offset_mm");
@@ -222,6 +230,11 @@ struct FrameUniforms {
   float shadow_normal_offset_mm[Renderer::kMaxLights] = {};
   float shadow_depth_bias[Renderer::kMaxLights] = {};
   float shadow_texel = 0;
+  // physically based, a light of some size: shadows softened (shadow_lookup.glsl), and per light
+  // (perspective 0 or 1, near mm, far mm, texels per mm of occluder distance: ortho, or times the
+  // receiver's distance from the light: perspective)
+  bool soft_shadows = false;
+  float shadow_softness[Renderer::kMaxLights][4] = {};
   bool projector = false;              // physically based: write the projector's return
   float projector_camera[3] = {0, 0, 0};  // the projector's position, camera frame, mm
 };
@@ -260,13 +273,14 @@ struct Renderer::Impl {
   // shadow maps: one depth layer per light, allocated when first needed
   GLuint shadow_framebuffer = 0;
   GLuint shadow_maps = 0;
+  GLuint shadow_depth_sampler = 0;  // reads the maps' depths (soft shadows' occluder search)
   int shadow_map_size = 0;
   int shadow_map_layers = 0;
 
   // physically based frames: the programs, the DFG table, the environments;
   // a single-sampled framebuffer shading each pixel once (colour, id, camera z, surface), and
   // when anti-aliased a multisampled coverage pass and its resolve (resolve.frag.glsl)
-  std::array<PbrProgram, (kMaxLights + 1) * 32> pbr;
+  std::array<PbrProgram, (kMaxLights + 1) * 64> pbr;
   GLuint empty_vertex_array = 0;  // 0 until the first physically based frame
   GLuint dfg_texture = 0;
   std::vector<EnvironmentTexture> environments;
@@ -312,7 +326,7 @@ struct Renderer::Impl {
   ShadingProgram& Shading(int light_count, bool shadows, bool textured);
   ShadingProgram& UseShading(bool textured);
   PbrProgram& Pbr(int light_count, bool shadows, bool textured, bool environment, bool detailed,
-                  bool projector);
+                  bool projector, bool soft);
   PbrProgram& UsePbr(bool textured, bool detailed);
   void EnsurePbrResources();
   void EnsurePbrTargets(int samples);

@@ -69,21 +69,22 @@ ShadingProgram& Renderer::Impl::UseShading(bool textured) {
 }
 
 PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bool environment,
-                                bool detailed, bool projector) {
-  PbrProgram& p = pbr[(projector ? (kMaxLights + 1) * 16 : 0) + light_count * 16 +
-                      (shadows ? 8 : 0) + (textured ? 4 : 0) + (detailed ? 2 : 0) +
-                      (environment ? 1 : 0)];
+                                bool detailed, bool projector, bool soft) {
+  soft = soft && shadows;
+  PbrProgram& p = pbr[(soft ? (kMaxLights + 1) * 32 : 0) + (projector ? (kMaxLights + 1) * 16 : 0) +
+                      light_count * 16 + (shadows ? 8 : 0) + (textured ? 4 : 0) +
+                      (detailed ? 2 : 0) + (environment ? 1 : 0)];
   if (p.program != 0) return p;
   const std::string header =
       "#version 330 core\n#define LIGHT_COUNT " + std::to_string(light_count) +
       "\n#define SHADOWS " + (shadows ? "1" : "0") + "\n#define TEXTURED " +
       (textured ? "1" : "0") + "\n#define ENVIRONMENT " + (environment ? "1" : "0") +
       "\n#define DETAIL " + (detailed ? "1" : "0") + "\n#define PROJECTOR " +
-      (projector ? "1" : "0") + "\n#define SHADOW_TAPS 1\n";
+      (projector ? "1" : "0") + "\n#define SHADOW_TAPS " + (soft ? "0" : "1") + "\n";
   const std::string name = "physically based program, " + std::to_string(light_count) + " lights" +
                            (shadows ? ", shadows" : "") + (textured ? ", texture" : "") +
                            (environment ? ", environment" : "") + (detailed ? ", detail" : "") +
-                           (projector ? ", projector" : "");
+                           (projector ? ", projector" : "") + (soft ? ", soft shadows" : "");
   const GLuint program = LinkProgram(
       header + projection_glsl + scene_vert_glsl,
       header + color_glsl + brdf_glsl + shadow_lookup_glsl + pbr_frag_glsl, name.c_str());
@@ -111,6 +112,7 @@ PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bo
   glUseProgram(program);
   glUniform1i(find("material_texture"), kMaterialTextureUnit);
   glUniform1i(find("shadow_maps"), kShadowMapUnit);
+  if (soft) glUniform1i(find("shadow_depths"), kShadowDepthUnit);
   glUniform1i(find("dfg_lut"), kDfgUnit);
   glUniform1i(find("environment_radiance"), kEnvironmentUnit);
   CheckGlError(name.c_str());
@@ -120,8 +122,8 @@ PbrProgram& Renderer::Impl::Pbr(int light_count, bool shadows, bool textured, bo
 
 PbrProgram& Renderer::Impl::UsePbr(bool textured, bool detailed) {
   const FrameUniforms& f = frame_uniforms;
-  PbrProgram& p =
-      Pbr(f.light_count, f.shadows, textured, f.environment != nullptr, detailed, f.projector);
+  PbrProgram& p = Pbr(f.light_count, f.shadows, textured, f.environment != nullptr, detailed,
+                      f.projector, f.soft_shadows);
   glUseProgram(p.program);
   if (p.frame == frame) return p;
 

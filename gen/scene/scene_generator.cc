@@ -49,6 +49,7 @@ enum class Lever : uint64_t {
   kEnvironment,
   kSurroundings,
   kDepthSensor,
+  kLightRadius,
 };
 
 std::mt19937_64 LeverEngine(uint64_t scene_seed, Lever lever) {
@@ -779,6 +780,10 @@ RenderedScene SceneGenerator::Render(const SettledPile& settled, int64_t seq, St
   Clock::time_point start = Clock::now();
   const CameraModel camera = impl_->Camera(camera_engine);
   std::vector<Light> lights = SampleLights(config.lighting(), lighting_engine);
+  // the lamps' sizes; a ring light stays a point: its shadows fall behind the parts, out of
+  // the camera's sight
+  std::mt19937_64 light_radius_engine = LeverEngine(seed, Lever::kLightRadius);
+  DrawLightRadii(config.lighting(), light_radius_engine, &lights);
   if (const auto ring = SampleCameraLight(config.lighting(),
                                           camera.world_from_camera.translation(), lighting_engine)) {
     lights.push_back(*ring);

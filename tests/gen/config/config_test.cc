@@ -292,6 +292,17 @@ TEST(ConfigTest, CameraLooksDown) {
   EXPECT_LT(plus_y.y(), 0);
 }
 
+// Lamps' sizes: 0..45 degrees, the smaller first.
+TEST(ConfigTest, LightRadiiInRangeAndOrdered) {
+  EXPECT_EQ(ErrorOf("lighting { light_radius_deg_min: 0.5 light_radius_deg_max: 25 }"), "");
+  const std::string order =
+      ErrorOf("lighting { light_radius_deg_min: 20 light_radius_deg_max: 10 }");
+  EXPECT_NE(order.find("lighting.light_radius_deg_max: 10 is below"), std::string::npos) << order;
+  const std::string wide = ErrorOf("lighting { light_radius_deg_max: 50 }");
+  EXPECT_NE(wide.find("lighting.light_radius_deg_max: 50 is out of range"), std::string::npos)
+      << wide;
+}
+
 // Colour temperatures: both 0 (white lights) or both from 1667 K on, the lower first.
 TEST(ConfigTest, ColourTemperaturesAreOffOrFromTheReddest) {
   EXPECT_EQ(ErrorOf("lighting { color_temperature_min_k: 0 color_temperature_max_k: 0 }"), "");

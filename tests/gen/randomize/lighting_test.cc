@@ -2,6 +2,8 @@
 // it takes.
 #include "gen/randomize/lighting.h"
 
+#include <algorithm>
+#include <cmath>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -89,6 +91,39 @@ TEST(LightingTest, LightsOfAColourTemperature) {
     }
   }
   EXPECT_EQ(a, b);
+}
+
+// each light's size is drawn in its range, three draws whatever the number of lights (so the
+// next draw is the same), the middle of the range with randomize false
+TEST(LightingTest, LightRadiiInTheirRangeWithAFixedNumberOfDraws) {
+  config::LightingConfig config;
+  config.set_light_radius_deg_min(2);
+  config.set_light_radius_deg_max(20);
+  std::mt19937_64 engine(3);
+  double smallest = 90, largest = 0;
+  for (int scene = 0; scene < 200; ++scene) {
+    std::vector<Light> lights(1 + scene % 3);
+    std::mt19937_64 copy = engine;
+    DrawLightRadii(config, engine, &lights);
+    copy.discard(3);
+    ASSERT_EQ(engine, copy);
+    for (const Light& light : lights) {
+      const double degrees = light.radius_rad * 180 / M_PI;
+      smallest = std::min(smallest, degrees);
+      largest = std::max(largest, degrees);
+    }
+  }
+  EXPECT_GE(smallest, 2 - 1e-4);
+  EXPECT_LT(smallest, 3);
+  EXPECT_LE(largest, 20 + 1e-4);
+  EXPECT_GT(largest, 19);
+  config.set_randomize(false);
+  std::vector<Light> fixed(2);
+  DrawLightRadii(config, engine, &fixed);
+  EXPECT_NEAR(fixed[1].radius_rad, 11 * M_PI / 180, 1e-6);
+  std::vector<Light> points(3);
+  DrawLightRadii(config::LightingConfig(), engine, &points);
+  for (const Light& light : points) EXPECT_EQ(light.radius_rad, 0.f);
 }
 
 }  // namespace

@@ -329,6 +329,76 @@ TEST(RendererPbrTest, BadOptionsThrow) {
   EXPECT_THROW(renderer.AddEnvironment(broken), std::runtime_error);
 }
 
+// The width of a shadow's edge on the floor, mm (where the light rises from 10 % to 90 % of the
+// lit floor's), and the light in the shadow beside it, as a share of the lit floor's: a 60 mm
+// square `height_mm` over a white floor, lit at 45 degrees by a lamp of `radius_deg`, its
+// shadow's far edge 30 + height_mm mm along x, seen from 300 mm straight above (0.75 mm a pixel;
+// 20 rows around y = 0 averaged, which also averages the soft edge's grain out).
+struct ShadowEdge {
+  double width_mm = 0;
+  double umbra = 0;  // at 5-12 mm past where the square hides the floor
+};
+ShadowEdge ShadowEdgeOf(Renderer* renderer, double height_mm, double radius_deg) {
+  const int floor = renderer->AddMesh(testing::MakeSquare(400));
+  const int plate = renderer->AddMesh(testing::MakeSquare(60));
+  const CameraModel camera = CameraLookingDown(300);
+  Light lamp;
+  lamp.direction_world = Eigen::Vector3f(1, 0, -1).normalized();
+  lamp.diffuse = 0.8f;
+  lamp.radius_rad = static_cast<float>(radius_deg * M_PI / 180);
+  RenderOptions options = PbrOptions(-1);
+  options.shadows = true;
+  DrawItem square = WhiteItem(plate, 0.f, 1.f, 1);
+  square.world_from_object = Eigen::Translation3d(0, 0, height_mm) * Eigen::Isometry3d::Identity();
+  const RenderResult result =
+      renderer->Render(camera, {lamp}, options, {WhiteItem(floor, 0.f, 1.f, 0), square});
+  // the floor's light at world x (mm) on the row of y = 0, 20 rows averaged
+  const auto light_at = [&](double x_mm) {
+    const int u = static_cast<int>(std::lround(camera.cx + camera.fx * x_mm / 300));
+    double sum = 0;
+    for (int v = 110; v < 130; ++v) sum += result.color_linear.at<cv::Vec3f>(v, u)[1];
+    return sum / 20;
+  };
+  const double lit = light_at(110);
+  // the first x past the square's hidden floor where the light passes a share of `lit`
+  const double hidden_mm = 30 * 300 / (300 - height_mm);
+  const auto crossing = [&](double share) {
+    for (double x = hidden_mm + 1; x < 110; x += 0.25) {
+      if (light_at(x) >= share * lit) return x;
+    }
+    return 110.0;
+  };
+  ShadowEdge edge;
+  edge.width_mm = crossing(0.9) - crossing(0.1);
+  double umbra = 0;
+  for (double x = hidden_mm + 5; x <= hidden_mm + 12; x += 1) umbra += light_at(x) / 8;
+  edge.umbra = umbra / lit;
+  return edge;
+}
+
+// a lamp of some size softens the shadows it casts by how far the occluder is from the floor
+// (an edge 2 d tan(radius) wide, d the distance along the light: with 10 degrees and a square
+// 40 mm up, 29 mm on the floor at 45 degrees, a 10-90 % width of about 23; 5 mm up, about 3;
+// the occluder search makes the far edge a little narrower and the near one a little wider),
+// dark in the middle; a point lamp's edge stays within a pixel
+TEST(RendererPbrTest, ShadowsOfALampOfSomeSizeSoftenAwayFromTheOccluder) {
+  Renderer renderer(320, 240);
+  const ShadowEdge hard = ShadowEdgeOf(&renderer, 40, 0);
+  const ShadowEdge soft = ShadowEdgeOf(&renderer, 40, 10);
+  const ShadowEdge near = ShadowEdgeOf(&renderer, 5, 10);
+  EXPECT_LT(hard.width_mm, 2.5);
+  EXPECT_GT(soft.width_mm, 11);
+  EXPECT_LT(soft.width_mm, 33);
+  EXPECT_LT(near.width_mm, 0.5 * soft.width_mm);
+  EXPECT_LT(hard.umbra, 0.02);
+  EXPECT_LT(soft.umbra, 0.1);
+  // the lamp's size is checked
+  Light wide;
+  wide.radius_rad = 1.f;
+  EXPECT_THROW(renderer.Render(CameraLookingDown(300), {wide}, PbrOptions(-1), {}),
+               std::runtime_error);
+}
+
 // a fixed physically based scene (a procedural hall, two lights, shadows, metal and plastic)
 // matches the golden image, shown with a plain clamp and sRGB encoding
 TEST(RendererPbrTest, MatchesGoldenImage) {

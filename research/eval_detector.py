@@ -207,21 +207,19 @@ def work_set_stamp(config, count, seed):
 
 def check_work_set(config, count, seed, out):
     """Refuses a set `out` of the work folder that a run before made from another config text,
-    count or seed (its stamp says; a set from before stamps: its image count)."""
+    count or seed, as its stamp says, and one without a stamp: what it was made from is not
+    known, and a config name used again would find it."""
     if not os.path.isfile(os.path.join(out, "annotations.json")):
         return
     stamp = os.path.join(out, STAMP)
-    if os.path.isfile(stamp):
-        with open(stamp) as file:
-            if file.read() == work_set_stamp(config, count, seed):
-                return
-        fail("%s: made from another config, scene count or seed than %s with %d scenes and seed "
-             "%d (%s): remove it or give another --work-dir" % (out, config, count, seed, stamp))
-    with open(os.path.join(out, "annotations.json")) as file:
-        images = len(json.load(file).get("images", []))
-    if images != count:
-        fail("%s: holds %d scenes, not %d: remove it or give another --work-dir" % (
-            out, images, count))
+    if not os.path.isfile(stamp):
+        fail("%s: has no %s, so what it was made from is not known (a set from before sets were "
+             "stamped): remove it or give another --work-dir" % (out, STAMP))
+    with open(stamp) as file:
+        if file.read() == work_set_stamp(config, count, seed):
+            return
+    fail("%s: made from another config, scene count or seed than %s with %d scenes and seed "
+         "%d (%s): remove it or give another --work-dir" % (out, config, count, seed, stamp))
 
 
 def work_set(config, count, seed, out, log):

@@ -56,9 +56,9 @@ def test_bad_command_lines_say_what_and_exit_2(tmp_path):
 
 
 def test_a_work_folders_set_of_another_count_or_config_is_refused(tmp_path):
-    """--work-dir keeps the sets it made; one made with another scene count, or stamped as made
-    from another config text or seed, is refused in one line naming it, before anything is made
-    or trained, rather than trained on."""
+    """--work-dir keeps the sets it made; one stamped as made from another config text, scene
+    count or seed, or not stamped at all (even with the scene count asked for), is refused in one
+    line naming it, before anything is made or trained, rather than trained on."""
     work, tests = str(tmp_path / "work"), str(tmp_path / "squares")
     make_coco(tests)
     kept = os.path.join(work, "train-0-default-seed-3")
@@ -66,10 +66,10 @@ def test_a_work_folders_set_of_another_count_or_config_is_refused(tmp_path):
     args = ("--mode", "quick", "--config", os.path.join(ROOT, "config", "default.pbtxt"),
             "--test", tests, "--no-held-out", "--seeds", "3", "--steps", "2", "--threads", "2",
             "--work-dir", work)
-    fewer = run(*args, "--train-scenes", "3")
-    assert fewer.returncode == 1, fewer.stderr
-    assert kept in fewer.stderr and "holds 2 scenes, not 3" in fewer.stderr
-    assert len(fewer.stderr.strip().splitlines()) == 1
+    unstamped = run(*args, "--train-scenes", "2")
+    assert unstamped.returncode == 1, unstamped.stderr
+    assert kept in unstamped.stderr and "has no made-from.txt" in unstamped.stderr
+    assert len(unstamped.stderr.strip().splitlines()) == 1
     with open(os.path.join(kept, "made-from.txt"), "w") as file:
         file.write("seed 3, 2 scenes, config:\npart { count: 5 }\n")
     other = run(*args, "--train-scenes", "2")

@@ -11,6 +11,7 @@
 #include <stdexcept>
 #include <utility>
 
+#include "gen/physics/convex_pairs.h"
 #include "gen/physics/pile_internal.h"
 #include "gen/physics/settle_detector.h"
 #include "gen/physics/still_contacts.h"
@@ -25,6 +26,9 @@ namespace {
 // tolerances (contact breaking 0.02 units, default margin 0.04 units), metres above them
 constexpr double kSimPerMm = 0.1;
 constexpr double kGravityMmS2 = 9810.0;
+// how far apart beyond any contact a pair of convex pieces must be for its search to pause
+// (ConvexPairs), mm
+constexpr double kConvexLookAheadMm = 0.5;
 // Lift: the contacts take up the load for this long before the hold pulls, and it holds
 // the part this long at the top, s
 constexpr double kLiftSettleS = 0.1;
@@ -121,6 +125,9 @@ struct World {
   std::vector<std::unique_ptr<btCollisionShape>> shapes;
   std::vector<std::unique_ptr<btRigidBody>> bodies;
   std::unique_ptr<btDiscreteDynamicsWorld> world;
+  // the same contact points with fewer queries: hull pieces found apart from another piece are
+  // not searched against it again until they may have moved half of kConvexLookAheadMm
+  ConvexPairs convex_pairs{&dispatcher, ToSim(kConvexLookAheadMm)};
 
   // convex pairs get a whole contact manifold in one step (Bullet's perturbation of the first
   // contact, 3 times), not one point per step: a part lying on a face is held at its corners at

@@ -160,9 +160,11 @@ inline constexpr RestRule kStrictRestRule{0.1, 0.1, 1, 60};
 /// little angular damping; the two phases of SimulationParams: while falling, split-impulse
 /// contacts at time_step_s (at the default 1/600 s a 6 mm plate does not tunnel), once landed,
 /// contacts that leave a 0.01 mm overlap alone at rest_time_step_s, those of parts lying still
-/// kept rather than searched again (StillContacts); penetrations stay far below
-/// 0.5 mm. The simulator is immutable after construction and may be used from several threads
-/// at once; Simulate() builds a fresh world each call and keeps no state between calls.
+/// kept rather than searched again (StillContacts), and, in both phases, pairs of a hull piece
+/// and another piece found apart not searched again until they may have moved (ConvexPairs);
+/// penetrations stay far below 0.5 mm. The simulator is immutable after construction and may be
+/// used from several threads at once; Simulate() builds a fresh world each call and keeps no
+/// state between calls.
 class PileSimulator {
  public:
   /// collision_pieces: convex pieces (mm, part frame) or empty to compute a convex decomposition

@@ -49,16 +49,20 @@ bool SettleDetector::AddSample(double time_s, const std::vector<Eigen::Isometry3
   const bool spans = !window_.empty() && window_.front().time_s <= window_start_s;
 
   // a body is at rest when its samples span the window (it was in the oldest one) and it is
-  // within both thresholds of every sample
+  // within both thresholds of every sample (compared squared, and the turn by the quaternions'
+  // dot product, |q1 . q2| being the cosine of half the angle between them: no square root or
+  // arc tangent per sample)
+  const double translation2 = translation_mm_ * translation_mm_;
+  const double min_cos_half = std::cos(rotation_rad_ / 2);
   at_rest_.assign(poses.size(), false);
   bool all = true;
   for (size_t i = 0; i < poses.size(); ++i) {
     bool still = spans && i < window_.front().position_mm.size();
     for (size_t s = 0; still && s < window_.size(); ++s) {
       const Sample& then = window_[s];
-      still = (now.position_mm[i] - then.position_mm[i]).norm() < translation_mm_ &&
-              (rotation_rad_ >= M_PI ||
-               now.rotation[i].angularDistance(then.rotation[i]) < rotation_rad_);
+      still =
+          (now.position_mm[i] - then.position_mm[i]).squaredNorm() < translation2 &&
+          (rotation_rad_ >= M_PI || std::abs(now.rotation[i].dot(then.rotation[i])) > min_cos_half);
     }
     at_rest_[i] = still;
     all = all && still;

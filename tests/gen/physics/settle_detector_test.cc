@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <stdexcept>
+#include <tuple>
 #include <vector>
 
 #include <gtest/gtest.h>
@@ -85,6 +86,22 @@ TEST(SettleDetectorTest, AddedBodiesNeedTheirOwnWindow) {
   EXPECT_TRUE(detector.AtRest(1));
   EXPECT_FALSE(detector.AtRest(2));
   EXPECT_THROW(detector.AddSample(0.6, {Pose(0, 0)}), std::runtime_error);
+}
+
+// The default settle rule's thresholds (0.1 mm, 0.1 degree over 2 s): a body that moved 0.08 mm
+// and turned 0.08 degree within the window is at rest; 0.12 mm, or 0.12 degree, is not.
+TEST(SettleDetectorTest, SubMillimetreThresholdsHoldExactly) {
+  const RestRule rule{0.1, 0.1, 2, 10};
+  for (const auto& [moved_mm, turned_deg, at_rest] : std::vector<std::tuple<double, double, bool>>{
+           {0.08, 0.08, true}, {0.12, 0, false}, {0, 0.12, false}}) {
+    SettleDetector detector(rule);
+    bool settled = false;
+    for (int k = 0; k <= 200; ++k) {
+      const double f = k / 200.0;  // moving steadily over the window
+      settled = detector.AddSample(k * 0.01, {Pose(moved_mm * f, turned_deg * f)});
+    }
+    EXPECT_EQ(settled, at_rest) << moved_mm << " mm, " << turned_deg << " deg";
+  }
 }
 
 // A rule of 180 degrees or more does not look at turning: a spinning body that stays in place is

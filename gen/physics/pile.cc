@@ -26,8 +26,8 @@ namespace {
 // tolerances (contact breaking 0.02 units, default margin 0.04 units), metres above them
 constexpr double kSimPerMm = 0.1;
 constexpr double kGravityMmS2 = 9810.0;
-// how far apart beyond any contact a pair of convex pieces must be for its search to pause
-// (ConvexPairs), mm
+// how far beyond any contact a hull piece and another piece must lie apart for the search of
+// the pair to pause (ConvexPairs), mm
 constexpr double kConvexLookAheadMm = 0.5;
 // Lift: the contacts take up the load for this long before the hold pulls, and it holds
 // the part this long at the top, s

@@ -10,29 +10,14 @@
 #include <stdexcept>
 #include <string>
 
+#include "gen/physics/motion_bound.h"
+
 namespace stackgen {
 namespace {
 
 // Bullet's multipoint setting: 3 turned queries while the manifold holds fewer than 3 points
 constexpr int kTurnedQueries = 3;
 constexpr int kFewPoints = 3;
-
-// the radius about a shape's origin of a sphere around it, margin included
-btScalar Reach(const btCollisionShape* shape) {
-  btVector3 center;
-  btScalar radius = 0;
-  shape->getBoundingSphere(center, radius);
-  return center.length() + radius;
-}
-
-// a bound on how far any point within `reach` of a frame's origin moved from `then` to `now`:
-// the origin's move plus the change of the rotation (its Frobenius norm, at least the spectral
-// one) times the reach
-btScalar Moved(const btTransform& then, const btTransform& now, btScalar reach) {
-  const btMatrix3x3 turn = now.getBasis() - then.getBasis();
-  const btScalar turn2 = turn[0].length2() + turn[1].length2() + turn[2].length2();
-  return (now.getOrigin() - then.getOrigin()).length() + btSqrt(turn2) * reach;
-}
 
 // Bullet's convex algorithm for a pair, on the pair's manifold, skipped while the pair is apart
 // (ConvexPairs).
@@ -49,8 +34,8 @@ class PausedPair : public btActivatingCollisionAlgorithm {
         searched_(searched),
         shape_a_(a->getCollisionShape()),
         shape_b_(b->getCollisionShape()),
-        reach_a_(Reach(shape_a_)),
-        reach_b_(Reach(shape_b_)) {}
+        reach_a_(BoundingReach(shape_a_)),
+        reach_b_(BoundingReach(shape_b_)) {}
 
   ~PausedPair() override {
     inner_.reset();
@@ -74,8 +59,8 @@ class PausedPair : public btActivatingCollisionAlgorithm {
     const bool touching = manifold_->getNumContacts() > 0;
     if (!touching && apart_ && a->getCollisionShape() == shape_a_ &&
         b->getCollisionShape() == shape_b_ &&
-        Moved(a_at_, a->getWorldTransform(), reach_a_) +
-                Moved(b_at_, b->getWorldTransform(), reach_b_) <
+        MovedAtMost(a_at_, a->getWorldTransform(), reach_a_) +
+                MovedAtMost(b_at_, b->getWorldTransform(), reach_b_) <
             look_ahead_ / 2) {
       ++*paused_;
       return;  // still apart: nothing to find, no points to refresh
@@ -137,8 +122,8 @@ class PausedPair : public btActivatingCollisionAlgorithm {
   long* const searched_;
   const btCollisionShape* const shape_a_;
   const btCollisionShape* const shape_b_;
-  const btScalar reach_a_;
-  const btScalar reach_b_;
+  const double reach_a_;
+  const double reach_b_;
   // found apart, and the pieces' poses then
   bool apart_ = false;
   btTransform a_at_;

@@ -1,7 +1,6 @@
 #include "gen/physics/still_contacts.h"
 
-#include <algorithm>
-#include <cmath>
+#include "gen/physics/motion_bound.h"
 
 namespace stackgen {
 namespace {
@@ -27,10 +26,7 @@ StillContacts::StillContacts(btDiscreteDynamicsWorld* world, btCollisionDispatch
   radius_.reserve(bodies_.size());
   for (btRigidBody* body : bodies_) {
     searched_at_.push_back(body->getWorldTransform());
-    btVector3 centre;
-    btScalar radius = 0;
-    body->getCollisionShape()->getBoundingSphere(centre, radius);
-    radius_.push_back(centre.length() + radius);
+    radius_.push_back(BoundingReach(body->getCollisionShape()));
     body->setUserIndex3(kMoved);
   }
   world_.setInternalTickCallback(&StillContacts::BeforeStep, this, true);
@@ -52,10 +48,7 @@ void StillContacts::BeforeStep(btDynamicsWorld* world, btScalar /*time_step*/) {
     const btTransform& now = body->getWorldTransform();
     btTransform& then = self->searched_at_[b];
     // how far any point of the body moved since its contacts were searched, at most
-    const btQuaternion turn = then.getRotation().inverse() * now.getRotation();
-    const double sine = std::min<double>(1, btVector3(turn.x(), turn.y(), turn.z()).length());
-    const double moved =
-        (now.getOrigin() - then.getOrigin()).length() + self->radius_[b] * 2 * std::asin(sine);
+    const double moved = MovedAtMost(then, now, self->radius_[b]);
     if (self->first_step_ || moved > self->still_distance_) {
       then = now;
       body->setUserIndex3(kMoved);

@@ -382,7 +382,11 @@ TEST_F(LosslessTest, AcrossALossyLink) {
   Process coco(coco_argv, out + "-coco");
   ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
   std::vector<std::string> generator_argv = {ip, "netns", "exec", host_a};
-  for (const std::string& arg : Generator(url, cache_)) generator_argv.push_back(arg);
+  // the link's loss is tested here, not the consumer timeout: on a machine busy with other tests
+  // the writer once sent no credit for 5 s (the timeout of the other tests), so it gets 30
+  for (const std::string& arg : Generator(url, cache_, {"--consumer-timeout", "30"})) {
+    generator_argv.push_back(arg);
+  }
   Process generator(generator_argv, out + "-gen");
   ASSERT_EQ(generator.Wait(600), 0) << generator.Stderr();
   ASSERT_EQ(coco.Wait(60), 0) << coco.Stderr();

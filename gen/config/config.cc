@@ -375,6 +375,8 @@ void ValidateLook(const config::GeneratorConfig& c, const FieldNamer& n) {
   const config::SensorConfig& sensor = c.sensor();
   CheckOrdered(n, "sensor", "exposure_ev_min", sensor.exposure_ev_min(), "exposure_ev_max",
                sensor.exposure_ev_max());
+  CheckOrdered(n, "sensor", "saturation_min", sensor.saturation_min(), "saturation_max",
+               sensor.saturation_max());
 
   // rendering
   const config::RenderingConfig& rendering = c.rendering();

@@ -130,7 +130,7 @@ void AddSaltAndPepper(double fraction, uint64_t seed, cv::Mat* image) {
 }  // namespace
 
 SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt19937_64& engine) {
-  // always fourteen draws, in a fixed order, enabled or not.
+  // always fifteen draws, in a fixed order, enabled or not.
   SensorEffects drawn;
   drawn.gaussian_sigma = Uniform(engine, 0.0, config.gaussian_sigma_max());
   drawn.salt_pepper_fraction = Uniform(engine, 0.0, config.salt_pepper_max());
@@ -147,6 +147,7 @@ SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt199
     gain = Uniform(engine, 1 - config.white_balance_max(), 1 + config.white_balance_max());
   }
   drawn.clipped_tone = Uniform(engine, 0, 1) < config.clipped_tone_probability();
+  drawn.saturation = Uniform(engine, config.saturation_min(), config.saturation_max());
   return config.enabled() ? drawn : SensorEffects{};
 }
 
@@ -228,12 +229,14 @@ cv::Mat DevelopLinearImage(const SensorEffects& effects, const cv::Mat& linear_r
       !(effects.read_noise >= 0) || !std::isfinite(effects.shot_noise) ||
       !std::isfinite(effects.read_noise) ||
       !(balance[0] > 0 && balance[1] > 0 && balance[2] > 0) ||
-      !std::isfinite(balance[0] + balance[1] + balance[2])) {
+      !std::isfinite(balance[0] + balance[1] + balance[2]) || !(effects.saturation >= 0) ||
+      !std::isfinite(effects.saturation)) {
     throw std::runtime_error(
         "DevelopLinearImage: exposure_ev " + std::to_string(effects.exposure_ev) + ", shot_noise " +
         std::to_string(effects.shot_noise) + ", read_noise " + std::to_string(effects.read_noise) +
         ", white balance " + std::to_string(balance[0]) + "/" + std::to_string(balance[1]) + "/" +
-        std::to_string(balance[2]) + " out of range; need finite values, noise >= 0, gains > 0");
+        std::to_string(balance[2]) + ", saturation " + std::to_string(effects.saturation) +
+        " out of range; need finite values, noise >= 0, gains > 0, saturation >= 0");
   }
   // optics, then gray and exposure in one pass, in linear light
   const cv::Mat* source = &linear_rgb;
@@ -251,10 +254,15 @@ cv::Mat DevelopLinearImage(const SensorEffects& effects, const cv::Mat& linear_r
     cv::transform(*source, signal,
                   cv::Matx13f(0.2126f * gains[0], 0.7152f * gains[1], 0.0722f * gains[2]) *
                       exposure);
-  } else if (gains == cv::Vec3f(1, 1, 1)) {
+  } else if (gains == cv::Vec3f(1, 1, 1) && effects.saturation == 1) {
     source->convertTo(signal, CV_32F, exposure);
   } else {
-    cv::transform(*source, signal, cv::Matx33f::diag(gains) * exposure);
+    // saturation about the luminance: s I + (1 - s) [1 1 1]^T [0.2126 0.7152 0.0722]
+    const float s = static_cast<float>(effects.saturation);
+    const cv::Matx13f luma(0.2126f, 0.7152f, 0.0722f);
+    const cv::Matx33f toward_grey =
+        s * cv::Matx33f::eye() + (1 - s) * cv::Matx31f(1, 1, 1) * luma;
+    cv::transform(*source, signal, toward_grey * cv::Matx33f::diag(gains) * exposure);
   }
   // the sensor's noise
   AddLinearNoise(effects, &signal);

@@ -25,6 +25,7 @@ struct SensorEffects {
   double read_noise = 0;   // read-out noise: std in exposed linear units (1 = white)
   double white_balance[3] = {1, 1, 1};  // gains of linear R, G, B (a white balance a little off)
   bool clipped_tone = false;  // sRGB clipped at white instead of the filmic (ACES) tone curve
+  double saturation = 1;  // linear RGB about its Rec. 709 luminance: 0 grey, 1 as rendered, >= 0
 };
 
 /// Draws every parameter from `engine`, always the same values in this order: gaussian_sigma
@@ -35,8 +36,9 @@ struct SensorEffects {
 /// uniform in [exposure_ev_min, exposure_ev_max], shot_noise in [0, shot_noise_max] and
 /// read_noise in [0, read_noise_max] (the first seven draws are what they always were), then
 /// three white-balance gains, each uniform in [1 - white_balance_max, 1 + white_balance_max],
-/// and whether the tone is clipped (chance clipped_tone_probability): fourteen draws. With config.enabled() false it returns the identity effects (SensorEffects{})
-/// after still making the same draws.
+/// whether the tone is clipped (chance clipped_tone_probability) and the saturation, uniform in
+/// [saturation_min, saturation_max]: fifteen draws. With config.enabled() false it returns the
+/// identity effects (SensorEffects{}) after still making the same draws.
 SensorEffects SampleSensorEffects(const config::SensorConfig& config, std::mt19937_64& engine);
 
 /// Applies `effects` to an 8-bit image in place (CV_8UC1, or CV_8UC3 of any channel order), in
@@ -59,7 +61,9 @@ void ApplySensorEffects(const SensorEffects& effects, cv::Mat* image);
 /// 8-bit image, CV_8UC3 RGB or, when `gray`, CV_8UC1, in camera order:
 ///  1. blur (optics) in linear light, as in ApplySensorEffects;
 ///  2. gray: luminance Y = 0.2126 R + 0.7152 G + 0.0722 B (Rec. 709 primaries), when `gray`;
-///  3. exposure: x 2^exposure_ev;
+///  3. white balance and saturation (colour only): x white_balance per channel, then each pixel
+///     moved toward its luminance Y (Rec. 709), c' = Y + saturation (c - Y); exposure:
+///     x 2^exposure_ev;
 ///  4. AddLinearNoise: shot and read noise where the sensor makes them, before the tone curve;
 ///  5. the filmic tone curve (ACES, Narkowicz's 2015 fit) and sRGB encoding, rounded to 8 bits
 ///     (through a table indexed by the square root of the signal, within half a level);
@@ -67,7 +71,7 @@ void ApplySensorEffects(const SensorEffects& effects, cv::Mat* image);
 ///     ApplySensorEffects; gaussian_sigma is not used (read_noise takes its place).
 /// Deterministic as ApplySensorEffects. Throws std::runtime_error for an empty image or another
 /// type, or effects out of range (as ApplySensorEffects, or a negative or non-finite exposure,
-/// shot or read noise).
+/// shot or read noise, or a negative or non-finite saturation).
 cv::Mat DevelopLinearImage(const SensorEffects& effects, const cv::Mat& linear_rgb, bool gray);
 
 /// Step 4 of DevelopLinearImage on a linear image (CV_32FC1 or CV_32FC3) in place: adds to each

@@ -103,6 +103,11 @@ TEST(ConfigTest, RenderingFieldsAreChecked) {
   EXPECT_NE(
       error("sensor { exposure_ev_min: 1 exposure_ev_max: 0 }").find("sensor.exposure_ev_max"),
       std::string::npos);
+  EXPECT_NE(
+      error("sensor { saturation_min: 1.5 saturation_max: 1 }").find("sensor.saturation_max"),
+      std::string::npos);
+  EXPECT_NE(error("sensor { saturation_max: 2.5 }").find("sensor.saturation_max"),
+            std::string::npos);
   // surface detail and surroundings
   EXPECT_NE(error("part { detail: CAST detail_scale_mm: 0 }").find("part[0].detail_scale_mm"),
             std::string::npos);

@@ -254,7 +254,7 @@ TEST(SensorTest, SamplingRangesAndDisabled) {
   const SensorEffects drawn = SampleSensorEffects(config, b);
   EXPECT_EQ(a, b);
   std::mt19937_64 reference(11);
-  reference.discard(14);
+  reference.discard(15);
   EXPECT_EQ(a, reference);
   EXPECT_GT(drawn.gaussian_sigma, 0);
   EXPECT_EQ(identity.gaussian_sigma, 0);
@@ -336,6 +336,58 @@ TEST(SensorTest, WhiteBalanceScalesEachChannel) {
   }
   EXPECT_LT(lowest, 0.91);
   EXPECT_GT(highest, 1.09);
+}
+
+// a saturation moves each pixel's linear colour toward its Rec. 709 luminance (0: grey, the
+// luminance kept) or away from it (2: twice as far), 1 leaves the bytes as they were; gray
+// images ignore it; drawn uniformly within [saturation_min, saturation_max]
+TEST(SensorTest, SaturationMovesColoursAboutTheirLuminance) {
+  const cv::Mat linear(4, 4, CV_32FC3, cv::Scalar(0.5f, 0.1f, 0.1f));
+  const auto expected = [](double x) {
+    const double y = AcesFilmic(x);
+    return static_cast<int>(std::lround(255 * (1.055 * std::pow(y, 1 / 2.4) - 0.055)));
+  };
+  const double luminance = 0.2126 * 0.5 + 0.7152 * 0.1 + 0.0722 * 0.1;
+  SensorEffects grey;
+  grey.saturation = 0;
+  const cv::Vec3b flat = DevelopLinearImage(grey, linear, false).at<cv::Vec3b>(1, 1);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(flat[c], expected(luminance), 0.51) << c;
+  SensorEffects vivid;
+  vivid.saturation = 2;
+  const cv::Vec3b pixel = DevelopLinearImage(vivid, linear, false).at<cv::Vec3b>(1, 1);
+  EXPECT_NEAR(pixel[0], expected(luminance + 2 * (0.5 - luminance)), 0.51);
+  EXPECT_NEAR(pixel[1], expected(luminance + 2 * (0.1 - luminance)), 0.51);
+  const SensorEffects identity;
+  SensorEffects one;
+  one.saturation = 1;
+  one.white_balance[0] = 1.1;
+  SensorEffects balanced;
+  balanced.white_balance[0] = 1.1;
+  EXPECT_EQ(cv::norm(DevelopLinearImage(one, linear, false),
+                     DevelopLinearImage(balanced, linear, false), cv::NORM_INF),
+            0);
+  EXPECT_EQ(cv::norm(DevelopLinearImage(grey, linear, true),
+                     DevelopLinearImage(identity, linear, true), cv::NORM_INF),
+            0);
+  SensorEffects bad;
+  bad.saturation = -0.1;
+  EXPECT_THROW(DevelopLinearImage(bad, linear, false), std::runtime_error);
+
+  config::SensorConfig config;
+  std::mt19937_64 engine(5);
+  EXPECT_EQ(SampleSensorEffects(config, engine).saturation, 1);
+  config.set_saturation_min(0.4);
+  config.set_saturation_max(1.3);
+  double lowest = 2, highest = 0;
+  for (int i = 0; i < 500; ++i) {
+    const double drawn = SampleSensorEffects(config, engine).saturation;
+    ASSERT_GE(drawn, 0.4);
+    ASSERT_LE(drawn, 1.3);
+    lowest = std::min(lowest, drawn);
+    highest = std::max(highest, drawn);
+  }
+  EXPECT_LT(lowest, 0.42);
+  EXPECT_GT(highest, 1.28);
 }
 
 // a clipped tone is plain sRGB up to white and white beyond, where the filmic curve keeps a

@@ -382,8 +382,8 @@ TEST_F(LosslessTest, AcrossALossyLink) {
   Process coco(coco_argv, out + "-coco");
   ASSERT_TRUE(coco.WaitForOutput("listening", 30)) << coco.Stderr();
   std::vector<std::string> generator_argv = {ip, "netns", "exec", host_a};
-  // the link's loss is tested here, not the consumer timeout: on a machine busy with other tests
-  // the writer once sent no credit for 5 s (the timeout of the other tests), so it gets 30
+  // the link's loss is tested here, not the consumer timeout (tested on its own): on a machine
+  // busy with other tests a writer may send no credit for seconds, so the generator waits 30 s
   for (const std::string& arg : Generator(url, cache_, {"--consumer-timeout", "30"})) {
     generator_argv.push_back(arg);
   }

@@ -395,6 +395,11 @@ void ValidateLook(const config::GeneratorConfig& c, const FieldNamer& n) {
   }
   CheckOrdered(n, "rendering", "environment_intensity_min", rendering.environment_intensity_min(),
                "environment_intensity_max", rendering.environment_intensity_max());
+  if (rendering.shading() == config::RenderingConfig::PHONG &&
+      rendering.environment_occlusion_mm() > 0) {
+    throw ConfigError(n.Where("rendering", "environment_occlusion_mm") +
+                      ": needs shading: PBR (PHONG has no environment to hide)");
+  }
 
   // the 3D camera
   const config::Sensor3dConfig& sensor_3d = c.sensor_3d();

@@ -574,6 +574,12 @@ void Renderer::Impl::CheckOptions(const CameraModel& camera, const std::vector<L
                                std::to_string(options.background_scale) +
                                " must be finite and >= 0, environment_yaw_deg finite");
     }
+    if (!(options.environment_occlusion_mm >= 0) ||
+        !std::isfinite(options.environment_occlusion_mm)) {
+      throw std::runtime_error("Renderer::Render: environment_occlusion_mm " +
+                               std::to_string(options.environment_occlusion_mm) +
+                               " must be finite and >= 0");
+    }
     if (options.projector_return && !options.projector_position_mm.allFinite()) {
       throw std::runtime_error("Renderer::Render: projector_position_mm is not finite");
     }

@@ -135,6 +135,12 @@ struct RenderOptions {
   /// projector (or the active stereo pair's second view) at `projector_position_mm`, world frame.
   bool projector_return = false;
   Eigen::Vector3d projector_position_mm{0, 0, 0};
+  /// Physically based shading with an environment only: > 0 lets what lies within this many
+  /// millimetres of a surface hide the environment's light from it (EnvironmentVisibility, from
+  /// the depth image: the floor at the foot of a tote's walls and between parts gets less of
+  /// it, as in a path tracer); the lights' own shadows are their shadow maps'. 0 (default): the
+  /// environment lights every surface whole. Finite and >= 0.
+  float environment_occlusion_mm = 0.f;
 };
 
 /// The images of one render, all camera.width x camera.height, row 0 at the top.

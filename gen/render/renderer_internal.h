@@ -288,6 +288,8 @@ struct Renderer::Impl {
   GLuint shaded_texture = 0;      // RGBA16F linear colour
   GLuint surface_texture = 0;     // R16UI item index + 1
   GLuint return_texture = 0;      // R32F the projector's return (RenderOptions::projector_return)
+  // RGBA16F the environment's share of the linear colour (RenderOptions::environment_occlusion_mm)
+  GLuint environment_texture = 0;
   GLuint coverage_program = 0;
   ProjectionUniforms coverage_projection;
   GLint coverage_surface_id = -1;
@@ -305,6 +307,7 @@ struct Renderer::Impl {
   std::vector<std::vector<std::pair<int, cv::Vec3f>>> edge_colors;  // ResolveEdges, by row
   cv::Mat half_colors;   // read-back of linear colour, CV_16FC4
   cv::Mat float_colors;  // CV_32FC4
+  cv::Mat environment_visibility;  // EnvironmentVisibility, CV_32FC1
 
   // per Render call
   uint64_t frame = 0;
@@ -335,6 +338,9 @@ struct Renderer::Impl {
                       const Eigen::Isometry3d& camera_from_world, const MeshBuffers& mesh,
                       const Material& material, GLsizei first, GLsizei count);
   void ReadLinearColor(cv::Mat* color);
+  // takes from result->color_linear the environment's light that what lies within radius_mm
+  // of each surface hides (the environment's share read from its target, after ReadLinearColor)
+  void OccludeEnvironment(const CameraModel& camera, float radius_mm, RenderResult* result);
   void CompositeBackground(const RenderOptions& options, RenderResult* result);
   void RenderPbr(const CameraModel& camera, const RenderOptions& options,
                  const std::vector<DrawItem>& items, RenderResult* result);

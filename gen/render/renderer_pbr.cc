@@ -16,6 +16,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "gen/render/occlusion.h"
 #include "shaders.h"
 
 namespace stackgen {
@@ -178,6 +179,7 @@ void Renderer::Impl::EnsurePbrResources() {
   glGenTextures(1, &shaded_texture);
   glGenTextures(1, &surface_texture);
   glGenTextures(1, &return_texture);
+  glGenTextures(1, &environment_texture);
   glGenTextures(1, &coverage_texture);
   glGenRenderbuffers(1, &coverage_depth_buffer);
   glGenRenderbuffers(1, &resolve_buffer);
@@ -203,6 +205,7 @@ void Renderer::Impl::EnsurePbrTargets(int samples) {
     plain_texture(shaded_texture, GL_RGBA16F, width, height);
     plain_texture(surface_texture, GL_R16UI, width, height);
     plain_texture(return_texture, GL_R32F, width, height);
+    plain_texture(environment_texture, GL_RGBA16F, width, height);
     glActiveTexture(GL_TEXTURE0 + kMaterialTextureUnit);
     glBindRenderbuffer(GL_RENDERBUFFER, resolve_buffer);
     glRenderbufferStorage(GL_RENDERBUFFER, GL_RGBA16UI, width, height);
@@ -215,6 +218,8 @@ void Renderer::Impl::EnsurePbrTargets(int samples) {
                               camera_z_buffer);
     glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT3, GL_TEXTURE_2D, surface_texture, 0);
     glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT4, GL_TEXTURE_2D, return_texture, 0);
+    glFramebufferTexture2D(GL_FRAMEBUFFER, GL_COLOR_ATTACHMENT5, GL_TEXTURE_2D,
+                           environment_texture, 0);
     glFramebufferRenderbuffer(GL_FRAMEBUFFER, GL_DEPTH_ATTACHMENT, GL_RENDERBUFFER, depth_buffer);
     glDrawBuffers(4, draw_buffers);
     CheckFramebuffer("physically based framebuffer");
@@ -322,6 +327,25 @@ void Renderer::Impl::ReadLinearColor(cv::Mat* color) {
   cv::cvtColor(float_colors, *color, cv::COLOR_RGBA2RGB);
 }
 
+void Renderer::Impl::OccludeEnvironment(const CameraModel& camera, float radius_mm,
+                                        RenderResult* result) {
+  glReadBuffer(GL_COLOR_ATTACHMENT5);
+  EnsureImage(&half_colors, height, width, CV_16FC4);
+  glReadPixels(0, 0, width, height, GL_RGBA, GL_HALF_FLOAT, half_colors.data);
+  half_colors.convertTo(float_colors, CV_32F);
+  EnvironmentVisibility(result->depth_mm, camera, radius_mm, &environment_visibility);
+  for (int v = 0; v < height; ++v) {
+    const float* depth = result->depth_mm.ptr<float>(v);
+    const float* open = environment_visibility.ptr<float>(v);
+    const float* environment = float_colors.ptr<float>(v);
+    float* color = result->color_linear.ptr<float>(v);
+    for (int u = 0; u < width; ++u) {
+      if (depth[u] == 0.f) continue;
+      for (int c = 0; c < 3; ++c) color[3 * u + c] -= (1 - open[u]) * environment[4 * u + c];
+    }
+  }
+}
+
 void Renderer::Impl::CompositeBackground(const RenderOptions& options, RenderResult* result) {
   // the background image, decoded and scaled, where nothing was drawn (camera z 0); before the
   // edges are resolved, which blend it with what borders it. A table lookup per pixel left
@@ -400,11 +424,18 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
   glBindFramebuffer(GL_FRAMEBUFFER, shaded_framebuffer);
   glViewport(0, 0, width, height);
   // the projector's return is written only when asked for (the programs without it leave
-  // location 4 alone)
-  const GLenum draw_buffers[] = {GL_COLOR_ATTACHMENT0, GL_COLOR_ATTACHMENT1, GL_COLOR_ATTACHMENT2,
-                                 GL_COLOR_ATTACHMENT3, GL_COLOR_ATTACHMENT4};
+  // location 4 alone), and the environment's share of the colour only when some of it is to be
+  // hidden
   const bool projector = frame_uniforms.projector;
-  glDrawBuffers(projector ? 5 : 4, draw_buffers);
+  const bool occlusion =
+      options.environment_occlusion_mm > 0 && frame_uniforms.environment != nullptr;
+  const GLenum draw_buffers[] = {GL_COLOR_ATTACHMENT0,
+                                 GL_COLOR_ATTACHMENT1,
+                                 GL_COLOR_ATTACHMENT2,
+                                 GL_COLOR_ATTACHMENT3,
+                                 projector ? GLenum{GL_COLOR_ATTACHMENT4} : GLenum{GL_NONE},
+                                 GL_COLOR_ATTACHMENT5};
+  glDrawBuffers(occlusion ? 6 : (projector ? 5 : 4), draw_buffers);
   GLfloat background[4] = {0, 0, 0, 1};
   for (int c = 0; c < 3; ++c) {
     background[c] = options.background_scale * SrgbToLinear(options.background_rgb[c]);
@@ -417,6 +448,7 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
   glClearBufferfv(GL_COLOR, 2, zero_z);
   glClearBufferuiv(GL_COLOR, 3, zero_id);
   if (projector) glClearBufferfv(GL_COLOR, 4, zero_z);
+  if (occlusion) glClearBufferfv(GL_COLOR, 5, zero_z);
   glClearBufferfv(GL_DEPTH, 0, &far_depth);
   ForEachSurface(items, [&](const DrawItem& item, size_t index, const MeshBuffers& mesh,
                             const Material& material, GLsizei first, GLsizei count) {
@@ -439,6 +471,7 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
   if (samples <= 1) {
     glReadBuffer(GL_COLOR_ATTACHMENT0);
     ReadLinearColor(&result->color_linear);
+    if (occlusion) OccludeEnvironment(camera, options.environment_occlusion_mm, result);
     CompositeBackground(options, result);
   } else {
     // the surface each sample sees, four to a texel, and each centre's surface
@@ -446,6 +479,7 @@ void Renderer::Impl::RenderPbr(const CameraModel& camera, const RenderOptions& o
     ReadSampleSurfaces(camera, items, samples, camera_from_world, positions);
     glReadBuffer(GL_COLOR_ATTACHMENT0);
     ReadLinearColor(&result->color_linear);
+    if (occlusion) OccludeEnvironment(camera, options.environment_occlusion_mm, result);
     CompositeBackground(options, result);
     ResolveEdges(centre_surfaces, sample_surfaces, samples, positions, &result->color_linear,
                  &edge_colors);

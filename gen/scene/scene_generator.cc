@@ -396,6 +396,7 @@ void SceneGenerator::Impl::DrawEnvironment(std::mt19937_64& engine, RenderOption
   options->environment_id = environment_ids[std::min(
       count - 1, static_cast<size_t>(environment_draw * static_cast<double>(count)))];
   options->environment_yaw_deg = rendering.environment_random_yaw() ? yaw_deg : 0;
+  options->environment_occlusion_mm = static_cast<float>(rendering.environment_occlusion_mm());
   options->environment_intensity =
       rendering.environment_intensity_max() > 0 ? static_cast<float>(std::exp(log_intensity)) : 0.f;
 }

@@ -6,7 +6,9 @@
 // so a white surface in a uniform environment reflects exactly that environment (the furnace
 // test). Writes linear radiance (the tone curve comes later), the instance id, camera z and the
 // surface (item index + 1, for resolve.frag.glsl) of the same fragment; with PROJECTOR, also how
-// much of a 3D camera's projected pattern comes back to the camera from this surface.
+// much of a 3D camera's projected pattern comes back to the camera from this surface; with
+// ENVIRONMENT, also the environment's share of the colour (location 5, read where what surrounds
+// a surface is to hide some of it: RenderOptions::environment_occlusion_mm).
 in vec3 position_camera;
 in vec3 normal_camera;
 layout(location = 0) out vec4 color_out;
@@ -33,6 +35,7 @@ in vec2 texture_coordinates;
 uniform sampler2D material_texture;
 #endif
 #if ENVIRONMENT
+layout(location = 5) out vec4 environment_out;
 uniform mat3 environment_from_camera;
 uniform sampler2D environment_radiance;  // octahedral, level k: roughness k / max_lod
 uniform float environment_max_lod;
@@ -161,8 +164,11 @@ void main() {
   vec3 reflected = environment_from_camera * reflect(-v, n);
   vec3 prefiltered = textureLod(environment_radiance, OctahedralUv(reflected),
                                 r * environment_max_lod).rgb;
-  linear += environment_intensity * (diffuse_weight * (gl_FrontFacing ? irradiance : irradiance_back) +
-                                     specular_albedo * prefiltered);
+  vec3 environment = environment_intensity *
+                     (diffuse_weight * (gl_FrontFacing ? irradiance : irradiance_back) +
+                      specular_albedo * prefiltered);
+  linear += environment;
+  environment_out = vec4(environment, 1.0);
 #endif
 #if PROJECTOR
   // the pattern's light, from the projector to the camera over this surface's BRDF, relative to

@@ -99,6 +99,13 @@ TEST(ConfigTest, RenderingFieldsAreChecked) {
   EXPECT_NE(error("rendering { procedural_halls: 0 }").find("rendering.procedural_halls"),
             std::string::npos);
   EXPECT_EQ(error("rendering { shading: PHONG procedural_halls: 0 }"), "");
+  EXPECT_NE(error("rendering { shading: PHONG environment_occlusion_mm: 200 }")
+                .find("rendering.environment_occlusion_mm"),
+            std::string::npos);
+  EXPECT_NE(error("rendering { environment_occlusion_mm: -1 }")
+                .find("rendering.environment_occlusion_mm"),
+            std::string::npos);
+  EXPECT_EQ(error("rendering { environment_occlusion_mm: 200 }"), "");
   EXPECT_NE(error("part { roughness: 1.5 }").find("part[0].roughness"), std::string::npos);
   EXPECT_NE(
       error("sensor { exposure_ev_min: 1 exposure_ev_max: 0 }").find("sensor.exposure_ev_max"),

@@ -329,6 +329,42 @@ TEST(RendererPbrTest, BadOptionsThrow) {
   EXPECT_THROW(renderer.AddEnvironment(broken), std::runtime_error);
 }
 
+// what surrounds a surface hides the environment from it (RenderOptions::environment_occlusion_mm):
+// in the furnace a white floor beside a block 60 mm tall gets darker, the floor far from it and
+// the block's top keep their light, nothing gets brighter, and depth and ids stay as they were
+TEST(RendererPbrTest, EnvironmentOcclusionDarkensTheFloorBesideABlock) {
+  Renderer renderer(320, 240);
+  const int floor = renderer.AddMesh(testing::MakeSquare(400));
+  const int block = renderer.AddMesh(testing::BoxMesh(Eigen::Vector3f(-30, -30, 0),
+                                                      Eigen::Vector3f(30, 30, 60)));
+  const int furnace = AddFurnace(&renderer, 0.5f);
+  const CameraModel camera = CameraLookingDown(300);
+  const std::vector<DrawItem> items = {WhiteItem(floor, 0.f, 1.f, 0), WhiteItem(block, 0.f, 1.f, 1)};
+  RenderOptions options = PbrOptions(furnace, 4);
+  const RenderResult open = renderer.Render(camera, {}, options, items);
+  options.environment_occlusion_mm = 100;
+  const RenderResult hidden = renderer.Render(camera, {}, options, items);
+  EXPECT_TRUE(Identical(open.depth_mm, hidden.depth_mm));
+  EXPECT_TRUE(Identical(open.instance, hidden.instance));
+  // the green channel at floor point (x, y) mm, or at the block's top
+  const auto at = [&](const RenderResult& result, double x_mm, double y_mm, double z_mm = 300) {
+    const int u = static_cast<int>(std::lround(camera.cx + camera.fx * x_mm / z_mm));
+    const int v = static_cast<int>(std::lround(camera.cy - camera.fy * y_mm / z_mm));
+    return result.color_linear.at<cv::Vec3f>(v, u)[1];
+  };
+  EXPECT_LT(at(hidden, 42, 0), 0.85f * at(open, 42, 0));
+  EXPECT_LT(at(hidden, 0, -42), 0.85f * at(open, 0, -42));
+  EXPECT_NEAR(at(hidden, 0, 0, 240), at(open, 0, 0, 240), 0.01f * at(open, 0, 0, 240));
+  EXPECT_NEAR(at(hidden, 110, 82), at(open, 110, 82), 0.01f * at(open, 110, 82));
+  cv::Mat brighter;
+  cv::compare(hidden.color_linear.reshape(1), open.color_linear.reshape(1) + 1e-4, brighter,
+              cv::CMP_GT);
+  EXPECT_EQ(cv::countNonZero(brighter), 0);
+  // a radius that is not finite and >= 0 is refused
+  options.environment_occlusion_mm = -1;
+  EXPECT_THROW(renderer.Render(camera, {}, options, items), std::runtime_error);
+}
+
 // The width of a shadow's edge on the floor, mm (where the light rises from 10 % to 90 % of the
 // lit floor's), and the light in the shadow beside it, as a share of the lit floor's: a 60 mm
 // square `height_mm` over a white floor, lit at 45 degrees by a lamp of `radius_deg`, its

@@ -14,6 +14,7 @@ namespace {
 
 constexpr int kDirections = 8;  // around each pixel: 4 slices, both sides
 constexpr int kSteps = 6;       // samples along each direction
+constexpr int kCoarse = 4;      // the horizons are found at every kCoarse-th pixel and row
 // a horizon must rise this much (sine of its angle) over the tangent plane to hide anything,
 // so that the depth's rounding on a flat face hides nothing
 constexpr float kBias = 0.03f;
@@ -79,8 +80,8 @@ void EnvironmentVisibility(const cv::Mat& depth_mm, const Intrinsics& camera, do
   }
   const int width = depth_mm.cols;
   const int height = depth_mm.rows;
-  const int half_width = (width + 1) / 2;
-  const int half_height = (height + 1) / 2;
+  const int coarse_width = (width + kCoarse - 1) / kCoarse;
+  const int coarse_height = (height + kCoarse - 1) / kCoarse;
   const float radius = static_cast<float>(radius_mm);
   const float radius_squared = radius * radius;
   // what lies in the outer 40 % of the radius counts less the farther it is
@@ -98,16 +99,16 @@ void EnvironmentVisibility(const cv::Mat& depth_mm, const Intrinsics& camera, do
     }
   }
 
-  // the open share of the sky at every other pixel of every other row, (2 i, 2 j)
-  cv::Mat open(half_height, half_width, CV_32FC1);
-  cv::Mat half_depth(half_height, half_width, CV_32FC1);
-  cv::parallel_for_(cv::Range(0, half_height), [&](const cv::Range& rows) {
+  // the open share of the sky at every kCoarse-th pixel of every kCoarse-th row
+  cv::Mat open(coarse_height, coarse_width, CV_32FC1);
+  cv::Mat coarse_depth(coarse_height, coarse_width, CV_32FC1);
+  cv::parallel_for_(cv::Range(0, coarse_height), [&](const cv::Range& rows) {
     for (int j = rows.start; j < rows.end; ++j) {
-      for (int i = 0; i < half_width; ++i) {
-        const int u = 2 * i;
-        const int v = 2 * j;
+      for (int i = 0; i < coarse_width; ++i) {
+        const int u = kCoarse * i;
+        const int v = kCoarse * j;
         const float z = depth_mm.at<float>(v, u);
-        half_depth.at<float>(j, i) = z;
+        coarse_depth.at<float>(j, i) = z;
         if (z <= 0) {
           open.at<float>(j, i) = 1;
           continue;
@@ -146,20 +147,20 @@ void EnvironmentVisibility(const cv::Mat& depth_mm, const Intrinsics& camera, do
   });
 
   // averaged over the pattern's 4 x 4 block, between pixels of the same surface
-  cv::Mat smooth(half_height, half_width, CV_32FC1);
-  cv::parallel_for_(cv::Range(0, half_height), [&](const cv::Range& rows) {
+  cv::Mat smooth(coarse_height, coarse_width, CV_32FC1);
+  cv::parallel_for_(cv::Range(0, coarse_height), [&](const cv::Range& rows) {
     for (int j = rows.start; j < rows.end; ++j) {
-      for (int i = 0; i < half_width; ++i) {
-        const float z = half_depth.at<float>(j, i);
+      for (int i = 0; i < coarse_width; ++i) {
+        const float z = coarse_depth.at<float>(j, i);
         if (z <= 0) {
           smooth.at<float>(j, i) = 1;
           continue;
         }
         float sum = 0;
         int count = 0;
-        for (int b = std::max(0, j - 2); b <= std::min(half_height - 1, j + 1); ++b) {
-          for (int a = std::max(0, i - 2); a <= std::min(half_width - 1, i + 1); ++a) {
-            const float other = half_depth.at<float>(b, a);
+        for (int b = std::max(0, j - 2); b <= std::min(coarse_height - 1, j + 1); ++b) {
+          for (int a = std::max(0, i - 2); a <= std::min(coarse_width - 1, i + 1); ++a) {
+            const float other = coarse_depth.at<float>(b, a);
             if (other <= 0 || std::abs(other - z) > kSameSurface * z) continue;
             sum += open.at<float>(b, a);
             ++count;
@@ -170,14 +171,14 @@ void EnvironmentVisibility(const cv::Mat& depth_mm, const Intrinsics& camera, do
     }
   });
 
-  // full size: the four half-size pixels around, bilinear, those of the same surface only (the
+  // full size: the four coarse pixels around, bilinear, those of the same surface only (the
   // nearest in depth where none is)
   visibility->create(height, width, CV_32FC1);
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
     for (int v = rows.start; v < rows.end; ++v) {
-      const int j0 = std::min(v / 2, half_height - 1);
-      const int j1 = std::min(j0 + 1, half_height - 1);
-      const float fy = 0.5f * static_cast<float>(v) - static_cast<float>(j0);
+      const int j0 = std::min(v / kCoarse, coarse_height - 1);
+      const int j1 = std::min(j0 + 1, coarse_height - 1);
+      const float fy = static_cast<float>(v) / kCoarse - static_cast<float>(j0);
       float* out = visibility->ptr<float>(v);
       for (int u = 0; u < width; ++u) {
         const float z = depth_mm.at<float>(v, u);
@@ -185,9 +186,9 @@ void EnvironmentVisibility(const cv::Mat& depth_mm, const Intrinsics& camera, do
           out[u] = 1;
           continue;
         }
-        const int i0 = std::min(u / 2, half_width - 1);
-        const int i1 = std::min(i0 + 1, half_width - 1);
-        const float fx = 0.5f * static_cast<float>(u) - static_cast<float>(i0);
+        const int i0 = std::min(u / kCoarse, coarse_width - 1);
+        const int i1 = std::min(i0 + 1, coarse_width - 1);
+        const float fx = static_cast<float>(u) / kCoarse - static_cast<float>(i0);
         const int is[4] = {i0, i1, i0, i1};
         const int js[4] = {j0, j0, j1, j1};
         const float weights[4] = {(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy};
@@ -196,7 +197,7 @@ void EnvironmentVisibility(const cv::Mat& depth_mm, const Intrinsics& camera, do
         float nearest_gap = -1;
         float nearest = 1;
         for (int k = 0; k < 4; ++k) {
-          const float other = half_depth.at<float>(js[k], is[k]);
+          const float other = coarse_depth.at<float>(js[k], is[k]);
           const float gap = std::abs(other - z);
           if (nearest_gap < 0 || gap < nearest_gap) {
             nearest_gap = gap;

@@ -16,9 +16,9 @@ namespace stackgen {
 /// near 0. What lies outside the picture or behind what the camera sees hides nothing.
 ///
 /// `depth_mm` is CV_32FC1 camera z (0 where nothing is drawn, which scores 1), in pixels of
-/// `camera`'s intrinsics. Computed at half resolution with a 4 x 4 pattern of turned directions,
-/// averaged over that pattern between pixels of similar depth, and brought back to full size
-/// from the half-size pixels at the same depth. Deterministic. Writes CV_32FC1 in [0, 1] to
+/// `camera`'s intrinsics. Computed at every fourth pixel of every fourth row with a 4 x 4 pattern
+/// of turned directions, averaged over that pattern between pixels of similar depth, and brought
+/// back to full size from the coarse pixels at the same depth. Deterministic. Writes CV_32FC1 in [0, 1] to
 /// `visibility`. Throws std::invalid_argument for another type or size, or a radius that is
 /// not finite and > 0.
 void EnvironmentVisibility(const cv::Mat& depth_mm, const Intrinsics& camera, double radius_mm,

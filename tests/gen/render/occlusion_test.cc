@@ -9,19 +9,13 @@
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 
+#include "tests/support/cameras.h"
+
 namespace stackgen {
 namespace {
 
 // 320 x 240, fx = fy = 400, straight down from 300 mm over a floor at camera z 300
-Intrinsics Camera() {
-  Intrinsics camera;
-  camera.width = 320;
-  camera.height = 240;
-  camera.fx = camera.fy = 400;
-  camera.cx = 159.5;
-  camera.cy = 119.5;
-  return camera;
-}
+Intrinsics Camera() { return testing::CameraLookingDown(300); }
 
 // the depth image of a floor at z 300 with blocks on it: `top(x, y)` is the camera z of a
 // block's top over floor point (x, y) mm, or 0 where there is none (a block's top at z is seen

@@ -86,7 +86,8 @@ def parse_args(argv):
                         help="instead of making one, the training set of the matching --config "
                              "(a COCO folder; give one per --config, in order)")
     parser.add_argument("--test", action="append", default=[], metavar="DIR",
-                        help="a COCO test set (repeatable), e.g. from research/make-blender-testset")
+                        help="a COCO test set (repeatable), e.g. from "
+                             "research/make-blender-testset")
     parser.add_argument("--no-held-out", action="store_true",
                         help="no held-out stackgen test set (default: --held-out scenes of "
                              "config/default.pbtxt at seed 1000000)")
@@ -103,9 +104,10 @@ def parse_args(argv):
                              "(default: the faster rule 1 mm, 1 degree, 0.25 s)")
     parser.add_argument("--errors", default=None, metavar="DIR",
                         help="quick mode: pictures of the worst images' errors per config and "
-                             "test set (default: WORK_DIR/errors/unetL-S-steps, the network's "
-                             "levels and steps, so runs of another instrument keep theirs; none "
-                             "without --work-dir)")
+                             "test set (default: WORK_DIR/errors/unetL-S-steps-seed-F, the "
+                             "network's levels and steps and the first of --seeds, whose "
+                             "pictures they are, so another run keeps its own; none without "
+                             "--work-dir)")
     parser.add_argument("--worst", type=toolcli.whole_number(0), default=4, metavar="N",
                         help="quick mode: images per error picture (default 4)")
     parser.add_argument("--unet-levels", type=toolcli.whole_number(2), default=None, metavar="N",
@@ -581,8 +583,8 @@ def run_quick(args, work):
         name, dataset = os.path.basename(os.path.normpath(path)), CocoDataset(path)
         tests.append((name, dataset, None))
         kinds[name] = scene_kinds(path, dataset)
-    errors = args.errors or (os.path.join(args.work_dir, "errors", "unet%d-%d-steps" % (
-        args.unet_levels, args.steps)) if args.work_dir else None)
+    errors = args.errors or (os.path.join(args.work_dir, "errors", "unet%d-%d-steps-seed-%d" % (
+        args.unet_levels, args.steps, args.seeds[0])) if args.work_dir else None)
     if errors:
         os.makedirs(errors, exist_ok=True)
 

@@ -106,8 +106,14 @@ def parse_args(argv):
                         help="quick mode: pictures of the worst images' errors per config and "
                              "test set (default: WORK_DIR/errors/unetL-S-steps-seed-F, the "
                              "network's levels and steps and the first of --seeds, whose "
-                             "pictures they are, so another run keeps its own; none without "
-                             "--work-dir)")
+                             "pictures they are, -tta added with --tta, so another run keeps "
+                             "its own; none without --work-dir)")
+    parser.add_argument("--tta", action="store_true",
+                        help="quick mode: score each image by the mean of the network's "
+                             "predictions over its eight quarter turns and mirror images, each "
+                             "turned back (test-time augmentation; the training draws its crops "
+                             "in those eight views); kept models are scored again without "
+                             "training")
     parser.add_argument("--worst", type=toolcli.whole_number(0), default=4, metavar="N",
                         help="quick mode: images per error picture (default 4)")
     parser.add_argument("--unet-levels", type=toolcli.whole_number(2), default=None, metavar="N",
@@ -167,8 +173,8 @@ def parse_args(argv):
             parser.error("--seeds: %s" % error)
         if not args.seeds or len(set(args.seeds)) != len(args.seeds):
             parser.error("--seeds wants distinct whole numbers, got %r" % args.seeds)
-    if args.mode != "quick" and (args.strict_rest or args.errors or args.unet_levels):
-        parser.error("--strict-rest, --errors and --unet-levels are for --mode quick")
+    if args.mode != "quick" and (args.strict_rest or args.errors or args.unet_levels or args.tta):
+        parser.error("--strict-rest, --errors, --unet-levels and --tta are for --mode quick")
     if args.mode == "quick" and args.workers:
         parser.error("--workers is for --mode cpu and gpu")
     if args.unet_levels is None:
@@ -583,8 +589,9 @@ def run_quick(args, work):
         name, dataset = os.path.basename(os.path.normpath(path)), CocoDataset(path)
         tests.append((name, dataset, None))
         kinds[name] = scene_kinds(path, dataset)
-    errors = args.errors or (os.path.join(args.work_dir, "errors", "unet%d-%d-steps-seed-%d" % (
-        args.unet_levels, args.steps, args.seeds[0])) if args.work_dir else None)
+    errors = args.errors or (os.path.join(args.work_dir, "errors", "unet%d-%d-steps-seed-%d%s" % (
+        args.unet_levels, args.steps, args.seeds[0], "-tta" if args.tta else "")) if
+        args.work_dir else None)
     if errors:
         os.makedirs(errors, exist_ok=True)
 
@@ -603,7 +610,7 @@ def run_quick(args, work):
             for test_name, dataset, size in tests:
                 worst = args.worst if errors and seed == args.seeds[0] else 0
                 pixels, detections, pictures = quick_segmenter.score(model, dataset, args.scale,
-                                                                     size, worst)
+                                                                     size, worst, args.tta)
                 if pictures:
                     write_pictures(os.path.join(errors, "%s-%s.jpg" % (
                         stem, re.sub(r"[^A-Za-z0-9_.-]+", "-", test_name))), pictures)
@@ -662,7 +669,7 @@ def write_results(args, results, summaries=None):
                "train_scenes": args.train_scenes, "results": results}
     if summaries is not None:
         written.update(seeds=args.seeds, strict_rest=args.strict_rest,
-                       unet_levels=args.unet_levels, summaries=summaries)
+                       unet_levels=args.unet_levels, tta=args.tta, summaries=summaries)
     temporary = args.out + ".tmp"
     with open(temporary, "w") as file:
         json.dump(written, file, indent=1)
@@ -691,6 +698,9 @@ def main(argv):
         print("%s: the sets are made with %sthe hidden parts as ignore regions (%s)" % (
             PROGRAM, "" if args.strict_rest else "the faster settle rule (%s) and " %
             QUICK_RULES.strip(), QUICK_LABELS.strip()), flush=True)
+        if args.tta:
+            print("%s: each test image scored by the mean over its eight quarter turns and "
+                  "mirror images (--tta)" % PROGRAM, flush=True)
         run_quick(args, work)
         if not args.work_dir:
             import shutil

@@ -214,19 +214,41 @@ def train(model, images, targets, steps, batch_size, crop, lr, seed, log=None):
 
 # --- prediction ----------------------------------------------------------------------------------
 
-def predict(model, image, scale):
+# the quarter turns and mirror images the training draws its crops in: the eight views --tta
+# averages
+VIEWS = tuple((turns, mirror) for turns in range(4) for mirror in (False, True))
+
+
+def _probabilities(model, x):
+    """The network's softmax (B, 3, H, W) of images x (B, 3, H, W), padded to its multiple (the
+    edge pixels repeated) and cut back."""
+    height, width = x.shape[2:]
+    pad_h, pad_w = -height % model.multiple, -width % model.multiple
+    if pad_h or pad_w:
+        x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
+    return torch.softmax(model(x)[:, :, :height, :width], 1)
+
+
+def predict(model, image, scale, tta=False):
     """Class probabilities (3, H, W) float32 at the image's full size: the network at `scale`,
-    its softmax resized back bilinearly."""
+    its softmax resized back bilinearly. With tta, the mean of the softmax over the image's
+    eight quarter turns and mirror images, each turned back (the same under any of them)."""
     height, width = image.shape[:2]
     small_h, small_w = round(height * scale), round(width * scale)
     small = cv2.resize(image, (small_w, small_h), interpolation=cv2.INTER_AREA)
-    pad_h, pad_w = -small_h % model.multiple, -small_w % model.multiple
     x = torch.from_numpy(np.ascontiguousarray(small)).permute(2, 0, 1)[None].float() / 255
-    if pad_h or pad_w:
-        x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
+    views = VIEWS if tta else VIEWS[:1]
+    total = 0
     with torch.no_grad():
-        logits = model(x)[:, :, :small_h, :small_w]
-        probabilities = F.interpolate(torch.softmax(logits, 1), size=(height, width),
+        for turns, mirror in views:
+            view = torch.rot90(x, turns, (2, 3))
+            if mirror:
+                view = torch.flip(view, (3,))
+            seen = _probabilities(model, view)
+            if mirror:
+                seen = torch.flip(seen, (3,))
+            total = total + torch.rot90(seen, -turns, (2, 3))
+        probabilities = F.interpolate(total / len(views), size=(height, width),
                                       mode="bilinear", align_corners=False)
     return probabilities[0].numpy()
 
@@ -330,16 +352,17 @@ def dataset_regions(dataset, index, bin_size=None):
 
 # --- scoring -------------------------------------------------------------------------------------
 
-def score(model, dataset, scale, bin_size=None, worst=0):
-    """Scores a trained model on a CocoDataset: (ForegroundScores result, DetectionScores
-    result, the `worst` images' pictures of their errors, worst first)."""
+def score(model, dataset, scale, bin_size=None, worst=0, tta=False):
+    """Scores a trained model on a CocoDataset (with tta, its predictions averaged over each
+    image's eight views): (ForegroundScores result, DetectionScores result, the `worst` images'
+    pictures of their errors, worst first)."""
     pixels = ForegroundScores()
     detections = DetectionScores()
     pictures = []
     for index in range(len(dataset)):
         image = dataset.image(index)
         masks, _, iscrowd = dataset.target(index)
-        probabilities = predict(model, image, scale)
+        probabilities = predict(model, image, scale, tta)
         found, scores, foreground = instances(probabilities)
         ids, ignore = label_map(masks, iscrowd) if len(masks) else (
             np.zeros(image.shape[:2], np.int32), np.zeros(image.shape[:2], bool))

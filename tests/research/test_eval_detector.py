@@ -106,6 +106,8 @@ def test_quick_mode_flags_are_checked():
     assert cpu_errors.returncode == 2 and "--mode quick" in cpu_errors.stderr
     cpu_levels = run("--config", config, "--unet-levels", "5")
     assert cpu_levels.returncode == 2 and "--mode quick" in cpu_levels.stderr
+    cpu_tta = run("--config", config, "--tta")
+    assert cpu_tta.returncode == 2 and "--mode quick" in cpu_tta.stderr
     too_deep = run("--config", config, "--mode", "quick", "--unet-levels", "7")
     assert too_deep.returncode == 2 and "2..6" in too_deep.stderr
 
@@ -141,10 +143,20 @@ def test_a_tiny_quick_run_scores_summarises_and_draws_the_errors(tmp_path):
     assert {k["kind"]: k["foreground_iou"] for k in summary["by_kind"]} == {
         "white tote": scores["per_image_iou"][0], "blue tote": scores["per_image_iou"][1]}
     assert [k["images"] for k in summary["by_kind"]] == [1, 1]
-    # the pictures go where the instrument's levels and steps name them
-    errors = os.path.join(work, "errors", "unet5-2-steps")
+    # the pictures go where the instrument's levels and steps and the first seed name them
+    errors = os.path.join(work, "errors", "unet5-2-steps-seed-3")
     (picture,) = os.listdir(errors)
     assert picture.endswith(".jpg") and cv2.imread(os.path.join(errors, picture)) is not None
+    # --tta: said, written down, and its pictures kept apart from those above
+    result = run("--mode", "quick", "--config", os.path.join(ROOT, "config", "default.pbtxt"),
+                 "--train-dir", folder, "--test", folder, "--no-held-out", "--seeds", "3",
+                 "--steps", "2", "--threads", "2", "--work-dir", work, "--worst", "1",
+                 "--unet-levels", "5", "--tta", "--out", out)
+    assert result.returncode == 0, result.stderr
+    assert "eight quarter turns and mirror images" in result.stdout
+    with open(out) as file:
+        assert json.load(file)["tta"] is True
+    assert os.listdir(errors + "-tta") == [picture]
 
 
 def test_kinds_of_scene_pool_the_seeds_and_need_every_image_named(tmp_path):

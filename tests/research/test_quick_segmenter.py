@@ -113,3 +113,26 @@ def test_levels_set_the_weights_and_what_a_pixel_sees(levels, weights, seen_px):
     probabilities = qs.predict(model, image, 0.5)
     assert probabilities.shape == (3, 50, 70)
     assert np.allclose(probabilities.sum(axis=0), 1, atol=1e-5)
+
+
+# --tta: the prediction averaged over the eight quarter turns and mirror images, each turned back,
+# is the same whichever way the image lies; one view alone (an untrained network) is not
+def test_tta_is_the_same_under_every_turn_and_mirror():
+    import torch
+    model = qs.build_model(0).eval()
+    with torch.no_grad():  # an untrained network's classes barely differ: made to differ
+        model.head.weight.mul_(100)
+    # 48 x 32 at half size: no padding, which would differ between a view and its turn
+    image = np.random.default_rng(0).integers(0, 256, (64, 96, 3), np.uint8)
+    averaged = qs.predict(model, image, 0.5, tta=True)
+    assert averaged.shape == (3, 64, 96)
+    assert np.allclose(averaged.sum(axis=0), 1, atol=1e-5)
+    for turns in range(4):
+        for mirror in (False, True):
+            view = np.rot90(image, turns)
+            view = np.ascontiguousarray(view[:, ::-1] if mirror else view)
+            expected = np.rot90(averaged, turns, (1, 2))
+            expected = expected[:, :, ::-1] if mirror else expected
+            assert np.allclose(qs.predict(model, view, 0.5, tta=True), expected, atol=1e-5)
+    plain = qs.predict(model, np.ascontiguousarray(np.rot90(image)), 0.5)
+    assert np.abs(plain - np.rot90(qs.predict(model, image, 0.5), 1, (1, 2))).max() > 0.05

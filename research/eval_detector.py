@@ -416,9 +416,10 @@ def merged_config(config, overlay, out):
         return '%s%s: "%s"' % (match.group(1), match.group(2), path)
 
     text = re.sub(r'^(\s*)(%s): "([^"]*)"$' % "|".join(PATH_FIELDS), absolute, text, flags=re.M)
-    with open(out + ".tmp", "w") as file:
+    temporary = "%s.%d.tmp" % (out, os.getpid())
+    with open(temporary, "w") as file:
         file.write(text)
-    os.replace(out + ".tmp", out)
+    os.replace(temporary, out)
     return text
 
 
@@ -487,8 +488,9 @@ def write_pictures(path, pictures):
     if len(tiles) % 2:
         tiles.append(np.zeros_like(tiles[0]))
     rows = [np.hstack(tiles[k:k + 2]) for k in range(0, len(tiles), 2)]
-    cv2.imwrite(path + ".tmp.jpg", np.vstack(rows), [cv2.IMWRITE_JPEG_QUALITY, 85])
-    os.replace(path + ".tmp.jpg", path)
+    temporary = "%s.%d.tmp.jpg" % (path, os.getpid())
+    cv2.imwrite(temporary, np.vstack(rows), [cv2.IMWRITE_JPEG_QUALITY, 85])
+    os.replace(temporary, path)
 
 
 def quick_model(args, config, train_dir, seed):
@@ -522,8 +524,9 @@ def quick_model(args, config, train_dir, seed):
     except RuntimeError as error:
         fail("%s: %s" % (name, error))
     if kept:
-        torch.save(model.state_dict(), kept + ".tmp")
-        os.replace(kept + ".tmp", kept)
+        temporary = "%s.%d.tmp" % (kept, os.getpid())
+        torch.save(model.state_dict(), temporary)
+        os.replace(temporary, kept)
     return model, time.monotonic() - start
 
 
@@ -670,7 +673,7 @@ def write_results(args, results, summaries=None):
     if summaries is not None:
         written.update(seeds=args.seeds, strict_rest=args.strict_rest,
                        unet_levels=args.unet_levels, tta=args.tta, summaries=summaries)
-    temporary = args.out + ".tmp"
+    temporary = "%s.%d.tmp" % (args.out, os.getpid())
     with open(temporary, "w") as file:
         json.dump(written, file, indent=1)
     os.replace(temporary, args.out)
@@ -743,8 +746,9 @@ def main(argv):
         else:
             model = train(args, CocoDataset(train_dir), name)
             if kept:
-                torch.save(model.state_dict(), kept + ".tmp")
-                os.replace(kept + ".tmp", kept)
+                temporary = "%s.%d.tmp" % (kept, os.getpid())
+                torch.save(model.state_dict(), temporary)
+                os.replace(temporary, kept)
         trained_s = time.monotonic() - start
         for test_name, test in tests:
             result = evaluate(args, model, test)

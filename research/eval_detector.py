@@ -187,6 +187,20 @@ def parse_args(argv):
     return args
 
 
+def temporary_name(path, extension=""):
+    """Where `path` is written whole before os.replace puts it in place: a name of this
+    process's own, so that two calls sharing a work folder never write the same file."""
+    return "%s.%d.tmp%s" % (path, os.getpid(), extension)
+
+
+def save_model(model, path):
+    """The model's weights to `path`, whole or not at all."""
+    import torch
+    temporary = temporary_name(path)
+    torch.save(model.state_dict(), temporary)
+    os.replace(temporary, path)
+
+
 def make_dataset(config, count, seed, out, log):
     """tools/run: generator and stackgen-coco on a bus of their own."""
     start = time.monotonic()
@@ -416,7 +430,7 @@ def merged_config(config, overlay, out):
         return '%s%s: "%s"' % (match.group(1), match.group(2), path)
 
     text = re.sub(r'^(\s*)(%s): "([^"]*)"$' % "|".join(PATH_FIELDS), absolute, text, flags=re.M)
-    temporary = "%s.%d.tmp" % (out, os.getpid())
+    temporary = temporary_name(out)
     with open(temporary, "w") as file:
         file.write(text)
     os.replace(temporary, out)
@@ -488,7 +502,7 @@ def write_pictures(path, pictures):
     if len(tiles) % 2:
         tiles.append(np.zeros_like(tiles[0]))
     rows = [np.hstack(tiles[k:k + 2]) for k in range(0, len(tiles), 2)]
-    temporary = "%s.%d.tmp.jpg" % (path, os.getpid())
+    temporary = temporary_name(path, ".jpg")
     cv2.imwrite(temporary, np.vstack(rows), [cv2.IMWRITE_JPEG_QUALITY, 85])
     os.replace(temporary, path)
 
@@ -524,9 +538,7 @@ def quick_model(args, config, train_dir, seed):
     except RuntimeError as error:
         fail("%s: %s" % (name, error))
     if kept:
-        temporary = "%s.%d.tmp" % (kept, os.getpid())
-        torch.save(model.state_dict(), temporary)
-        os.replace(temporary, kept)
+        save_model(model, kept)
     return model, time.monotonic() - start
 
 
@@ -673,7 +685,7 @@ def write_results(args, results, summaries=None):
     if summaries is not None:
         written.update(seeds=args.seeds, strict_rest=args.strict_rest,
                        unet_levels=args.unet_levels, tta=args.tta, summaries=summaries)
-    temporary = "%s.%d.tmp" % (args.out, os.getpid())
+    temporary = temporary_name(args.out)
     with open(temporary, "w") as file:
         json.dump(written, file, indent=1)
     os.replace(temporary, args.out)
@@ -746,9 +758,7 @@ def main(argv):
         else:
             model = train(args, CocoDataset(train_dir), name)
             if kept:
-                temporary = "%s.%d.tmp" % (kept, os.getpid())
-                torch.save(model.state_dict(), temporary)
-                os.replace(temporary, kept)
+                save_model(model, kept)
         trained_s = time.monotonic() - start
         for test_name, test in tests:
             result = evaluate(args, model, test)

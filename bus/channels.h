@@ -12,7 +12,8 @@ inline constexpr const char* kLabelsChannel = "STACKGEN_LABELS";
 inline constexpr const char* kStatusChannel = "STACKGEN_STATUS";
 /// The generator config in force, latched, about 1 Hz (stackgen::config_text).
 inline constexpr const char* kConfigChannel = "STACKGEN_CONFIG";
-/// The 3D model of each labelled class, latched, about every 5 s (stackgen::model).
+/// The 3D model of each labelled class, latched, about every 5 s and at the end of a run
+/// (stackgen::model).
 inline constexpr const char* kModelChannel = "STACKGEN_MODEL";
 /// A learner's progress, about 1 Hz (stackgen::learner_status; stackgen.LearnerStatus).
 inline constexpr const char* kLearnerChannel = "STACKGEN_LEARNER";

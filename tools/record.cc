@@ -29,8 +29,9 @@ constexpr const char* kUsage =
     "Usage: stackgen-record --lcm-url URL --out FILE [--channels REGEX]\n"
     "\n"
     "Records the channels of a udpm:// bus that REGEX matches (whole names, ECMAScript\n"
-    "syntax; default STACKGEN_(SCENE|LABELS|CONFIG|STATUS)) into the LCM log FILE until SIGINT\n"
-    "or SIGTERM, written as FILE.part and renamed into place at the end. FILE must not exist.\n"
+    "syntax; default STACKGEN_(SCENE|LABELS|CONFIG|STATUS|MODEL)) into the LCM log FILE until\n"
+    "SIGINT or SIGTERM, written as FILE.part and renamed into place at the end. FILE must not\n"
+    "exist.\n"
     "Messages are kept as they came (their bus-key trailers unchecked), at most 1000 waiting per\n"
     "channel and 256 channels; the receiver's bounds are stackgen's (bus/udpm.h). tools/record\n"
     "is the way to run it.\n";
@@ -44,7 +45,7 @@ void RequestStop(int) { stop_requested = true; }
 int Run(int argc, char** argv) {
   std::string url;
   std::string out;
-  std::string channels = "STACKGEN_(SCENE|LABELS|CONFIG|STATUS)";
+  std::string channels = "STACKGEN_(SCENE|LABELS|CONFIG|STATUS|MODEL)";
   FlagParser parser("stackgen-record");
   parser.String("--lcm-url", &url, "a udpm:// URL");
   parser.Require("--lcm-url");

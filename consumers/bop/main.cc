@@ -5,6 +5,7 @@
 #include <memory>
 #include <set>
 #include <string>
+#include <vector>
 
 #include <stackgen/model.hpp>
 
@@ -39,6 +40,8 @@ void PrintHelp() {
       "  DIR/SPLIT/SCENE_ID/{rgb,depth,mask,mask_visib}/ and scene_camera.json,\n"
       "  scene_gt.json, scene_gt_info.json, scene_gt_coco.json. Scenes with a 3D camera's depth\n"
       "  (config sensor_3d) store it in depth/ and the exact depth in depth_ideal/.\n"
+      "A model not heard by the time --count scenes are stored is waited for up to 6 s\n"
+      "(generators send their models every 5 s and at their end), then said on stderr.\n"
       "OBJ_ID is the class id; a SCENE_ID folder (a chunk) holds 1000 consecutive scenes of one\n"
       "generator: SCENE_ID = generator_id * 1000000 + seq / 1000, image id = seq %% 1000.\n"
       "Every labelled instance is a ground truth (distractors are not objects of the dataset);\n"
@@ -75,6 +78,16 @@ void PrintHelp() {
       "Exit status: 0 done, 1 error, 2 bad command line.\n",
       kProgram, stackgen::kSceneChannel, stackgen::kModelChannel,
       stackgen::WriterFlagsHelp("bop.journal").c_str());
+}
+
+// the classes of the scenes stored whose model has not been heard, ascending
+std::vector<int32_t> MissingModels(const stackgen::BopWriter& writer) {
+  const std::set<int32_t> models = writer.ModelClasses();
+  std::vector<int32_t> missing;
+  for (const auto& [class_id, class_name] : writer.classes()) {
+    if (models.count(class_id) == 0) missing.push_back(class_id);
+  }
+  return missing;
 }
 
 }  // namespace
@@ -133,17 +146,26 @@ int main(int argc, char** argv) {
           std::fprintf(stderr, "%s: skipped a model message: %s\n", kProgram, text.c_str());
         });
   };
+  // the models a generator has not been heard to send yet: the writer listens on for them once
+  // --count scenes are stored
+  program.missing = [](const stackgen::DatasetSink& sink) {
+    const std::vector<int32_t> classes =
+        MissingModels(static_cast<const stackgen::BopWriter&>(sink));
+    std::string text;
+    for (const int32_t class_id : classes) {
+      text += (text.empty() ? "" : ", ") + std::to_string(class_id);
+    }
+    if (classes.empty()) return text;
+    return (classes.size() == 1 ? "the model of class " : "the models of classes ") + text;
+  };
   program.summary = [&](const stackgen::DatasetSink& sink) {
     const auto& writer = static_cast<const stackgen::BopWriter&>(sink);
     std::string missing;
-    const std::set<int32_t> models = writer.ModelClasses();
-    for (const auto& [class_id, class_name] : writer.classes()) {
-      if (models.count(class_id) == 0) {
-        missing +=
-            (missing.empty() ? " (no model heard for obj " : ", ") + std::to_string(class_id);
-      }
+    for (const int32_t class_id : MissingModels(writer)) {
+      missing += (missing.empty() ? " (no model heard for obj " : ", ") + std::to_string(class_id);
     }
     if (!missing.empty()) missing += ")";
+    const std::set<int32_t> models = writer.ModelClasses();
     return std::string(kProgram) + ": wrote " + flags.writer.out + ": " +
            std::to_string(writer.num_images()) + " images in " +
            std::to_string(writer.num_chunks()) + " chunks of " + flags.split + ", " +

@@ -270,6 +270,34 @@ class WriterSession {
     if (show_progress_) std::fprintf(stderr, "\n");
     // a log whose scenes were all refused for their key is an error, not an empty dataset
     if (bus.state().log_ended() && writer_->num_images() == stored_at_start_) session_->CheckKeys();
+    if (Enough() && !stop_requested) AwaitCompletion();
+  }
+
+  // --count scenes are stored, but the dataset lacks something else heard on the bus (a
+  // model lost on the way): listen on for it, crediting as before, up to kCompletionWaitS or
+  // the end of a log; said on stderr when it does not come
+  void AwaitCompletion() {
+    if (!program_.missing || program_.missing(*writer_).empty()) return;
+    Bus& bus = session_->bus();
+    const Clock::TimePoint until =
+        clock_.Now() + std::chrono::duration_cast<Clock::TimePoint::duration>(
+                           std::chrono::duration<double>(kCompletionWaitS));
+    while (!stop_requested && !bus.state().log_ended() && clock_.Now() < until &&
+           !program_.missing(*writer_).empty()) {
+      bus.HandleFor(50);
+      session_->Service(writer_->num_images(), session_->delivery().stored);
+    }
+    const std::string missing = program_.missing(*writer_);
+    if (missing.empty()) return;
+    std::fprintf(stderr,
+                 "%s: warning: %lld scenes stored, but %s was not heard%s: the dataset lacks "
+                 "it\n",
+                 name_text_, static_cast<long long>(writer_->num_images()), missing.c_str(),
+                 bus.state().log_ended()
+                     ? " before the end of the log"
+                     : (" within " + std::to_string(static_cast<int>(kCompletionWaitS)) +
+                        " s of the last scene")
+                           .c_str());
   }
 
   // generators stop waiting for us (and a monitor sees we ended: our --count stored, or

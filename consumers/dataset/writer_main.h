@@ -55,12 +55,21 @@ struct WriterProgram {
   std::function<std::unique_ptr<DatasetSink>(const WriterFlags&)> open;
   /// Optional: subscribes what else the writer needs from the bus (stackgen-bop: the models).
   std::function<void(Bus&, DatasetSink&)> subscribe;
+  /// Optional: what the dataset still lacks once --count scenes are stored, "" when nothing
+  /// (stackgen-bop: "the model of class 1"). The writer listens on for it, up to
+  /// kCompletionWaitS seconds or the end of a log, before it finishes; still missing then,
+  /// it says so on stderr.
+  std::function<std::string(const DatasetSink&)> missing;
   /// The last line printed on success, after Finish: what the dataset holds.
   std::function<std::string(const DatasetSink&)> summary;
   /// The clock of the writer's waits, warnings, progress and status (bus/clock.h); null:
   /// SteadyClock(). Must outlive RunWriter.
   Clock* clock = nullptr;
 };
+
+/// How long a writer listens, once --count scenes are stored, for what WriterProgram::missing
+/// names (seconds): a generator publishes its models every 5 s and again at its end.
+inline constexpr double kCompletionWaitS = 6.0;
 
 /// Runs a writer program to its end: stores the scenes on STACKGEN_SCENE until flags.count are
 /// stored, SIGINT or SIGTERM, or the end of a file:// log; returns the exit status (0, or 1

@@ -93,7 +93,7 @@ flags:
 
 channels published: STACKGEN_SCENE (labels + images), STACKGEN_LABELS (labels only),
 STACKGEN_STATUS (1 Hz), STACKGEN_CONFIG (the config in force, 1 Hz), STACKGEN_MODEL (the
-mesh, diameter and symmetries of each labelled class, every 5 s).
+mesh, diameter and symmetries of each labelled class, every 5 s and at the end).
 channels read: STACKGEN_CREDIT and STACKGEN_RESEND. Reliable consumers (stackgen-coco,
 stackgen-bop) send
 credits: the generator never runs more than a consumer's window ahead of what it has stored,

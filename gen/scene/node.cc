@@ -420,11 +420,19 @@ void GeneratorNode::Impl::WarnIfAlone(Clock::TimePoint now) {
 }
 
 // the last status says how the run ended, three times over (a status is one datagram, and a
-// stream ends on it); the status alone, not the config and models again. Never throws: it also
+// stream ends on it); a run that reached its end sends its models once more before it: a BOP
+// writer that lost them on the way waits for them after its last scene. Never throws: it also
 // runs on the way out of an error
 void GeneratorNode::Impl::PublishEnd(int8_t state) {
   run_state = state;
   try {
+    if (state == kRunEnded) {
+      for (model message : generator.Models()) {
+        message.header = config_message.header;
+        message.header.utime = UnixMicros();
+        bus.Publish(kModelChannel, message);
+      }
+    }
     const status last = Counted(Seconds(last_status, clock.Now()));
     for (int k = 0; k < 3; ++k) {
       if (k > 0) std::this_thread::sleep_for(std::chrono::milliseconds(30));

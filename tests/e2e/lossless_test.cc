@@ -24,6 +24,7 @@
 
 #include "bus/bus.h"
 #include "bus/channels.h"
+#include "bus/log.h"
 #include "tests/support/datasets.h"
 #include "tests/support/process.h"
 
@@ -396,7 +397,9 @@ TEST_F(LosslessTest, AcrossALossyLink) {
 }
 
 // the live stream recorded with tools/record (stackgen-record) and read back from the log
-// (file://LOG?speed=0) by a second writer gives the same dataset as the live writer's.
+// (file://LOG?speed=0) by a second writer gives the same dataset as the live writer's; the
+// recording holds the models the generator sends again at its end, which a BOP writer that lost
+// the earlier ones waits for.
 TEST_F(LosslessTest, RecordedStreamReplaysToTheSameDataset) {
   const std::string url = testing::FreeMulticastUrl();
   const std::string log = scratch_.path() + "/live.lcmlog";
@@ -431,6 +434,55 @@ TEST_F(LosslessTest, RecordedStreamReplaysToTheSameDataset) {
   ASSERT_EQ(replay.Wait(120), 0) << replay.Stderr();
   ExpectSameDataset(reference_, live, kScenes);
   ExpectSameDataset(reference_, replayed, kScenes);
+
+  // the generator sends its models once more just before its end: a live writer that lost every
+  // model sent before the last scene still stores them, as it listens on for them once --count
+  // scenes are stored. The recording without those models, played onto a bus of its own: 10 ms
+  // between messages, then the end of the run 1.5 s after the last scene
+  struct Event {
+    std::string channel;
+    std::vector<uint8_t> bytes;
+  };
+  std::vector<Event> events;
+  ReadLog(log, [&](const LogEvent& event) {
+    events.push_back({event.channel, {event.data, event.data + event.size}});
+  });
+  size_t last_scene = 0, end = 0;
+  for (size_t i = 0; i < events.size(); ++i) {
+    if (events[i].channel == kSceneChannel) last_scene = i;
+    if (end == 0 && events[i].channel == kStatusChannel) {
+      status message;
+      ASSERT_GE(message.decode(events[i].bytes.data(), 0, static_cast<int>(events[i].bytes.size())),
+                0);
+      if (message.process == "stackgen" && message.run_state == kRunEnded) end = i;
+    }
+  }
+  ASSERT_GT(end, last_scene) << "no end of the run after its last scene in " << log;
+  EXPECT_EQ(events[end - 1].channel, kModelChannel) << "no model just before the run's end";
+  const std::string late = scratch_.path() + "/late-models.lcmlog";
+  {
+    LogWriter writer(late);
+    int64_t utime = 1'000'000;
+    for (size_t i = 0; i < events.size(); ++i) {
+      if (events[i].channel == kModelChannel && i < last_scene) continue;
+      utime += i == last_scene + 1 ? 1'500'000 : 10'000;
+      writer.WriteBytes(events[i].channel, events[i].bytes.data(), events[i].bytes.size(), utime);
+    }
+  }
+  const std::string player = testing::FindOnPath("lcm-logplayer");
+  ASSERT_FALSE(player.empty()) << "lcm-logplayer is not on PATH (Debian package liblcm-bin)";
+  const std::string replay_url = testing::FreeMulticastUrl();
+  const std::string bop = scratch_.path() + "/late-models-bop";
+  Process bop_writer({kBin + "/stackgen-bop", "--lcm-url", replay_url, "--replay", "--out", bop,
+                      "--count", std::to_string(kScenes)},
+                     bop + "-log");
+  ASSERT_TRUE(bop_writer.WaitForOutput("listening", 30)) << bop_writer.Stderr();
+  Process play({player, "--lcm-url", replay_url, late}, bop + "-player");
+  ASSERT_EQ(play.Wait(60), 0) << play.Stderr();
+  ASSERT_EQ(bop_writer.Wait(60), 0) << bop_writer.Stderr();
+  EXPECT_TRUE(fs::exists(bop + "/models/models_info.json")) << bop_writer.Stdout();
+  EXPECT_TRUE(fs::exists(bop + "/models/obj_000001.ply")) << bop_writer.Stdout();
+  EXPECT_EQ(bop_writer.Stderr().find("warning"), std::string::npos) << bop_writer.Stderr();
 }
 
 }  // namespace

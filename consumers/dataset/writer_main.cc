@@ -289,15 +289,14 @@ class WriterSession {
     }
     const std::string missing = program_.missing(*writer_);
     if (missing.empty()) return;
-    std::fprintf(stderr,
-                 "%s: warning: %lld scenes stored, but %s was not heard%s: the dataset lacks "
-                 "it\n",
-                 name_text_, static_cast<long long>(writer_->num_images()), missing.c_str(),
-                 bus.state().log_ended()
-                     ? " before the end of the log"
-                     : (" within " + std::to_string(static_cast<int>(kCompletionWaitS)) +
-                        " s of the last scene")
-                           .c_str());
+    const std::string when =
+        bus.state().log_ended() ? "before the end of the log"
+        : stop_requested        ? "before a signal stopped the wait"
+                                : "within " + std::to_string(static_cast<int>(kCompletionWaitS)) +
+                                      " s of the last scene";
+    std::fprintf(stderr, "%s: warning: %lld scenes stored, but %s was not heard %s: the dataset "
+                 "lacks it\n", name_text_, static_cast<long long>(writer_->num_images()),
+                 missing.c_str(), when.c_str());
   }
 
   // generators stop waiting for us (and a monitor sees we ended: our --count stored, or
